@@ -1,0 +1,19 @@
+"""Measurement of PSF shapes: batched adaptive (Gaussian-weighted) moments."""
+
+from ._moments import (
+    FLAG_BAD_PIXELS,
+    FLAG_DIVERGED,
+    FLAG_MAX_ITER,
+    FLAG_NO_FLUX,
+    FLAG_OK,
+    adaptive_moments,
+)
+
+__all__ = [
+    "adaptive_moments",
+    "FLAG_OK",
+    "FLAG_BAD_PIXELS",
+    "FLAG_NO_FLUX",
+    "FLAG_DIVERGED",
+    "FLAG_MAX_ITER",
+]
