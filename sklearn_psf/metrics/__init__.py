@@ -1,6 +1,18 @@
 """Diagnostics of PSF models: ellipticity correlation functions, scorers, lensing systematics."""
 
 from ._correlation import CorrelationResult, EmptyBinsWarning, ellipticity_correlation, rho1
+from ._scorers import (
+    CoefficientRMSScorer,
+    EllipticityRMSScorer,
+    FlaggedStampsWarning,
+    Rho1Scorer,
+    SigmaSysScorer,
+    ellipticity_residuals,
+    make_coefficient_rms_scorer,
+    make_ellipticity_rms_scorer,
+    make_rho1_scorer,
+    make_sigma_sys_scorer,
+)
 from ._systematics import (
     DEFAULT_COSMOLOGY,
     ELL_RANGE,
@@ -15,8 +27,21 @@ from ._systematics import (
     survey_requirement,
     survey_table,
 )
+from ._wiener import WienerBaseline, wiener_filter_baseline
 
 __all__ = [
+    "CoefficientRMSScorer",
+    "EllipticityRMSScorer",
+    "FlaggedStampsWarning",
+    "Rho1Scorer",
+    "SigmaSysScorer",
+    "WienerBaseline",
+    "ellipticity_residuals",
+    "make_coefficient_rms_scorer",
+    "make_ellipticity_rms_scorer",
+    "make_rho1_scorer",
+    "make_sigma_sys_scorer",
+    "wiener_filter_baseline",
     "CorrelationResult",
     "DEFAULT_COSMOLOGY",
     "ELL_RANGE",

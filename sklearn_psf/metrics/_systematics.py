@@ -21,6 +21,7 @@ Conventions
 
 from __future__ import annotations
 
+import atexit
 import functools
 from typing import NamedTuple
 
@@ -413,6 +414,17 @@ def _shear_xi_plus_cached(key, z_median, theta_tuple):
     xi = np.asarray(xi, dtype=np.float64)
     xi.flags.writeable = False
     return xi
+
+
+def _clear_pyccl_caches():
+    # pyccl objects free C memory in __del__; drop them before the interpreter tears down
+    # the pyccl module, which otherwise prints "Exception ignored in ... __del__" at exit.
+    _shear_xi_plus_cached.cache_clear()
+    _shear_cl_cached.cache_clear()
+    _cosmo_and_tracer.cache_clear()
+
+
+atexit.register(_clear_pyccl_caches)
 
 
 def _check_z(z_median):
