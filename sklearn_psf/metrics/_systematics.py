@@ -7,8 +7,8 @@ Conventions
   usually taken for cosmic-shear forecasts, e.g. Amara & Refregier 2008's Fisher analysis up to
   l of a few 10^4), on ``N_ELL`` logarithmically spaced multipoles.
 - Hankel transform xi -> C_l: the measured xi(theta) is interpolated (PCHIP in ln theta) onto a
-  fine logarithmic grid and the integral C_l = 2 pi Int theta xi(theta) J0(l theta) dtheta of the
-  piecewise-linear interpolant is done exactly with the antiderivatives of x J0(x) and x^2 J0(x)
+  fine logarithmic grid (200 points per decade) and the integral
+  C_l = 2 pi Int theta xi(theta) J0(l theta) dtheta of the piecewise-linear interpolant is done exactly with the antiderivatives of x J0(x) and x^2 J0(x)
   (Filon-type quadrature: no oscillation needs to be resolved).
 - Outside the measured range (``extrapolation="smooth"``, the default) xi is held constant at
   xi(theta_min) down to theta = 0 and brought smoothly to zero between theta_max and
@@ -209,11 +209,14 @@ def _check_theta_xi(theta_arcmin, xi):
     return theta, xi
 
 
-def _piecewise_linear_nodes(theta, xi, extrapolation, points_per_decade=64, taper_factor=2.0):
+def _piecewise_linear_nodes(theta, xi, extrapolation, points_per_decade=200, taper_factor=2.0):
     """Nodes (theta in arcmin, xi) of the piecewise-linear model of xi used in the transform."""
     n_fine = max(int(np.ceil(np.log10(theta[-1] / theta[0]) * points_per_decade)) + 1, 2)
     fine = np.geomspace(theta[0], theta[-1], n_fine)
-    values = PchipInterpolator(np.log(theta), xi)(np.log(fine))
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):  # flat runs of xi
+        values = PchipInterpolator(np.log(theta), xi)(np.log(fine))
+    if not np.all(np.isfinite(values)):
+        raise ValueError("Could not interpolate xi(theta): check for extreme values.")
     if extrapolation == "zero":
         return fine, values, False
     if extrapolation != "smooth":
@@ -246,7 +249,7 @@ def hankel_xi_to_cl(theta_arcmin, xi, ell, *, extrapolation: str = "smooth"):
 
     Notes
     -----
-    xi is interpolated by PCHIP in ln theta onto 64 points per decade, and the integral of
+    xi is interpolated by PCHIP in ln theta onto 200 points per decade, and the integral of
     the resulting piecewise-linear function is computed exactly from the antiderivatives of
     x J0(x) = (x J1)' and x^2 J0(x) = (x^2 J1 + x J0 - Int_0^x J0)', so the result is accurate
     at any l without resolving the oscillations of J0.
