@@ -1,0 +1,268 @@
+"""Tests of sklearn_psf.preprocessing: cut_stamps, StampNormalizer, FixedBasis, IQR detector."""
+
+import pickle
+import time
+
+import numpy as np
+import pytest
+from sklearn.base import clone
+from sklearn.decomposition import PCA
+from sklearn.pipeline import make_pipeline
+
+from sklearn_psf.measure import adaptive_moments
+from sklearn_psf.preprocessing import (
+    CUT_BAD_POSITION,
+    CUT_MASKED,
+    CUT_NAN,
+    CUT_OFF_EDGE,
+    CentringWarning,
+    FixedBasis,
+    IQROutlierDetector,
+    StampNormalizer,
+    cut_stamps,
+    fourier_shift,
+)
+
+S = 21
+
+
+def gaussian_stamps(params, size=S):
+    """Sampled elliptical Gaussians; params rows (x0, y0, sxx, syy, sxy, flux)."""
+    y, x = np.mgrid[0:size, 0:size].astype(float)
+    out = []
+    for x0, y0, sxx, syy, sxy, flux in params:
+        icov = np.linalg.inv([[sxx, sxy], [sxy, syy]])
+        dx, dy = x - x0, y - y0
+        img = np.exp(-0.5 * (icov[0, 0] * dx**2 + 2 * icov[0, 1] * dx * dy + icov[1, 1] * dy**2))
+        out.append(flux * img / img.sum())
+    return np.array(out).reshape(len(out), -1)
+
+
+def random_params(n, rng, size=S):
+    c = (size - 1) / 2
+    return np.column_stack([
+        c + rng.uniform(-1, 1, n), c + rng.uniform(-1, 1, n),
+        rng.uniform(3, 5, n), rng.uniform(3, 5, n), rng.uniform(-0.8, 0.8, n),
+        rng.uniform(100, 1000, n),
+    ])
+
+
+# ----------------------------------------------------------------------------- cut_stamps
+
+def test_cut_stamps_matches_brute_force_and_flags():
+    rng = np.random.default_rng(0)
+    image = rng.normal(size=(60, 80))
+    weight = np.ones_like(image)
+    image[30, 40] = np.nan
+    weight[10, 10] = 0.0
+    pos = np.array([
+        [20.4, 25.6],   # clean, rounds to (20, 26)
+        [1.0, 30.0],    # off the left edge
+        [78.0, 30.0],   # off the right edge
+        [40.0, 32.0],   # NaN pixel under the stamp
+        [10.0, 11.0],   # zero weight in the core (3x3)
+        [14.0, 10.0],   # zero weight outside the core only: clean
+        [np.nan, 3.0],  # bad position
+        [20.5, 25.5],   # exact half: floor(x + 0.5) -> (21, 26)
+    ])
+    stamps, flags = cut_stamps(image, pos, 7, weight=weight)
+    assert stamps.shape == (8, 7, 7) and stamps.dtype == np.float64
+    np.testing.assert_array_equal(stamps[0], image[23:30, 17:24])
+    np.testing.assert_array_equal(stamps[7], image[23:30, 18:25])
+    np.testing.assert_array_equal(stamps[5], image[7:14, 11:18])
+    assert flags.tolist() == [0, CUT_OFF_EDGE, CUT_OFF_EDGE, CUT_NAN, CUT_MASKED, 0,
+                              CUT_BAD_POSITION, 0]
+    # Off-edge pixels are NaN, in-image pixels are kept.
+    assert np.all(np.isnan(stamps[1][:, :2])) and np.all(np.isfinite(stamps[1][:, 2:]))
+    np.testing.assert_array_equal(stamps[1][:, 2:], image[27:34, 0:5])
+    assert np.all(np.isnan(stamps[6]))
+
+
+def test_cut_stamps_errors_and_no_copy():
+    image = np.zeros((10, 10))
+    with pytest.raises(ValueError, match="2-D"):
+        cut_stamps(np.zeros((3, 10, 10)), [[1, 1]], 3)
+    with pytest.raises(ValueError, match=r"\(n, 2\)"):
+        cut_stamps(image, [1, 2, 3], 3)
+    with pytest.raises(ValueError, match="odd"):
+        cut_stamps(image, [[5, 5]], 4)
+    with pytest.raises(ValueError, match="weight"):
+        cut_stamps(image, [[5, 5]], 3, weight=np.ones((5, 5)))
+    # Big-endian FITS-like data work without converting the image.
+    big = np.arange(100, dtype=">f4").reshape(10, 10)
+    st, fl = cut_stamps(big, [[5, 5]], 3)
+    np.testing.assert_array_equal(st[0], big[4:7, 4:7].astype(float))
+
+
+def test_cut_stamps_is_fast():
+    rng = np.random.default_rng(1)
+    image = rng.normal(size=(2000, 1500)).astype(np.float32)
+    pos = rng.uniform(0, 1500, (5000, 2))
+    t0 = time.perf_counter()
+    stamps, flags = cut_stamps(image, pos, 31, weight=np.ones(image.shape, np.float32))
+    assert time.perf_counter() - t0 < 2.0
+    assert stamps.shape == (5000, 31, 31)
+
+
+# -------------------------------------------------------------------------- StampNormalizer
+
+def test_normalizer_flux_and_centre():
+    rng = np.random.default_rng(2)
+    X = gaussian_stamps(random_params(12, rng))
+    X_before = X.copy()
+    out = StampNormalizer().fit_transform(X)
+    np.testing.assert_array_equal(X, X_before)  # input untouched
+    np.testing.assert_allclose(out.sum(axis=1), 1.0, atol=1e-12)
+    t = adaptive_moments(out)
+    np.testing.assert_allclose(t["x0"], (S - 1) / 2, atol=2e-4)
+    np.testing.assert_allclose(t["y0"], (S - 1) / 2, atol=2e-4)
+    # Shape is preserved by the sub-pixel shift (Fourier shift of a well-sampled profile).
+    t_in = adaptive_moments(X)
+    np.testing.assert_allclose(t["e1"], t_in["e1"], atol=1e-6)
+    np.testing.assert_allclose(t["e2"], t_in["e2"], atol=1e-6)
+
+
+def test_normalizer_idempotent_and_inverse():
+    rng = np.random.default_rng(3)
+    X = gaussian_stamps(random_params(10, rng))
+    norm = StampNormalizer().fit(X)
+    once = norm.transform(X)
+    twice = norm.transform(once)
+    np.testing.assert_allclose(twice, once, atol=1e-10, rtol=0)
+    np.testing.assert_array_equal(norm.inverse_transform(once), once)
+
+
+def test_normalizer_flux_only_and_errors():
+    rng = np.random.default_rng(4)
+    X = gaussian_stamps(random_params(4, rng))
+    out = StampNormalizer(center=False).fit_transform(X)
+    np.testing.assert_allclose(out, X / X.sum(axis=1, keepdims=True))
+    bad = X.copy()
+    bad[2] = 0.0
+    with pytest.raises(ValueError, match="rows 2"):
+        StampNormalizer().fit(X).transform(bad)
+    bad = X.copy()
+    bad[1, 5] = np.nan
+    with pytest.raises(ValueError, match="rows 1"):
+        StampNormalizer().fit(X).transform(bad)
+    bad = X.copy()
+    bad[3] *= -1
+    with pytest.raises(ValueError, match="non-positive total flux at rows 3"):
+        StampNormalizer().fit(X).transform(bad)
+    with pytest.raises(ValueError, match="square"):
+        StampNormalizer().fit(np.ones((3, 10)))
+    with pytest.raises(ValueError):
+        StampNormalizer().fit(X).transform(np.ones((2, 25)))
+
+
+def test_normalizer_warns_when_centring_fails():
+    rng = np.random.default_rng(5)
+    X = gaussian_stamps(random_params(3, rng))
+    X[1] = 0.0
+    X[1, 3 * S + 15] = 1.0  # a single hot pixel: the adaptive moments collapse
+    with pytest.warns(CentringWarning, match="rows 1"):
+        out = StampNormalizer().fit_transform(X)
+    np.testing.assert_allclose(out.sum(axis=1), 1.0)
+
+
+def test_fourier_shift_matches_analytic_shift():
+    y, x = np.mgrid[0:41, 0:41].astype(float)
+
+    def gauss(x0, y0):
+        return np.exp(-0.5 * ((x - x0) ** 2 / 8.0 + (y - y0) ** 2 / 6.0))  # band-limited
+
+    shifted = fourier_shift(gauss(20.1, 19.8)[None], [0.3], [-0.7])[0]
+    np.testing.assert_allclose(shifted, gauss(20.4, 19.1), atol=1e-10)
+    np.testing.assert_allclose(shifted.sum(), gauss(20.1, 19.8).sum(), rtol=1e-13)
+
+
+# ------------------------------------------------------------------------------- PCA basis
+
+def test_normalizer_pca_round_trip_noiseless():
+    # Stamps that are exact combinations of a few centred, unit-flux, symmetric basis stamps:
+    # normalisation leaves them unchanged, PCA reconstructs them to 1e-10.
+    rng = np.random.default_rng(7)
+    c = (S - 1) / 2
+    basis = gaussian_stamps([[c, c, 3, 3, 0, 1], [c, c, 5, 5, 0, 1], [c, c, 4, 2.5, 0, 1]])
+    w = rng.dirichlet([5, 5, 5], size=40)
+    X = w @ basis  # unit flux, centred by symmetry
+    pipe = make_pipeline(StampNormalizer(), PCA(n_components=3, svd_solver="full")).fit(X)
+    rebuilt = pipe.inverse_transform(pipe.transform(X))
+    np.testing.assert_allclose(rebuilt, X, atol=1e-10, rtol=0)
+
+
+def test_fixed_basis_reproduces_coefficients():
+    rng = np.random.default_rng(8)
+    comps = rng.normal(size=(4, 49))  # not orthonormal
+    mean = rng.normal(size=49)
+    coef = rng.normal(size=(10, 4))
+    X = coef @ comps + mean
+    fb = FixedBasis(comps, mean).fit(X)
+    np.testing.assert_allclose(fb.transform(X), coef, atol=1e-10)
+    np.testing.assert_allclose(fb.inverse_transform(coef), X, atol=1e-10)
+    # least squares against numpy's solver on noisy data
+    Xn = X + rng.normal(0, 0.1, X.shape)
+    ref = np.linalg.lstsq(comps.T, (Xn - mean).T, rcond=None)[0].T
+    np.testing.assert_allclose(fb.transform(Xn), ref, atol=1e-10)
+    fb2 = pickle.loads(pickle.dumps(clone(fb).fit(X)))
+    np.testing.assert_allclose(fb2.transform(X), coef, atol=1e-10)
+    assert list(fb.get_feature_names_out()) == [f"fixedbasis{i}" for i in range(4)]
+
+
+def test_fixed_basis_errors():
+    comps = np.eye(49)[:3]
+    with pytest.raises(ValueError, match="49 pixels"):
+        FixedBasis(comps).fit(np.ones((2, 25)))
+    with pytest.raises(ValueError, match="mean"):
+        FixedBasis(comps, mean=np.ones(25)).fit(np.ones((2, 49)))
+    with pytest.raises(ValueError, match="linearly dependent"):
+        FixedBasis(np.vstack([comps, comps[:1]])).fit(np.ones((2, 49)))
+    fb = FixedBasis(comps).fit(np.ones((2, 49)))
+    with pytest.raises(ValueError):
+        fb.transform(np.ones((2, 25)))
+    with pytest.raises(ValueError, match="Coefficients"):
+        fb.inverse_transform(np.ones((2, 4)))
+
+
+# ------------------------------------------------------------------------------------- IQR
+
+def test_iqr_matches_direct_rule():
+    rng = np.random.default_rng(9)
+    X = rng.standard_t(3, size=(500, 4))
+    det = IQROutlierDetector(alpha=1.5).fit(X)
+    q1, q3 = np.percentile(X, [25, 75], axis=0)
+    iqr = q3 - q1
+    direct = np.any((X < q1 - 1.5 * iqr) | (X > q3 + 1.5 * iqr), axis=1)
+    np.testing.assert_array_equal(det.predict(X) == -1, direct)
+    np.testing.assert_array_equal(IQROutlierDetector(alpha=1.5).fit_predict(X) == -1, direct)
+    # score: 0 on a fence, negative outside, = decision_function
+    on_fence = np.median(X, axis=0, keepdims=True).repeat(1, 0)
+    on_fence[0, 2] = q3[2] + 1.5 * iqr[2]
+    assert det.score_samples(on_fence)[0] == pytest.approx(0.0, abs=1e-12)
+    assert det.predict(on_fence)[0] == 1
+    far = on_fence.copy()
+    far[0, 2] += 2 * iqr[2]
+    assert det.score_samples(far)[0] == pytest.approx(-2.0)
+    np.testing.assert_array_equal(det.decision_function(X), det.score_samples(X))
+
+
+def test_iqr_finds_planted_outliers_and_rejects_little_gaussian():
+    rng = np.random.default_rng(10)
+    X = rng.normal(size=(2000, 5))
+    assert np.mean(IQROutlierDetector(3.5).fit_predict(X) == -1) < 0.002
+    planted = rng.choice(2000, 20, replace=False)
+    Xo = X.copy()
+    cols = rng.integers(0, 5, 20)
+    Xo[planted, cols] += rng.choice([-1, 1], 20) * rng.uniform(15, 30, 20)
+    found = np.flatnonzero(IQROutlierDetector(3.5).fit_predict(Xo) == -1)
+    assert set(planted) <= set(found)
+    assert len(found) <= 25
+
+
+def test_iqr_constant_column_and_bad_alpha():
+    X = np.column_stack([np.ones(10), np.arange(10.0)])
+    det = IQROutlierDetector().fit(X)
+    assert np.all(det.predict(X) == 1)
+    assert det.predict([[1.5, 5.0]])[0] == -1
+    with pytest.raises(ValueError, match="alpha"):
+        IQROutlierDetector(alpha=-1).fit(X)
