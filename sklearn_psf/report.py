@@ -17,6 +17,7 @@ import json
 import os
 import re
 import tempfile
+from collections.abc import Iterable
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -547,7 +548,7 @@ def _figure_specs(result, config, schemes, map_schemes, stamps, positions):
     ]
 
 
-def write_report(result, outdir, figures: bool = True, stamps=None, positions=None,
+def write_report(result, outdir, figures: bool | Iterable[str] = True, stamps=None, positions=None,
                  schemes=None, config: str = "default", dpi: int = 110) -> list[Path]:
     """Write the tables, figures and a Markdown report of a study into a directory.
 
@@ -559,8 +560,9 @@ def write_report(result, outdir, figures: bool = True, stamps=None, positions=No
         are missing are skipped and listed in the report.
     outdir : str or path-like
         Created if needed; existing files of the same names are replaced.
-    figures : bool
-        Draw the figures (PNG).
+    figures : bool or iterable of str
+        Draw all figures (True), none (False) or only the named ones (e.g.
+        ``{"fig_cor", "fig_densell"}``); drawing all takes a few seconds per figure.
     stamps, positions : array-like, optional
         Example PSF stamps and their positions for ``fig_sim.png`` (default: the result's
         ``example_stamps`` / ``example_positions`` attributes when present).
@@ -621,9 +623,19 @@ def write_report(result, outdir, figures: bool = True, stamps=None, positions=No
     map_schemes = [s for s in _PAPER_TRIO if s in all_schemes] or schemes
 
     figure_entries = []
-    if figures:
-        for name, caption, draw in _figure_specs(result, config, schemes, map_schemes, stamps,
-                                                 positions):
+    specs = _figure_specs(result, config, schemes, map_schemes, stamps, positions)
+    if figures is True or figures is False:
+        wanted = {name for name, _, _ in specs} if figures else set()
+    else:
+        wanted = {str(f).removesuffix(".png") for f in figures}
+        unknown = wanted - {name for name, _, _ in specs}
+        if unknown:
+            raise ValueError(f"unknown figure name(s) {sorted(unknown)}; choose from "
+                             f"{[name for name, _, _ in specs]}.")
+    if wanted:
+        for name, caption, draw in specs:
+            if name not in wanted:
+                continue
             try:
                 fig = draw()
             except MissingDataError as exc:
@@ -633,8 +645,9 @@ def write_report(result, outdir, figures: bool = True, stamps=None, positions=No
             fig.savefig(path, dpi=dpi)
             written.append(path)
             figure_entries.append((path.name, caption))
-    else:
-        notes.append("Figures were not requested (figures=False).")
+    if len(wanted) < len(specs):
+        notes.append("Figures not requested: " + ", ".join(
+            f"{name}.png" for name, _, _ in specs if name not in wanted) + ".")
 
     text = _markdown(result, config, schemes, figure_entries, notes, written)
     written.append(_atomic(outdir / "report.md", lambda tmp: Path(tmp).write_text(text)))
