@@ -1,0 +1,190 @@
+"""Tests of sklearn_psf.model.PSFModel."""
+
+import pickle
+
+import numpy as np
+import pytest
+from sklearn.base import clone
+from sklearn.decomposition import PCA
+from sklearn.ensemble import IsolationForest
+from sklearn.linear_model import LinearRegression
+from sklearn.model_selection import GridSearchCV, KFold, cross_validate
+from sklearn.neighbors import KNeighborsRegressor
+from sklearn.pipeline import make_pipeline
+from sklearn.preprocessing import MinMaxScaler, PolynomialFeatures
+
+from sklearn_psf.model import PSFModel
+from sklearn_psf.preprocessing import FixedBasis, IQROutlierDetector, StampNormalizer
+
+S = 15
+FIELD = 2000.0
+
+
+def _kriging_available():
+    try:
+        from sklearn_psf.interpolate import KrigingRegressor  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def kriging(range_=0.5):
+    """The paper's interpolator; a Gaussian-process stand-in until sklearn_psf.interpolate lands."""
+    if _kriging_available():
+        from sklearn_psf.interpolate import KrigingRegressor
+
+        return make_pipeline(MinMaxScaler(), KrigingRegressor(variogram="exponential",
+                                                              range=range_, nugget=0.0))
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import Matern
+
+    return make_pipeline(MinMaxScaler(), GaussianProcessRegressor(
+        Matern(length_scale=range_, nu=0.5, length_scale_bounds="fixed"), normalize_y=True))
+
+
+def linear():
+    return make_pipeline(MinMaxScaler(), PolynomialFeatures(1), LinearRegression())
+
+
+def psf_field(X):
+    """Centred, unit-flux sampled elliptical Gaussians whose covariance varies smoothly."""
+    u, v = X[:, 0] / FIELD, X[:, 1] / FIELD
+    sxx = 3.0 + 0.8 * np.sin(3.0 * u) * np.cos(2.0 * v)
+    syy = 3.2 + 0.6 * np.cos(2.5 * v + u)
+    sxy = 0.5 * np.sin(2.0 * u + 3.0 * v)
+    y, x = np.mgrid[0:S, 0:S].astype(float) - (S - 1) / 2
+    out = np.empty((len(X), S, S))
+    for i in range(len(X)):
+        icov = np.linalg.inv([[sxx[i], sxy[i]], [sxy[i], syy[i]]])
+        img = np.exp(-0.5 * (icov[0, 0] * x**2 + 2 * icov[0, 1] * x * y + icov[1, 1] * y**2))
+        out[i] = img / img.sum()
+    return out.reshape(len(X), -1)
+
+
+@pytest.fixture(scope="module")
+def data():
+    rng = np.random.default_rng(0)
+    X = rng.uniform(0, FIELD, (250, 2))
+    y = psf_field(X) * rng.uniform(100, 1000, (250, 1))  # arbitrary fluxes
+    Xt = rng.uniform(100, FIELD - 100, (60, 2))
+    return X, y, Xt, psf_field(Xt)
+
+
+def test_predicts_held_out_stamps_kriging_beats_linear(data):
+    X, y, Xt, yt = data
+    X0, y0 = X.copy(), y.copy()
+    model = PSFModel(interpolator=kriging()).fit(X, y)
+    np.testing.assert_array_equal(X, X0)
+    np.testing.assert_array_equal(y, y0)
+    assert model.stamp_size_ == S
+    assert model.n_components_ == model.basis_[-1].n_components_
+    pred = model.predict(Xt)
+    assert pred.shape == (60, S * S)
+    err_krig = np.sqrt(np.mean((pred - yt) ** 2)) / yt.max()
+    lin = PSFModel(interpolator=linear()).fit(X, y)
+    err_lin = np.sqrt(np.mean((lin.predict(Xt) - yt) ** 2)) / yt.max()
+    assert err_krig < 0.01
+    assert err_krig < 0.7 * err_lin
+    # score: R^2 of predicted vs normalised true stamps (independent computation)
+    resid = np.sum((pred - yt) ** 2)
+    total = np.sum((yt - yt.mean(axis=0)) ** 2)
+    assert model.score(Xt, yt * 7.0) == pytest.approx(1 - resid / total, abs=1e-6)
+    assert model.score(Xt, yt) > lin.score(Xt, yt)
+    # coefficients: interpolated ones are close to the projections of the truth
+    np.testing.assert_allclose(model.predict_coefficients(Xt), model.transform_stamps(yt),
+                               atol=0.2 * np.abs(model.transform_stamps(yt)).max())
+
+
+def test_fixed_basis_and_no_outliers(data):
+    X, y, Xt, yt = data
+    pca = make_pipeline(StampNormalizer(), PCA(4, svd_solver="full")).fit(y)
+    basis = make_pipeline(StampNormalizer(), FixedBasis(pca[-1].components_, pca[-1].mean_))
+    model = PSFModel(interpolator=KNeighborsRegressor(1), basis=basis, outliers=None).fit(X, y)
+    assert model.inlier_mask_.all() and model.outliers_ is None
+    assert model.n_components_ == 4
+    # 1-NN at a star position returns that star's projection, rebuilt by the basis.
+    coef = pca.transform(y[:5])
+    np.testing.assert_allclose(model.predict_coefficients(X[:5]), coef, atol=1e-10)
+    np.testing.assert_allclose(model.predict(X[:5]), pca.inverse_transform(coef), atol=1e-12)
+
+
+def test_outlier_stars_are_rejected(data):
+    X, y, _, _ = data
+    y = y.copy()
+    bad = [3, 50, 120]
+    cube = y.reshape(-1, S, S)
+    for i in bad:  # a bright companion: a binary star
+        cube[i] += 0.8 * np.roll(cube[i], (4, -4), axis=(0, 1))
+    model = PSFModel(interpolator=KNeighborsRegressor(5)).fit(X, y)
+    assert not model.inlier_mask_[bad].any()
+    assert model.inlier_mask_.mean() > 0.95
+    assert isinstance(model.outliers_, IQROutlierDetector)
+    # any scikit-learn outlier detector works
+    iso = PSFModel(interpolator=KNeighborsRegressor(5),
+                   outliers=IsolationForest(contamination=0.02, random_state=0)).fit(X, y)
+    assert not iso.inlier_mask_[bad].any()
+
+
+def test_grid_search_cross_validate_clone_pickle(data):
+    X, y, Xt, _ = data
+    X, y = X[:120], y[:120]
+    model = PSFModel(interpolator=kriging())
+    name = model.interpolator.steps[-1][0]
+    param = ("range" if _kriging_available() else "kernel__length_scale")
+    grid = GridSearchCV(model, {f"interpolator__{name}__{param}": [0.25, 0.5, 0.75]},
+                        cv=KFold(3, shuffle=True, random_state=0))
+    grid.fit(X, y)
+    assert grid.best_params_[f"interpolator__{name}__{param}"] in (0.25, 0.5, 0.75)
+    assert np.all(np.isfinite(grid.cv_results_["mean_test_score"]))
+    res = cross_validate(PSFModel(interpolator=KNeighborsRegressor(4)), X, y, cv=3)
+    assert np.all(res["test_score"] > 0.5)
+    fitted = grid.best_estimator_
+    again = pickle.loads(pickle.dumps(fitted))
+    np.testing.assert_array_equal(again.predict(Xt), fitted.predict(Xt))
+    c = clone(fitted)
+    assert not hasattr(c, "basis_")
+    assert c.get_params()["outliers"] == "iqr"
+
+
+def test_default_model_uses_kriging_interpolator(data):
+    X, y, Xt, yt = data
+    if not _kriging_available():
+        with pytest.raises(ImportError):
+            PSFModel().fit(X[:50], y[:50])
+        return
+    model = PSFModel().fit(X, y)
+    assert type(model.interpolator_[-1]).__name__ == "KrigingRegressor"
+    assert model.score(Xt, yt) > 0.9
+
+
+def test_bad_input(data):
+    X, y, _, _ = data
+    knn = KNeighborsRegressor(2)
+    Xn = X[:20].copy()
+    Xn[3, 0] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        PSFModel(interpolator=knn).fit(Xn, y[:20])
+    yn = y[:20].copy()
+    yn[4, 7] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        PSFModel(interpolator=knn).fit(X[:20], yn)
+    with pytest.raises(ValueError, match="square"):
+        PSFModel(interpolator=knn).fit(X[:20], y[:20, :-1])
+    with pytest.raises(ValueError, match=r"\(n, 2\)"):
+        PSFModel(interpolator=knn).fit(np.c_[X[:20], X[:20, :1]], y[:20])
+    y0 = y[:20].copy()
+    y0[5] = 0.0
+    with pytest.raises(ValueError, match="All-zero stamps at rows 5"):
+        PSFModel(interpolator=knn).fit(X[:20], y0)
+    basis = FixedBasis(np.eye(S * S)[:6])
+    with pytest.raises(ValueError, match="too few"):
+        PSFModel(interpolator=knn, basis=basis).fit(X[:5], y[:5])
+    with pytest.raises(ValueError, match="pixels"):
+        PSFModel(interpolator=knn, basis=FixedBasis(np.eye(49)[:3])).fit(X[:20], y[:20])
+    with pytest.raises(ValueError, match="outliers"):
+        PSFModel(interpolator=knn, outliers="mad").fit(X[:20], y[:20])
+    model = PSFModel(interpolator=knn).fit(X[:20], y[:20])
+    with pytest.raises(ValueError):
+        model.predict([[1.0, np.nan]])
+    with pytest.raises(ValueError):
+        model.predict(np.ones((3, 3)))
