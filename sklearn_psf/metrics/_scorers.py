@@ -15,7 +15,7 @@ import warnings
 import numpy as np
 
 from .._validation import as_stamps
-from ._correlation import ellipticity_correlation
+from ._correlation import EmptyBinsWarning, ellipticity_correlation
 from ._systematics import ELL_RANGE, N_ELL, shear_bias_bound, sigma_sys2
 
 __all__ = [
@@ -161,7 +161,7 @@ class Rho1Scorer(_ResidualScorer):
     def __call__(self, estimator, X, y) -> float:
         Xk, de1, de2 = self._residuals(estimator, X, y)
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore", category=UserWarning)  # empty bins: dropped below
+            warnings.simplefilter("ignore", category=EmptyBinsWarning)  # NaN bins dropped
             res = ellipticity_correlation(Xk, de1, de2, min_sep=self.min_sep,
                                           max_sep=self.max_sep, nbins=self.nbins,
                                           bin_slop=self.bin_slop, num_threads=self.num_threads)
@@ -225,7 +225,7 @@ class SigmaSysScorer(_ResidualScorer):
     def __call__(self, estimator, X, y) -> float:
         Xk, de1, de2 = self._residuals(estimator, X, y)
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore", category=UserWarning)
+            warnings.simplefilter("ignore", category=EmptyBinsWarning)
             res = ellipticity_correlation(Xk * self.arcmin_per_unit, de1, de2,
                                           min_sep=self.min_sep, max_sep=self.max_sep,
                                           nbins=self.nbins, bin_slop=self.bin_slop,

@@ -3,13 +3,14 @@
 Conventions
 -----------
 - Angles theta are in arcmin in every public function of this module.
-- Multipoles: sigma_sys^2 integrates over ``ELL_RANGE = (10, 20000)`` by default (the range
-  usually taken for cosmic-shear forecasts, e.g. Amara & Refregier 2008's Fisher analysis up to
-  l of a few 10^4), on ``N_ELL`` logarithmically spaced multipoles.
+- Multipoles: sigma_sys^2 integrates over ``ELL_RANGE = (10, 20000)`` by default, a standard
+  range for cosmic-shear forecasts (Amara & Refregier 2008's exact range was not checked), on
+  ``N_ELL = 512`` logarithmically spaced multipoles (Simpson's rule in ln l).
 - Hankel transform xi -> C_l: the measured xi(theta) is interpolated (PCHIP in ln theta) onto a
   fine logarithmic grid (200 points per decade) and the integral
-  C_l = 2 pi Int theta xi(theta) J0(l theta) dtheta of the piecewise-linear interpolant is done exactly with the antiderivatives of x J0(x) and x^2 J0(x)
-  (Filon-type quadrature: no oscillation needs to be resolved).
+  C_l = 2 pi Int theta xi(theta) J0(l theta) dtheta of the piecewise-linear interpolant is
+  done exactly with the antiderivatives of x J0(x) and x^2 J0(x) (Filon-type quadrature: no
+  oscillation needs to be resolved).
 - Outside the measured range (``extrapolation="smooth"``, the default) xi is held constant at
   xi(theta_min) down to theta = 0 and brought smoothly to zero between theta_max and
   2 theta_max with a cosine taper in ln theta (a hard cut would ring and add spurious high-l
