@@ -470,10 +470,30 @@ def _md_table(header, rows):
     return "\n".join(lines)
 
 
+def _cell(value):
+    if isinstance(value, (float, np.floating)):
+        return _fmt(value)
+    return str(value)
+
+
 def _range(summary_row, metric):
     med = summary_row[f"{metric}_median"]
     return f"{_fmt(med)} [{_fmt(summary_row[f'{metric}_p16'])}, " \
            f"{_fmt(summary_row[f'{metric}_p84'])}]"
+
+
+def _map_source(galaxies, config):
+    """Configuration and layout for the maps: grid galaxy-PSFs of ``config``, else of any
+    configuration (e.g. the CLI's "grid" run), else the random galaxy-PSFs of ``config``."""
+    if galaxies is None or "layout" not in galaxies.colnames:
+        return config, "grid"
+    configs = np.asarray(galaxies["config"]).astype(str)
+    grid = np.asarray(galaxies["layout"]).astype(str) == "grid"
+    if np.any(grid & (configs == config)):
+        return config, "grid"
+    if np.any(grid):
+        return str(configs[grid][0]), "grid"
+    return config, "random"
 
 
 def _figure_specs(result, config, schemes, map_schemes, stamps, positions):
@@ -501,23 +521,28 @@ def _figure_specs(result, config, schemes, map_schemes, stamps, positions):
         return plotting.plot_psf_examples(stamps, positions, pixel_scale=pixel_scale)
 
     trio = ", ".join(map_schemes)
+    map_config, map_layout = _map_source(galaxies, config)
+    where = f"config {map_config!r}, {map_layout} galaxy-PSFs"
     return [
         ("fig_sim", "Example PSFs of one simulation, logarithmic colour scale "
                     f"({pixel_scale:g} arcsec/pixel).", sim),
-        ("fig_ell", f"PSF ellipticity whiskers on the galaxy-PSF grid of one simulation "
-                    f"({config}): input (left), model (middle), residual amplified 3x (right); "
-                    f"rows: {trio}.",
-         lambda: plotting.plot_ellipticity_maps(need_galaxies(), map_schemes, config)),
+        ("fig_ell", f"PSF ellipticity whiskers of one simulation ({where}): input (left), "
+                    f"model (middle), residual amplified 3x (right); rows: {trio}.",
+         lambda: plotting.plot_ellipticity_maps(need_galaxies(), map_schemes, map_config,
+                                                layout=map_layout)),
         ("fig_ell1comp", f"Input, model and residual maps of e1 (upper block) and e2 (lower "
-                         f"block), rows: {trio}. The residual colour scale is narrower and "
-                         "symmetric.",
-         lambda: plotting.plot_component_maps(need_galaxies(), map_schemes, ("e1", "e2"), config)),
+                         f"block) ({where}), rows: {trio}. The residual colour scale is "
+                         "symmetric and, for a useful model, narrower than the input's.",
+         lambda: plotting.plot_component_maps(need_galaxies(), map_schemes, ("e1", "e2"),
+                                              map_config, layout=map_layout)),
         ("fig_coeff0", f"Same as fig_ell1comp for the first two PCA coefficients; rows: {trio}.",
          lambda: plotting.plot_component_maps(need_galaxies(), map_schemes,
-                                              ("coeff0", "coeff1"), config)),
+                                              ("coeff0", "coeff1"), map_config,
+                                              layout=map_layout)),
         ("fig_coeff34", f"Same for the third and fourth PCA coefficients; rows: {trio}.",
          lambda: plotting.plot_component_maps(need_galaxies(), map_schemes,
-                                              ("coeff2", "coeff3"), config)),
+                                              ("coeff2", "coeff3"), map_config,
+                                              layout=map_layout)),
         ("fig_ecomp", f"2-D distributions of the e1 (top) and e2 (bottom) residuals of each pair "
                       f"of schemes over {n_sim} simulations; contours 0.1..0.9 of the maximum, "
                       "r: Pearson correlation.",
@@ -618,7 +643,9 @@ def write_report(result, outdir, figures: bool | Iterable[str] = True, stamps=No
     written.append(_atomic(outdir / "config.json", lambda tmp: Path(tmp).write_text(
         json.dumps(_jsonable(study_config), indent=2, sort_keys=True))))
 
-    all_schemes = _unique_in_order(scores["scheme"])
+    in_config = np.asarray(scores["config"]).astype(str) == config
+    all_schemes = _unique_in_order(scores["scheme"][in_config] if in_config.any()
+                                   else scores["scheme"])
     schemes = all_schemes if schemes is None else [str(s) for s in schemes]
     map_schemes = [s for s in _PAPER_TRIO if s in all_schemes] or schemes
 
@@ -733,6 +760,12 @@ def _markdown(result, config, schemes, figure_entries, notes, written):
     lines += ["## The paper's findings checked against these data", ""]
     rows = [[f["finding"], f["verdict"], f["evidence"]] for f in check_findings(result, config)]
     lines += [_md_table(["finding (Bergé et al. 2012)", "verdict", "evidence"], rows), ""]
+
+    tuning = getattr(result, "tuning", None)
+    if tuning is not None and len(tuning):
+        lines += ["## Hyperparameters chosen by cross-validation", ""]
+        lines += [_md_table(tuning.colnames,
+                            [[_cell(row[c]) for c in tuning.colnames] for row in tuning]), ""]
 
     # figures
     lines += ["## Figures", ""]

@@ -222,16 +222,21 @@ def test_write_report_files_figures_and_markdown(tmp_path, capsys):
                          make_correlations(schemes, configs))
     yy, xx = np.mgrid[-3:4, -3:4]
     stamps = np.exp(-(xx**2 + yy**2) / np.array([2.0, 3.0])[:, None, None])
-    paths = write_report(result, tmp_path / "out", stamps=stamps, dpi=30)
+    heavy = {"fig_ell1comp", "fig_coeff0", "fig_coeff34"}  # slow to lay out; drawn in
+    # test_plotting, saved by test_maps_fall_back_...: keep this file fast
+    every = {"fig_sim", "fig_ell", "fig_ecomp", "fig_coeffscomp", "fig_cor", "fig_corhsn",
+             "fig_densell", "fig_densellvar", "fig_densellglob"} | heavy
+    paths = write_report(result, tmp_path / "out", stamps=stamps, dpi=30,
+                         figures=every - heavy)
     assert capsys.readouterr().out == ""
     out = tmp_path / "out"
     names = [p.name for p in paths]
     assert all(p.exists() for p in paths)
     assert names[-1] == "report.md"
     for required in ("scores.csv", "scores.fits", "galaxies.fits", "correlations.fits",
-                     "fig_sim.png", "fig_ell.png", "fig_ell1comp.png", "fig_coeff0.png",
-                     "fig_ecomp.png", "fig_coeffscomp.png", "fig_cor.png", "fig_corhsn.png",
-                     "fig_densell.png", "fig_densellvar.png", "fig_densellglob.png"):
+                     "fig_sim.png", "fig_ell.png", "fig_ecomp.png", "fig_coeffscomp.png",
+                     "fig_cor.png", "fig_corhsn.png", "fig_densell.png", "fig_densellvar.png",
+                     "fig_densellglob.png"):
         assert required in names, required
     text = (out / "report.md").read_text()
     pngs = sorted(p.name for p in out.glob("*.png"))
@@ -291,3 +296,18 @@ def test_write_report_figure_subset(tmp_path):
     assert "![fig_ell.png]" not in text
     with pytest.raises(ValueError, match="fig_nope"):
         write_report(result, tmp_path, figures={"fig_nope"})
+
+
+def test_maps_fall_back_to_the_grid_configuration_and_tuning_section(tmp_path):
+    schemes = ["polynomial", "kriging"]
+    scores = make_scores({(c, s): (0.01, 1e-6, 1e-5) for c in ("default", "grid")
+                          for s in schemes}, n_sim=1)
+    gal = make_galaxies(schemes, configs=("default", "grid"), n_sim=1)
+    keep = (np.asarray(gal["config"]) == "grid") | (np.asarray(gal["layout"]) == "random")
+    tuning = Table({"scheme": ["kriging"], "best_params": ["range=0.4"], "score": [1.234567e-6]})
+    result = make_result(scores, gal[keep], make_correlations(schemes), tuning=tuning)
+    paths = write_report(result, tmp_path, figures={"fig_ell", "fig_coeff0"}, dpi=30)
+    assert [p.name for p in paths if p.suffix == ".png"] == ["fig_ell.png", "fig_coeff0.png"]
+    text = (tmp_path / "report.md").read_text()
+    assert "config 'grid', grid galaxy-PSFs" in text
+    assert "| kriging | range=0.4 | 1.23e-06 |" in text
