@@ -34,7 +34,7 @@ numpy.random.RandomState
     Examples
     --------
     >>> from sklearn_psf.simulate import as_generator
-    >>> as_generator(0).integers(10) == as_generator(0).integers(10)
+    >>> bool(as_generator(0).integers(10) == as_generator(0).integers(10))
     True
     """
     if isinstance(random_state, np.random.Generator):

@@ -1,0 +1,341 @@
+"""Tests of sklearn_psf.simulate: random fields, reference basis, simulated PSF fields."""
+
+import numpy as np
+import pytest
+from astropy.stats import sigma_clipped_stats
+from scipy.spatial import cKDTree
+
+from sklearn_psf.simulate import (
+    PSFField,
+    RandomFieldSampler,
+    ReferenceBasis,
+    gaussian_random_field,
+    make_psf_field,
+    realistic_snr,
+)
+
+SMALL = (1500, 2000)
+
+
+def _radial_slope(fields, kmin=0.01, kmax=0.2):
+    """Slope of the radially averaged power spectrum (Hann-windowed), averaged over fields."""
+    ny, nx = fields[0].shape
+    win = np.hanning(ny)[:, None] * np.hanning(nx)[None, :]
+    power = np.mean([np.abs(np.fft.fft2((f - f.mean()) * win)) ** 2 for f in fields], axis=0)
+    k = np.hypot(np.fft.fftfreq(ny)[:, None], np.fft.fftfreq(nx)[None, :]).ravel()
+    bins = np.logspace(np.log10(kmin), np.log10(kmax), 12)
+    idx = np.digitize(k, bins)
+    ks = [k[idx == i].mean() for i in range(1, len(bins))]
+    ps = [power.ravel()[idx == i].mean() for i in range(1, len(bins))]
+    return -np.polyfit(np.log(ks), np.log(ps), 1)[0]
+
+
+@pytest.fixture(scope="module")
+def field():
+    return make_psf_field(n_stars=200, n_galaxies=300, image_shape=SMALL, random_state=7)
+
+
+# ----------------------------------------------------------------------------- random fields
+@pytest.mark.parametrize("slope", [11 / 4, 2.0])
+def test_power_spectrum_slope(slope):
+    fields = [gaussian_random_field((256, 320), slope, random_state=s) for s in range(6)]
+    assert abs(_radial_slope(fields) - slope) < 0.1
+
+
+def test_unit_variance_zero_mean_and_expected_variance():
+    f = gaussian_random_field((100, 130), random_state=3)
+    assert f.shape == (100, 130)
+    assert abs(f.mean()) < 1e-12 and abs(f.std() - 1) < 1e-12
+    # without per-realisation normalisation the padded field has unit *expected* variance:
+    # the full padded grid's variance averaged over realisations is ~1
+    v = [gaussian_random_field((64, 64), random_state=s, padding=1.0, normalize=False).var()
+         for s in range(40)]
+    # a realisation's spatial variance misses the k=0 mode only; expectation is 1 exactly
+    assert abs(np.mean(v) - 1) < 0.1
+
+
+def test_same_seed_same_field_different_seeds_independent():
+    a = gaussian_random_field((128, 128), random_state=11)
+    b = gaussian_random_field((128, 128), random_state=11)
+    np.testing.assert_array_equal(a, b)
+    corr = [np.corrcoef(gaussian_random_field((256, 256), random_state=2 * i).ravel(),
+                        gaussian_random_field((256, 256), random_state=2 * i + 1).ravel())[0, 1]
+            for i in range(10)]
+    assert abs(np.mean(corr)) < 0.1
+    assert np.sqrt(np.mean(np.square(corr))) < 0.3
+
+
+def test_seed_sequence_children_give_distinct_reproducible_fields():
+    kids = np.random.SeedSequence(5).spawn(3)
+    fs = [gaussian_random_field((64, 64), random_state=np.random.default_rng(k)) for k in kids]
+    again = gaussian_random_field((64, 64), random_state=np.random.default_rng(
+        np.random.SeedSequence(5).spawn(3)[1]))
+    np.testing.assert_array_equal(fs[1], again)
+    assert not np.allclose(fs[0], fs[1])
+
+
+def test_sampler_interpolates_through_grid_nodes_and_is_smooth():
+    s = RandomFieldSampler((700, 1000), n_fields=2, grid_size=50, random_state=0)
+    gy, gx = s.grids.shape[1:]
+    jj, ii = np.meshgrid(np.arange(gx), np.arange(gy))
+    pos = np.column_stack([jj.ravel() * s.cell, ii.ravel() * s.cell])
+    inside = (pos[:, 0] <= 999) & (pos[:, 1] <= 699)
+    vals = s(pos[inside])
+    np.testing.assert_allclose(vals[:, 0], s.grids[0].ravel()[inside], atol=1e-10)
+    np.testing.assert_allclose(vals[:, 1], s.grids[1].ravel()[inside], atol=1e-10)
+    # midpoints lie between the neighbouring node values up to the cubic overshoot
+    mid = s(np.array([[0.5 * s.cell, 0.0]]))[0, 0]
+    g = s.grids[0, 0]
+    assert min(g[0], g[1]) - 0.5 < mid < max(g[0], g[1]) + 0.5
+
+
+def test_bad_random_field_input():
+    with pytest.raises(ValueError, match="slope"):
+        gaussian_random_field((10, 10), slope=-1)
+    with pytest.raises(ValueError, match="shape"):
+        gaussian_random_field((1, 10))
+    with pytest.raises(TypeError, match="random_state"):
+        gaussian_random_field((10, 10), random_state="seed")
+
+
+# ----------------------------------------------------------------------------- PSF fields
+def test_default_ellipticity_distribution():
+    """Paper: mean |e| ~ 0.05, std ~ 0.02. Tolerances: mean within 0.01, std within 0.007."""
+    means, stds = [], []
+    for seed in range(3):
+        f = make_psf_field(n_stars=200, n_galaxies=600, image_shape=SMALL, random_state=seed)
+        e = np.hypot(np.concatenate([f.stars["e1"], f.galaxies["e1"]]),
+                     np.concatenate([f.stars["e2"], f.galaxies["e2"]]))
+        means.append(e.mean())
+        stds.append(e.std())
+    assert abs(np.mean(means) - 0.05) < 0.01
+    assert abs(np.mean(stds) - 0.02) < 0.007
+
+
+def test_true_ellipticities_match_galsim(field):
+    galsim = pytest.importorskip("galsim")
+    s = field.stamp_size
+    for row in field.stars[:5]:
+        img = galsim.Image(np.asarray(row["stamp"]).reshape(s, s), scale=1.0)
+        res = galsim.hsm.FindAdaptiveMom(img)
+        assert abs(res.observed_shape.e1 - row["e1"]) < 1e-4
+        assert abs(res.observed_shape.e2 - row["e2"]) < 1e-4
+        assert abs(res.moments_sigma - row["sigma"]) < 1e-3
+
+
+def test_true_stamps_normalised_and_in_basis(field):
+    stamps = np.asarray(field.stars["stamp"])
+    np.testing.assert_allclose(stamps.sum(axis=1), 1.0, atol=1e-10)
+    assert np.all(field.stars["moments_flag"] == 0)
+    rebuilt = field.reference.synthesize(np.asarray(field.stars["coeffs"]))
+    assert np.max(np.abs(rebuilt - stamps)) < 1e-3 * stamps.max()
+
+
+def test_measured_snr_matches_requested():
+    snr = realistic_snr(150, random_state=1)
+    f = make_psf_field(n_stars=150, n_galaxies=100, image_shape=SMALL, snr=snr, random_state=2)
+    _, _, rms = sigma_clipped_stats(f.image[::2, ::2], sigma=3)
+    assert abs(rms / f.noise_rms - 1) < 0.01
+    s = f.stamp_size
+    h = s // 2
+    for row, want in zip(f.stars, snr):
+        x, y = int(row["x"]), int(row["y"])
+        data = f.image[y - h:y + h + 1, x - h:x + h + 1].ravel()
+        true = np.asarray(row["stamp"])
+        core = true >= 0.5 * true.max()
+        assert abs(data[core].mean() / rms / want - 1) < 0.1
+    m = f.measure_stars()  # the data-only estimate of measure_stars
+    assert abs(np.median(m["snr"] / snr) - 1) < 0.1
+
+
+def test_image_is_psfs_plus_noise(field):
+    s, h = field.stamp_size, field.stamp_size // 2
+    res = []
+    for row in field.stars:
+        x, y = int(row["x"]), int(row["y"])
+        data = field.image[y - h:y + h + 1, x - h:x + h + 1].ravel()
+        res.append(data - row["flux"] * np.asarray(row["stamp"]))
+    assert abs(np.std(res) / field.noise_rms - 1) < 0.02
+    assert abs(np.mean(res)) < 0.01 * field.noise_rms
+    assert field.image.dtype == np.float32
+
+
+def test_positions_integer_inside_no_overlap(field):
+    s, h = field.stamp_size, field.stamp_size // 2
+    pos = np.vstack([np.column_stack([t["x"], t["y"]]) for t in (field.stars, field.galaxies)])
+    assert len(pos) == 500
+    np.testing.assert_array_equal(pos, np.round(pos))
+    ny, nx = field.image.shape
+    assert pos[:, 0].min() >= h and pos[:, 0].max() <= nx - 1 - h
+    assert pos[:, 1].min() >= h and pos[:, 1].max() <= ny - 1 - h
+    d, _ = cKDTree(pos).query(pos, k=2, p=np.inf)
+    assert d[:, 1].min() >= s
+
+
+def test_grid_layout():
+    f = make_psf_field(n_stars=100, n_galaxies=400, galaxy_layout="grid", image_shape=SMALL,
+                       random_state=0)
+    xs, ys = np.unique(f.galaxies["x"]), np.unique(f.galaxies["y"])
+    assert len(xs) * len(ys) == len(f.galaxies)
+    assert abs(len(f.galaxies) - 400) <= 40
+    assert np.ptp(np.diff(xs)) <= 1 and np.ptp(np.diff(ys)) <= 1
+
+
+def test_reproducible_and_seed_dependent():
+    kw = dict(n_stars=30, n_galaxies=20, image_shape=(600, 800))
+    a, b = make_psf_field(random_state=3, **kw), make_psf_field(random_state=3, **kw)
+    np.testing.assert_array_equal(a.image, b.image)
+    np.testing.assert_array_equal(a.stars["coeffs"], b.stars["coeffs"])
+    c = make_psf_field(random_state=4, **kw)
+    assert not np.array_equal(a.image, c.image)
+    # the PSF pattern of a seed does not depend on the S/N
+    d = make_psf_field(random_state=3, snr=700.0, **kw)
+    np.testing.assert_array_equal(a.stars["coeffs"], d.stars["coeffs"])
+
+
+def test_given_star_positions_and_reference_positions():
+    ref = ReferenceBasis.load(__import__("sklearn_psf.datasets", fromlist=["x"])
+                              .default_reference_path())
+    pos = np.array([[100.2, 50.7], [400.0, 300.0], [700.6, 500.4]])
+    pos0 = pos.copy()
+    f = make_psf_field(ref, star_positions=pos, n_galaxies=5, image_shape=(600, 800),
+                       random_state=0)
+    np.testing.assert_array_equal(pos, pos0)
+    np.testing.assert_array_equal(np.column_stack([f.stars["x"], f.stars["y"]]),
+                                  np.floor(pos + 0.5))
+    g = make_psf_field(ref, star_positions=ref.positions, n_galaxies=50,
+                       image_shape=ref.image_shape, random_state=0)
+    assert len(g.stars) == len(ref.positions)
+
+
+def test_measure_stars_recovers_coefficients():
+    f = make_psf_field(n_stars=60, n_galaxies=0, image_shape=(900, 1200), snr=700.0,
+                       random_state=5)
+    m = f.measure_stars()
+    assert np.all(m["cut_flag"] == 0) and np.all(m["moments_flag"] == 0)
+    err = np.asarray(m["coeffs"]) - np.asarray(f.stars["coeffs"])
+    assert np.all(np.std(err, axis=0) < 0.2 * f.reference.coeff_std)
+    assert np.std(m["e1"] - f.stars["e1"]) < 0.01
+    stamps, flags = f.star_stamps()
+    np.testing.assert_allclose(stamps, np.asarray(m["stamp"]))
+
+
+def test_save_load_roundtrip(tmp_path, field):
+    path = tmp_path / "sim.fits"
+    field.save(path)
+    back = PSFField.load(path)
+    np.testing.assert_array_equal(back.image, field.image)
+    for name in ("stars", "galaxies"):
+        t0, t1 = getattr(field, name), getattr(back, name)
+        for col in t0.colnames:
+            np.testing.assert_array_equal(np.asarray(t1[col]), np.asarray(t0[col]))
+    assert back.meta["seed"] == 7 and back.noise_rms == field.noise_rms
+    np.testing.assert_array_equal(back.reference.components, field.reference.components)
+    from astropy.io import fits
+
+    h = fits.getheader(path)
+    assert h["PIXSCALE"] == 0.2 and h["SEED"] == 7 and "SKPSFVER" in h
+
+
+def test_realistic_snr_distribution():
+    s = realistic_snr(20000, random_state=0)
+    assert s.min() >= 20 and s.max() <= 1000
+    hist, edges = np.histogram(s, bins=np.arange(20, 1001, 20))
+    assert 60 <= edges[np.argmax(hist)] <= 120
+
+
+# ----------------------------------------------------------------------------- reference basis
+def _moffat_star_image(n=36, size=700, seed=0):
+    galsim = pytest.importorskip("galsim")
+    rng = np.random.default_rng(seed)
+    g = np.linspace(60, size - 61, int(np.sqrt(n)))
+    gx, gy = np.meshgrid(g, g)
+    pos = np.column_stack([gx.ravel(), gy.ravel()]) + rng.uniform(-5, 5, (n, 2))
+    image = galsim.ImageD(size, size, scale=0.2)
+    for x, y in pos:
+        psf = galsim.Moffat(beta=3.0, fwhm=0.8).shear(
+            g1=0.03 * (x / size - 0.5), g2=0.03 * (y / size - 0.5)).withFlux(2e5)
+        # galsim pixel (1, 1) is numpy [0, 0]: the profile centre at 0-based (x, y)
+        psf.drawImage(image=image, center=galsim.PositionD(x + 1, y + 1), add_to_image=True)
+    arr = image.array + rng.normal(0.0, 5.0, (size, size))
+    return arr, pos
+
+
+def test_from_image_recovers_stars_and_basis():
+    image, pos = _moffat_star_image()
+    image0 = image.copy()
+    ref = ReferenceBasis.from_image(image, stamp_size=21)
+    np.testing.assert_array_equal(image, image0)
+    assert len(ref.positions) == len(pos)
+    d, _ = cKDTree(pos).query(ref.positions)
+    assert d.max() < 0.1
+    # the basis rebuilds the stars: residual small compared with the stamps
+    from sklearn_psf.preprocessing import StampNormalizer, cut_stamps
+
+    stamps, _ = cut_stamps(image, ref.positions, 21)
+    norm = StampNormalizer().fit_transform(stamps.reshape(len(stamps), -1))
+    basis = ref.as_transformer(normalize=False)
+    rebuilt = basis.inverse_transform(basis.transform(norm))
+    assert np.abs(rebuilt - norm).max() < 0.05 * norm.max()
+    assert abs(ref.noise_rms - 5.0) < 0.5
+    assert ref.image_shape == image.shape
+
+
+def test_from_stamps_save_load_and_transformer(tmp_path):
+    y, x = np.mgrid[0:15, 0:15] - 7.0
+    rng = np.random.default_rng(0)
+    q = rng.normal(0.0, 0.2, (40, 1, 1))
+    r = rng.normal(0.0, 0.2, (40, 1, 1))
+    stars = np.exp(-0.5 * ((2 + q) * x**2 + (2 - q) * y**2 + 2 * r * x * y) / 4.0)
+    ref = ReferenceBasis.from_stamps(stars, variance=0.99)
+    assert ref.n_components >= 2
+    np.testing.assert_allclose(ref.components.reshape(ref.n_components, -1)
+                               @ ref.components.reshape(ref.n_components, -1).T,
+                               np.eye(ref.n_components), atol=1e-10)
+    ref.save(tmp_path / "ref.fits")
+    back = ReferenceBasis.load(tmp_path / "ref.fits")
+    np.testing.assert_array_equal(back.components, ref.components)
+    np.testing.assert_array_equal(back.coeff_std, ref.coeff_std)
+    pipe = back.as_transformer()
+    coeffs = pipe.transform(stars.reshape(40, -1) * 3.0)  # flux does not matter
+    np.testing.assert_allclose(coeffs.std(axis=0, ddof=1), ref.coeff_std, rtol=1e-6)
+
+
+# ----------------------------------------------------------------------------- bad input
+def test_bad_inputs(tmp_path):
+    rng = np.random.default_rng(0)
+    noise = rng.normal(0, 1, (300, 300))
+    with pytest.raises(ValueError, match="stars"):
+        ReferenceBasis.from_image(noise)
+    nan_img = noise.copy()
+    nan_img[5, 5] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        ReferenceBasis.from_image(nan_img)
+    bad = tmp_path / "corrupt.fits"
+    bad.write_bytes(b"this is not a FITS file" * 50)
+    with pytest.raises(ValueError, match="FITS"):
+        ReferenceBasis.from_image(bad)
+    with pytest.raises(ValueError, match="FITS"):
+        ReferenceBasis.load(bad)
+    with pytest.raises(ValueError, match="FITS|field"):
+        PSFField.load(bad)
+    with pytest.raises(ValueError, match="too large"):
+        ReferenceBasis.from_image(noise[:20, :20])
+    kw = dict(n_galaxies=0, image_shape=(400, 400))
+    with pytest.raises(ValueError, match="off the image"):
+        make_psf_field(star_positions=[[5.0, 200.0], [200.0, 200.0]], **kw)
+    with pytest.raises(ValueError, match="n_stars"):
+        make_psf_field(n_stars=0, **kw)
+    with pytest.raises(ValueError, match="snr"):
+        make_psf_field(n_stars=3, snr=0.0, **kw)
+    with pytest.raises(ValueError, match="snr"):
+        make_psf_field(n_stars=3, snr=[10.0, -1.0, 5.0], **kw)
+    with pytest.raises(ValueError, match="larger than the image"):
+        make_psf_field(n_stars=3, n_galaxies=0, image_shape=(20, 400))
+    with pytest.raises(ValueError, match="non-overlapping"):
+        make_psf_field(n_stars=1000, **kw)
+    with pytest.raises(ValueError, match="galaxy_layout"):
+        make_psf_field(n_stars=3, galaxy_layout="hexagonal", **kw)
+    snr = np.array([50.0, 60.0, 70.0])
+    make_psf_field(n_stars=3, snr=snr, random_state=0, **kw)
+    np.testing.assert_array_equal(snr, [50.0, 60.0, 70.0])
