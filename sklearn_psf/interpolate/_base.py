@@ -41,7 +41,9 @@ def _merge_duplicates(X, Y, *, owner: str, reason: str):
     if unique.shape[0] == X.shape[0]:
         return X, Y
     inverse = inverse.reshape(-1)
-    groups = [np.flatnonzero(inverse == g).tolist() for g in np.flatnonzero(counts > 1)[:3]]
+    duplicated = np.flatnonzero(counts > 1)
+    duplicated = duplicated[np.argsort(index[duplicated])][:3]  # in order of appearance
+    groups = [np.flatnonzero(inverse == g).tolist() for g in duplicated]
     n_dup = int(np.sum(counts[counts > 1]))
     warnings.warn(
         f"{owner}: {n_dup} stars share {int(np.sum(counts > 1))} duplicated positions "

@@ -11,11 +11,11 @@ from scipy.spatial.distance import cdist
 from ._base import _BaseInterpolator, _check_n_samples, _merge_duplicates, _query_chunks
 
 
-def _normalised(h, a, nugget, shape):
-    """gamma / sill for h > 0, 0 at h == 0, from the normalised shape function."""
+def _normalised(h, a, nugget, shape, zero_at_origin=True):
+    """gamma / sill from the normalised shape function; 0 at h == 0 if zero_at_origin."""
     h = np.asarray(h, dtype=np.float64)
     g = (1.0 - nugget) * shape(h / a) + nugget
-    return np.where(h > 0, g, 0.0)
+    return np.where(h > 0, g, 0.0) if zero_at_origin else g
 
 
 def _exp_shape(r):
@@ -119,6 +119,8 @@ def gaussian_variogram(h, range, nugget=0.0, sill=1.0):
     return sill * _normalised(h, range, nugget, _gau_shape)
 
 
+_SHAPES = {"exponential": _exp_shape, "spherical": _sph_shape, "gaussian": _gau_shape}
+
 #: Variogram models by name: ``f(h, range, nugget=0.0, sill=1.0) -> gamma``.
 variogram_models = {
     "exponential": exponential_variogram,
@@ -172,8 +174,10 @@ class KrigingRegressor(_BaseInterpolator):
     The variogram is 0 at distance 0, so a query exactly on a star returns that star's
     value (and standard deviation 0) even with a nugget.
 
-    Stars at exactly the same position make the system singular when ``nugget = 0``:
-    they are then merged (values averaged) with a :class:`DuplicateStarsWarning`. If the
+    Between two different stars the nugget applies even at distance 0 (they are
+    distinct measurements), so with ``nugget > 0`` stars sharing a position are kept.
+    With ``nugget = 0`` they make the system singular: they are then merged (values
+    averaged) with a :class:`DuplicateStarsWarning`. If the
     factorisation still fails (near-duplicates), a ``ValueError`` suggests a nugget.
 
     Examples
@@ -199,6 +203,14 @@ class KrigingRegressor(_BaseInterpolator):
     def _covariance(self, D):
         return 1.0 - variogram_models[self.variogram](D, self.range, self.nugget)
 
+    def _star_covariance(self, X):
+        # Between two different stars the nugget applies even at distance 0 (distinct
+        # measurements at one position, as PyKrige does); only the diagonal is 1.
+        C = 1.0 - _normalised(cdist(X, X), self.range, self.nugget,
+                              _SHAPES[self.variogram], zero_at_origin=False)
+        np.fill_diagonal(C, 1.0)
+        return C
+
     def _fit(self, X, Y):
         name = "KrigingRegressor"
         if self.variogram not in variogram_models:
@@ -216,7 +228,7 @@ class KrigingRegressor(_BaseInterpolator):
                 X, Y, owner=name, reason="with nugget=0 the Kriging system would be singular."
             )
         _check_n_samples(name, X.shape[0], 2, "(distinct positions)")
-        C = self._covariance(cdist(X, X))
+        C = self._star_covariance(X)
         try:
             factor = cho_factor(C, lower=True, overwrite_a=True, check_finite=False)
         except LinAlgError:
