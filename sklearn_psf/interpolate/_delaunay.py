@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import LinearNDInterpolator
 from scipy.spatial import Delaunay, QhullError, cKDTree
+from threadpoolctl import threadpool_limits
 
 from ._base import _BaseInterpolator, _check_n_samples, _merge_duplicates
 
@@ -89,6 +90,10 @@ class DelaunayRegressor(_BaseInterpolator):
         )
         try:
             self.triangulation_ = Delaunay(X)
+            # the barycentric transforms are many tiny LAPACK calls: with threaded BLAS on
+            # a busy machine they take seconds instead of microseconds. One thread, now.
+            with threadpool_limits(limits=1, user_api="blas"):
+                self.triangulation_.transform
         except QhullError:
             raise ValueError(
                 f"{name}: the stars cannot be triangulated because they are degenerate: "
@@ -105,7 +110,8 @@ class DelaunayRegressor(_BaseInterpolator):
             outside = (x < xs[0]) | (x > xs[-1])  # np.interp already holds the end values
         else:
             interp = LinearNDInterpolator(self.triangulation_, self.y_fit_, fill_value=np.nan)
-            out = interp(X).reshape(X.shape[0], -1)
+            with threadpool_limits(limits=1, user_api="blas"):  # see _fit
+                out = interp(X).reshape(X.shape[0], -1)
             outside = np.isnan(out).any(axis=1)
         if np.any(outside):
             if self.outside == "error":

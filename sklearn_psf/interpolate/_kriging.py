@@ -11,24 +11,34 @@ from scipy.spatial.distance import cdist
 from ._base import _BaseInterpolator, _check_n_samples, _merge_duplicates, _query_chunks
 
 
-def _normalised(h, a, nugget, shape, zero_at_origin=True):
-    """gamma / sill from the normalised shape function; 0 at h == 0 if zero_at_origin."""
+def _exp_corr(r):
+    """exp(-r), computed in place on r (a fresh array owned by the caller)."""
+    np.negative(r, out=r)
+    return np.exp(r, out=r)
+
+
+def _sph_corr(r):
+    """1 - 1.5 r + 0.5 r^3 for r < 1, 0 beyond; in place on r."""
+    np.minimum(r, 1.0, out=r)
+    return 1.0 - r * (1.5 - 0.5 * r * r)
+
+
+def _gau_corr(r):
+    """exp(-r^2), in place on r."""
+    np.square(r, out=r)
+    np.negative(r, out=r)
+    return np.exp(r, out=r)
+
+
+#: correlation function rho(h / a) of each model: gamma = sill (1 - (1 - nugget) rho)
+_CORRELATIONS = {"exponential": _exp_corr, "spherical": _sph_corr, "gaussian": _gau_corr}
+
+
+def _variogram(model, h, a, nugget, sill):
     h = np.asarray(h, dtype=np.float64)
-    g = (1.0 - nugget) * shape(h / a) + nugget
-    return np.where(h > 0, g, 0.0) if zero_at_origin else g
-
-
-def _exp_shape(r):
-    return -np.expm1(-r)
-
-
-def _sph_shape(r):
-    r = np.minimum(r, 1.0)
-    return 1.5 * r - 0.5 * r**3
-
-
-def _gau_shape(r):
-    return -np.expm1(-(r**2))
+    rho = _CORRELATIONS[model](h / a)
+    gamma = sill * (1.0 - (1.0 - nugget) * rho)
+    return np.where(h > 0, gamma, 0.0)
 
 
 def exponential_variogram(h, range, nugget=0.0, sill=1.0):
@@ -56,7 +66,7 @@ def exponential_variogram(h, range, nugget=0.0, sill=1.0):
     >>> exponential_variogram([0.0, 1.0], range=1.0, nugget=0.5, sill=2.0).round(4)
     array([0.    , 1.6321])
     """
-    return sill * _normalised(h, range, nugget, _exp_shape)
+    return _variogram("exponential", h, range, nugget, sill)
 
 
 def spherical_variogram(h, range, nugget=0.0, sill=1.0):
@@ -85,7 +95,7 @@ def spherical_variogram(h, range, nugget=0.0, sill=1.0):
     >>> spherical_variogram([0.0, 0.5, 2.0], range=1.0).round(4)
     array([0.    , 0.6875, 1.    ])
     """
-    return sill * _normalised(h, range, nugget, _sph_shape)
+    return _variogram("spherical", h, range, nugget, sill)
 
 
 def gaussian_variogram(h, range, nugget=0.0, sill=1.0):
@@ -116,10 +126,8 @@ def gaussian_variogram(h, range, nugget=0.0, sill=1.0):
     >>> gaussian_variogram([0.0, 1.0], range=1.0).round(4)
     array([0.    , 0.6321])
     """
-    return sill * _normalised(h, range, nugget, _gau_shape)
+    return _variogram("gaussian", h, range, nugget, sill)
 
-
-_SHAPES = {"exponential": _exp_shape, "spherical": _sph_shape, "gaussian": _gau_shape}
 
 #: Variogram models by name: ``f(h, range, nugget=0.0, sill=1.0) -> gamma``.
 variogram_models = {
@@ -200,16 +208,29 @@ class KrigingRegressor(_BaseInterpolator):
         self.range = range
         self.nugget = nugget
 
-    def _covariance(self, D):
-        return 1.0 - variogram_models[self.variogram](D, self.range, self.nugget)
+    def _correlation(self, D):
+        """(1 - nugget) rho(D / a), overwriting D (a fresh distance matrix)."""
+        D *= 1.0 / self.range
+        c = _CORRELATIONS[self.variogram](D)
+        if self.nugget:
+            c *= 1.0 - self.nugget
+        return c
 
     def _star_covariance(self, X):
         # Between two different stars the nugget applies even at distance 0 (distinct
         # measurements at one position, as PyKrige does); only the diagonal is 1.
-        C = 1.0 - _normalised(cdist(X, X), self.range, self.nugget,
-                              _SHAPES[self.variogram], zero_at_origin=False)
+        C = self._correlation(cdist(X, X))
         np.fill_diagonal(C, 1.0)
         return C
+
+    def _query_covariance(self, Xq):
+        """Covariance of queries with stars (1 at distance 0) and the on-star rows."""
+        D = cdist(Xq, self.X_fit_)
+        on_star = np.flatnonzero(D.min(axis=1) == 0)
+        zero = D[on_star] == 0
+        c = self._correlation(D)
+        c[on_star] = np.where(zero, 1.0, c[on_star])
+        return c, on_star
 
     def _fit(self, X, Y):
         name = "KrigingRegressor"
@@ -270,14 +291,13 @@ class KrigingRegressor(_BaseInterpolator):
         pred = np.empty((m, T))
         var = np.empty(m) if return_std else None
         for sl in _query_chunks(m, self.X_fit_.shape[0]):
-            D = cdist(X[sl], self.X_fit_)
-            c = self._covariance(D)
+            c, on_star = self._query_covariance(X[sl])
             pred[sl] = self.mean_ + c @ self.dual_coef_
             if return_std:
                 v = solve_triangular(self._chol, c.T, lower=True, check_finite=False)
                 u = 1.0 - c @ self._c_inv_one
                 var[sl] = 1.0 - np.einsum("ij,ij->j", v, v) + u**2 / self._one_c_one
-                var[sl][D.min(axis=1) == 0] = 0.0  # exactly 0 on a star, not rounding noise
+                var[sl][on_star] = 0.0  # exactly 0 on a star, not rounding noise
         pred = self._format_output(pred)
         if not return_std:
             return pred
