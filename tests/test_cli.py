@@ -1,0 +1,57 @@
+"""The command line: end to end at a small size, and one-line errors on bad input."""
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from sklearn_psf.cli import main
+
+SMALL = ["--quick", "--n-simulations", "1", "--study-simulations", "1", "--n-stars", "150",
+         "--n-galaxies", "200", "--image-shape", "1500,2000"]
+
+
+def test_compare_writes_tables_report_and_figures(tmp_path, capsys):
+    out = tmp_path / "out"
+    code = main(["compare", *SMALL, "--schemes", "polynomial,delaunay,kriging",
+                 "--studies", "maps,snr", "-o", str(out)])
+    assert code == 0
+    names = set(os.listdir(out))
+    assert {"report.md", "scores.csv", "scores.fits", "galaxies.fits", "fig_cor.png",
+            "fig_ell.png", "fig_corhsn.png"} <= names
+    report = (out / "report.md").read_text()
+    assert "CFHTLS" in report and "kriging" in report
+    for png in (n for n in names if n.endswith(".png")):
+        assert png in report
+    stdout = capsys.readouterr().out
+    assert "kriging" in stdout and "report.md" in stdout
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--schemes", "kriging,splines"], "unknown scheme 'splines'"),
+    (["--studies", "weather"], "unknown study 'weather'"),
+])
+def test_bad_choices_one_line_error(tmp_path, capsys, args, message):
+    code = main(["compare", *SMALL, *args, "-o", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert message in err and len(err.strip().splitlines()) == 1
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("args", [["--n-stars", "-5"], ["--snr", "0"], ["--image-shape", "10"]])
+def test_bad_numbers_exit_nonzero_without_traceback(args):
+    proc = subprocess.run([sys.executable, "-m", "sklearn_psf", "compare", *args],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr and "error" in proc.stderr
+
+
+def test_unwritable_output(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    code = main(["compare", *SMALL, "-o", str(blocker / "sub")])
+    err = capsys.readouterr().err
+    assert code == 2 and "cannot write to the output folder" in err
+    assert len(err.strip().splitlines()) == 1
