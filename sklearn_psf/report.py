@@ -26,6 +26,7 @@ from astropy.io import fits
 from astropy.table import Table
 
 from . import plotting
+from .metrics import survey_table
 from .plotting import MissingDataError
 
 __all__ = [
@@ -45,20 +46,8 @@ SUMMARY_METRICS = ("e_rms", "e1_rms", "e2_rms", "coeff_rms", "rho1_mean_abs", "s
 _PAPER_TRIO = ("polynomial", "delaunay", "kriging")
 
 
-def _paper_surveys() -> Table:
-    return Table(
-        {
-            "survey": ["CFHTLS", "COSMOS", "Stage IV"],
-            "area_deg2": [170.0, 2.0, 15000.0],
-            "n_gal": [12.0, 50.0, 30.0],
-            "z_median": [0.7, 0.9, 0.9],
-            "sigma_sys2": [2e-6, 8e-6, 1.2e-7],
-        }
-    )
-
-
 #: The paper's table 1 (maximum sigma_sys^2 per survey), used when a result has no surveys.
-PAPER_SURVEYS = _paper_surveys()
+PAPER_SURVEYS = survey_table()
 
 
 def _unique_in_order(values):

@@ -21,14 +21,12 @@ __all__ = ["WienerBaseline", "wiener_filter_baseline"]
 
 def _field_covariance(shape, slope, padding=2.0):
     """Covariance, as a function of the (periodic) lag, of ``gaussian_random_field(...,
-    normalize=False)``: C(lag) = ifft2(P) with P ~ k^-slope (P(0) = 0) on the padded grid of
-    (ceil(ny * padding), ceil(nx * padding)) cells, normalised to C(0) = 1."""
+    normalize=False)`` on its padded grid of (ceil(ny * padding), ceil(nx * padding)) cells,
+    with C(0) = 1."""
+    from ..simulate import random_field_power
+
     py, px = int(np.ceil(shape[0] * padding)), int(np.ceil(shape[1] * padding))
-    k = np.hypot(np.fft.fftfreq(py)[:, None], np.fft.fftfreq(px)[None, :])
-    power = np.zeros_like(k)
-    power[k > 0] = k[k > 0] ** (-slope)
-    power /= power.mean()
-    return np.fft.ifft2(power).real
+    return np.fft.ifft2(random_field_power((py, px), slope)).real
 
 
 def _lag_covariance(cov, rows_a, cols_a, rows_b, cols_b):

@@ -39,7 +39,7 @@ Conventions
 """
 
 from ._field import PSFField, core_mask, make_psf_field, realistic_snr
-from ._random_field import RandomFieldSampler, as_generator, gaussian_random_field
+from ._random_field import RandomFieldSampler, as_generator, gaussian_random_field, random_field_power
 from ._reference import ReferenceBasis, read_fits_image
 
 __all__ = [
@@ -50,6 +50,7 @@ __all__ = [
     "core_mask",
     "gaussian_random_field",
     "make_psf_field",
+    "random_field_power",
     "read_fits_image",
     "realistic_snr",
 ]

@@ -61,6 +61,40 @@ def _check_shape(shape) -> tuple[int, int]:
     return shape
 
 
+def random_field_power(shape, slope: float = 11 / 4) -> np.ndarray:
+    """Power spectrum P(k) ~ k^-slope on the FFT grid of ``shape``, normalised to mean 1.
+
+    P(0) = 0 (zero-mean field). With this normalisation, white noise filtered by sqrt(P) has
+    unit expected variance, and ``numpy.fft.ifft2(P).real`` is the field's covariance as a
+    function of the (periodic) lag, with C(0) = 1.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        (ny, nx) of the grid (the padded grid of :func:`gaussian_random_field`).
+    slope : float
+        Minus the logarithmic slope of the spectrum.
+
+    Returns
+    -------
+    power : ndarray of shape ``shape``
+        In numpy's FFT frequency order.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from sklearn_psf.simulate import random_field_power
+    >>> p = random_field_power((32, 48))
+    >>> float(p[0, 0]), round(float(p.mean()), 12), round(float(np.fft.ifft2(p).real[0, 0]), 12)
+    (0.0, 1.0, 1.0)
+    """
+    ny, nx = _check_shape(shape)
+    k = np.hypot(np.fft.fftfreq(ny)[:, None], np.fft.fftfreq(nx)[None, :])
+    power = np.zeros_like(k)
+    power[k > 0] = k[k > 0] ** (-float(slope))
+    return power / power.mean()
+
+
 def gaussian_random_field(
     shape,
     slope: float = 11 / 4,
@@ -113,18 +147,8 @@ def gaussian_random_field(
     rng = as_generator(random_state)
     py, px = int(np.ceil(ny * padding)), int(np.ceil(nx * padding))
     white = rng.standard_normal((py, px))
-    ky = np.fft.fftfreq(py)[:, None]
-    kx = np.fft.rfftfreq(px)[None, :]
-    k = np.hypot(ky, kx)
-    amplitude = np.zeros_like(k)
-    nonzero = k > 0
-    amplitude[nonzero] = k[nonzero] ** (-slope / 2.0)
-    # Unit expected variance of the padded field: the variance of irfft2(F * a) of white
-    # noise is mean(a^2) over the full (complex) spectrum.
-    full_k = np.hypot(np.fft.fftfreq(py)[:, None], np.fft.fftfreq(px)[None, :])
-    full_a2 = np.zeros_like(full_k)
-    full_a2[full_k > 0] = full_k[full_k > 0] ** (-slope)
-    amplitude /= np.sqrt(full_a2.mean())
+    # the rfft half-plane of the full spectrum: same |k| on the first px // 2 + 1 columns
+    amplitude = np.sqrt(random_field_power((py, px), slope)[:, : px // 2 + 1])
     field = np.fft.irfft2(np.fft.rfft2(white) * amplitude, s=(py, px))[:ny, :nx]
     if normalize:
         field = field - field.mean()
