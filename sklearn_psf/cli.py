@@ -189,10 +189,25 @@ def _compare(args):
             result.tuning = compare.tune_schemes(
                 base, random_state=args.seed, n_jobs=args.n_jobs, progress=bar.update
             )
-    paths = write_report(result, args.output)
+    stamps, positions = _example_stars(base, result.config["seeds"][0])
+    paths = write_report(result, args.output, stamps=stamps, positions=positions)
     print(_summary_text(result, summarize, survey_verdicts))
     print(f"\nWrote {len(paths)} files to {args.output}/ (report: {args.output}/report.md)")
     return 0
+
+
+def _example_stars(config, seed, n=4):
+    """Stamps of a few stars cut from the first simulation's image (the paper's fig_sim)."""
+    from .simulate import make_psf_field
+
+    sim = make_psf_field(n_stars=config.n_stars, n_galaxies=2, snr=config.snr
+                         if config.snr != "realistic" else 100.0,
+                         image_shape=config.image_shape, pixel_scale=config.pixel_scale,
+                         random_state=seed)
+    stamps, flags = sim.star_stamps()
+    good = np.flatnonzero(np.asarray(flags) == 0)[:n]
+    positions = np.column_stack([sim.stars["x"], sim.stars["y"]])[good]
+    return stamps[good], positions
 
 
 def _summary_text(result, summarize, survey_verdicts):

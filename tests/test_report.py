@@ -312,3 +312,20 @@ def test_maps_fall_back_to_the_grid_configuration_and_tuning_section(tmp_path):
     text = (tmp_path / "report.md").read_text()
     assert "config 'grid', grid galaxy-PSFs" in text
     assert "| kriging | range=0.4 | 1.23e-06 |" in text
+
+
+@pytest.mark.parametrize("spherical_offset, expected", [
+    (+0.002, "agrees"),        # spherical worse in every simulation
+    (-0.002, "disagrees"),     # spherical better in every simulation
+    (0.0, "inconclusive"),     # identical up to noise
+])
+def test_variogram_finding_uses_paired_differences(spherical_offset, expected):
+    scores = make_scores({("default", "kriging"): (0.01, 1e-6, 1e-5),
+                          ("default", "kriging-spherical"): (0.01, 1e-6, 1e-5)}, n_sim=6)
+    kr = scores[scores["scheme"] == "kriging"]
+    sph = np.flatnonzero(scores["scheme"] == "kriging-spherical")
+    # same simulations, paired: spherical = exponential + offset (+ tiny symmetric noise)
+    noise = 1e-6 * np.array([1, -1, 1, -1, 1, -1])
+    scores["e_rms"][sph] = np.asarray(kr["e_rms"]) + spherical_offset + noise
+    finding = find(check_findings(make_result(scores)), "The exponential variogram")
+    assert finding["verdict"] == expected
