@@ -103,6 +103,17 @@ class PSFModel(RegressorMixin, BaseEstimator):
         Side s of the stamps.
     n_features_in_ : int
         2.
+    X_fit_ : ndarray of shape (n_stars, 2)
+        Positions of the stars given to ``fit``.
+    coefficients_ : ndarray of shape (n_stars, n_components_)
+        Basis coefficients of those stars (the interpolator is fitted on
+        ``X_fit_[inlier_mask_]``, ``coefficients_[inlier_mask_]``). :meth:`save` stores them
+        and :meth:`load` refits the interpolator on them.
+
+    See Also
+    --------
+    sklearn_psf.validation.fit_and_validate : fit with reserved stars and report residuals.
+    sklearn_psf.io.save_model : the model file format.
 
     Examples
     --------
@@ -212,7 +223,67 @@ class PSFModel(RegressorMixin, BaseEstimator):
         self.inlier_mask_ = mask
         self.n_components_ = k
         self.stamp_size_ = s
+        self.X_fit_ = np.array(X, copy=True)
+        self.coefficients_ = coef
         return self
+
+    def save(self, path, *, residuals=None, summary=None, overwrite: bool = False) -> None:
+        """Write the fitted model to a self-describing FITS file (atomically).
+
+        See :func:`sklearn_psf.io.save_model` for the format; joblib/pickle work too.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+        residuals : astropy.table.Table, optional
+            Reserved-star residuals (from :func:`sklearn_psf.validation.fit_and_validate`).
+        summary : dict, optional
+            Validation summary stored with them.
+        overwrite : bool, default=False
+
+        Examples
+        --------
+        >>> import os, tempfile
+        >>> import numpy as np
+        >>> from sklearn.neighbors import KNeighborsRegressor
+        >>> from sklearn_psf.model import PSFModel
+        >>> rng = np.random.default_rng(0)
+        >>> X = rng.uniform(0, 1000, (40, 2))
+        >>> yy, xx = np.mgrid[0:11, 0:11] - 5.0
+        >>> y = np.exp(-0.5 * (xx.ravel() ** 2 + yy.ravel() ** 2) / (1.5 + X[:, :1] / 1e3) ** 2)
+        >>> model = PSFModel(interpolator=KNeighborsRegressor(3), outliers=None).fit(X, y)
+        >>> path = os.path.join(tempfile.mkdtemp(), "psf.fits")
+        >>> model.save(path)
+        >>> back = PSFModel.load(path)
+        >>> bool(np.array_equal(back.predict(X[:5]), model.predict(X[:5])))
+        True
+        """
+        from .io import save_model
+
+        save_model(self, path, residuals=residuals, summary=summary, overwrite=overwrite)
+
+    @classmethod
+    def load(cls, path) -> "PSFModel":
+        """Read a model written by :meth:`save` (see :func:`sklearn_psf.io.load_model`).
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+
+        Returns
+        -------
+        model : PSFModel
+            Fitted; predictions are identical to the saved model's.
+
+        Raises
+        ------
+        ValueError
+            For a missing, corrupt or truncated file, a file that is not a model, or a model
+            file of an unknown (e.g. newer) format version.
+        """
+        from .io import load_model
+
+        return load_model(path)
 
     def _check_X(self, X):
         check_is_fitted(self)

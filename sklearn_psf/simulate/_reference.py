@@ -14,7 +14,6 @@ import os
 import numpy as np
 from astropy.io import fits
 from astropy.table import Table
-from scipy.spatial import cKDTree
 from sklearn.decomposition import PCA
 from sklearn.pipeline import Pipeline
 
@@ -77,17 +76,6 @@ def read_fits_image(path, hdu=None) -> tuple[np.ndarray, fits.Header]:
             "check that the file is a valid FITS file."
         ) from None
     return data, header
-
-
-def _shorth_mode(values, fraction=0.2):
-    """Mode estimate: median of the shortest window holding ``fraction`` of the values."""
-    v = np.sort(np.asarray(values, dtype=np.float64))
-    m = max(3, int(np.ceil(fraction * v.size)))
-    if v.size <= m:
-        return float(np.median(v))
-    spans = v[m - 1:] - v[: v.size - m + 1]
-    i = int(np.argmin(spans))
-    return float(np.median(v[i:i + m]))
 
 
 class ReferenceBasis:
@@ -267,7 +255,8 @@ class ReferenceBasis:
                    locus_width: float = 0.1, min_stars: int = 5):
         """Extract stars from an image with ``sep`` and build their PCA basis.
 
-        Steps (the same for a real image and a simulated one):
+        Steps (the same for a real image and a simulated one; 1 to 3 are the package's star
+        finder, :func:`sklearn_psf.io.find_stars`):
 
         1. background and its rms with ``sep.Background``; detection with ``sep.extract`` at
            ``detect_thresh`` times the global rms (min. area 5 pixels);
@@ -330,7 +319,7 @@ class ReferenceBasis:
         >>> len(ref.positions) >= 50
         True
         """
-        import sep
+        from ..io._stars import _find_stars
 
         header = None
         if isinstance(image, (str, os.PathLike)):
@@ -344,87 +333,41 @@ class ReferenceBasis:
                 f"image holds {np.count_nonzero(~np.isfinite(data))} NaN or infinite pixels: "
                 "replace them (e.g. by the background) or mask them before extracting stars."
             )
-        s = int(stamp_size)
-        if s != stamp_size or s < 3 or s % 2 == 0:
-            raise ValueError(f"stamp_size must be an odd integer >= 3, got {stamp_size!r}.")
-        ny, nx = data.shape
-        if s + 4 > min(ny, nx):
-            raise ValueError(
-                f"stamp_size {s} is too large for an image of shape {data.shape}: the image "
-                "must be at least stamp_size + 4 pixels on each side."
-            )
         if pixel_scale is None:
             pixel_scale = float(header.get("PIXSCALE", 0.2)) if header is not None else 0.2
         if saturation is None and header is not None and "SATURATE" in header:
             saturation = float(header["SATURATE"])
-        isolation = float(s if isolation is None else isolation)
-
-        data = np.ascontiguousarray(data)
-        box = int(min(64, max(16, min(ny, nx) // 4)))
-        bkg = sep.Background(data, bw=box, bh=box)
-        back = bkg.back()
-        sub = data - back
-        rms = float(bkg.globalrms)
-        if not rms > 0:
-            raise ValueError("The image has a constant background (zero rms): no stars found.")
-        old_stack = sep.get_extract_pixstack()
-        sep.set_extract_pixstack(max(old_stack, 2_000_000))
-        try:
-            objs = sep.extract(sub, detect_thresh, err=rms, minarea=5)
-        except Exception as exc:  # sep raises plain Exception for internal limits
-            raise ValueError(f"Source extraction failed: {exc}") from None
-        finally:
-            sep.set_extract_pixstack(old_stack)
-        if len(objs) < min_stars:
+        stars, sub = _find_stars(
+            np.ascontiguousarray(data), stamp_size=stamp_size, detect_thresh=detect_thresh,
+            min_snr=min_snr, saturation=saturation, isolation=isolation,
+            locus_width=locus_width,
+        )
+        n_det = stars.meta["n_detections"]
+        if n_det < min_stars:
             raise ValueError(
-                f"Found {len(objs)} sources above {detect_thresh} sigma in the image, fewer than "
+                f"Found {n_det} sources above {detect_thresh} sigma in the image, fewer than "
                 f"min_stars={min_stars}: the image has no (or too few) stars."
             )
-        x, y = objs["x"], objs["y"]
-        half = (s - 1) / 2
-        rmax = np.full(len(objs), half)
-        r_half, rflag = sep.flux_radius(sub, x, y, rmax, 0.5, subpix=5)
-        sig = np.clip(2.0 * r_half / 2.3548, 0.3, half)
-        xw, yw, wflag = sep.winpos(sub, x, y, sig)
-        aflux, aerr, aflag = sep.sum_circle(sub, xw, yw, half, err=rms, subpix=5)
-        snr = np.where(aerr > 0, aflux / np.maximum(aerr, 1e-300), 0.0)
-
-        keep = (objs["flag"] == 0) & (rflag == 0) & (wflag == 0) & (aflag == 0)
-        keep &= np.isfinite(r_half) & (r_half > 0) & (snr >= min_snr)
-        if saturation is not None:
-            keep &= (objs["peak"] + back[np.clip(np.round(y).astype(int), 0, ny - 1),
-                                         np.clip(np.round(x).astype(int), 0, nx - 1)]
-                     < 0.9 * float(saturation))
-        margin = half + 2
-        keep &= (xw >= margin) & (xw <= nx - 1 - margin) & (yw >= margin) & (yw <= ny - 1 - margin)
-        if len(objs) > 1:
-            tree = cKDTree(np.column_stack([x, y]))
-            d, _ = tree.query(np.column_stack([x, y]), k=2, p=np.inf)
-            keep &= d[:, 1] >= isolation
-        if np.count_nonzero(keep) >= 3:
-            locus = _shorth_mode(r_half[keep], 0.5)
-            keep &= np.abs(r_half / locus - 1.0) <= locus_width
-        else:
-            locus = np.nan
-        idx = np.flatnonzero(keep)
-        if idx.size:
-            stamps, flags = cut_stamps(sub, np.column_stack([xw[idx], yw[idx]]), s)
-            idx = idx[flags == 0]
-            stamps = stamps[flags == 0]
-        if idx.size < min_stars:
+        if len(stars) < min_stars:
             raise ValueError(
-                f"Only {idx.size} isolated, unsaturated point sources with S/N >= {min_snr} were "
-                f"found (out of {len(objs)} detections), fewer than min_stars={min_stars}: the "
-                "image has too few usable stars (lower min_snr or use a deeper image)."
+                f"Only {len(stars)} isolated, unsaturated point sources with S/N >= {min_snr} "
+                f"were found (out of {n_det} detections), fewer than min_stars={min_stars}: "
+                "the image has too few usable stars (lower min_snr or use a deeper image)."
             )
+        s = int(stamp_size)
+        ny, nx = data.shape
+        positions = np.column_stack([np.asarray(stars["x"]), np.asarray(stars["y"])])
+        stamps, _ = cut_stamps(sub, positions, s)
+        rms = stars.meta["noise_rms"]
         ref = cls.from_stamps(
-            stamps, variance=variance, positions=np.column_stack([xw[idx], yw[idx]]),
+            stamps, variance=variance, positions=positions,
             image_shape=(ny, nx), pixel_scale=pixel_scale, noise_rms=rms,
         )
         ref.catalog = Table(
-            {"x": xw[idx], "y": yw[idx], "flux": aflux[idx], "snr": snr[idx],
-             "flux_radius": r_half[idx], "peak": objs["peak"][idx]},
-            meta={"n_detections": len(objs), "locus_radius": locus},
+            {name: np.asarray(stars[name]) for name in
+             ("x", "y", "flux", "snr", "flux_radius", "peak")},
+            meta={"n_detections": n_det, "locus_radius": stars.meta["locus_radius"],
+                  "rejected": dict(stars.meta["rejected"])},
         )
         return ref
 

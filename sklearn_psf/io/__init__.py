@@ -1,0 +1,66 @@
+"""Real data in and out: FITS images and star catalogues, star selection, model files.
+
+Running on a survey exposure
+----------------------------
+A single CCD of a survey exposure, e.g. a DECam or HSC calexp, usually comes as a
+multi-extension (often tile-compressed ``.fits.fz``) FITS file with the science image, a
+weight (inverse variance) or mask plane, and a SExtractor catalogue::
+
+    # DECam community-pipeline CCD: HDU 'SCI' (or index 1), its weight in 'WGT'
+    sklearn-psf fit c4d_ooi.fits.fz --hdu 1 --weight-hdu 2 \\
+        --stars c4d_ooi_cat.fits --one-based --interpolator kriging -o ccd01_psf.fits
+    # positions of galaxies (0-based x, y columns, or SExtractor X_IMAGE/Y_IMAGE)
+    sklearn-psf predict ccd01_psf.fits --positions galaxies.fits -o ccd01_galaxy_psfs.fits
+
+or, in Python::
+
+    from sklearn_psf.io import read_image, read_catalog, extract_star_stamps
+    from sklearn_psf.validation import fit_and_validate
+
+    image, weight, header = read_image("c4d_ooi.fits.fz", hdu=1, weight_hdu=2)
+    stars = read_catalog("c4d_ooi_cat.fits")            # X_IMAGE -> 1-based, converted
+    cut = extract_star_stamps(image, stars, 25, weight=weight,
+                              saturation=header.get("SATURATE"))
+    model, residuals, summary = fit_and_validate(cut.positions, cut.stamps, reserve=0.2,
+                                                 random_state=0)
+    model.save("ccd01_psf.fits", residuals=residuals, summary=summary)
+
+Notes for real data:
+
+- Positions are 0-based (x = column) inside the package. SExtractor's ``X_IMAGE``,
+  ``Y_IMAGE``, ``XWIN_IMAGE``, ``YWIN_IMAGE`` (and PSFEx/PIFF-style FITS conventions) are
+  1-based: :func:`read_catalog` recognises those names and subtracts 1; for plain ``x``,
+  ``y`` columns say ``one_based=True`` (``--one-based``) when they follow the FITS convention.
+- A SExtractor ``FLAGS`` column (non-zero: blended, saturated, truncated) skips a star;
+  ``SNR_WIN`` or ``FLUX_AUTO / FLUXERR_AUTO`` is kept as ``snr``.
+- Without a catalogue, :func:`find_stars` selects stars on the flux-radius locus; pass the
+  ``SATURATE`` level of the header (read automatically by the command line).
+- The weight HDU masks bad pixels (zero weight): stars with a masked pixel in their core are
+  skipped; masked pixels in the wings are set to the background.
+- One model per CCD: PSF variations are not continuous across chip gaps.
+"""
+
+from ._catalog import read_catalog
+from ._image import read_image
+from ._model_io import (
+    MODEL_FORMAT,
+    MODEL_FORMAT_VERSION,
+    load_model,
+    read_model_validation,
+    save_model,
+)
+from ._stars import REJECTION_REASONS, StarStamps, extract_star_stamps, find_stars
+
+__all__ = [
+    "MODEL_FORMAT",
+    "MODEL_FORMAT_VERSION",
+    "REJECTION_REASONS",
+    "StarStamps",
+    "extract_star_stamps",
+    "find_stars",
+    "load_model",
+    "read_catalog",
+    "read_image",
+    "read_model_validation",
+    "save_model",
+]

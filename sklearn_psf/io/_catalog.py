@@ -1,0 +1,165 @@
+"""Reading star (or galaxy) position catalogues: FITS tables, SExtractor catalogues, CSV."""
+
+from __future__ import annotations
+
+import os
+import warnings
+
+import numpy as np
+from astropy.io import fits
+from astropy.table import Table
+from astropy.utils.exceptions import AstropyUserWarning
+
+from ._image import _FileError
+
+__all__ = ["read_catalog"]
+
+# (x, y) column pairs tried in this order; True: the convention is 1-based (FITS/SExtractor).
+_POSITION_COLUMNS = (
+    ("xwin_image", "ywin_image", True),
+    ("x_image", "y_image", True),
+    ("x", "y", False),
+    ("xcentroid", "ycentroid", False),  # photutils
+    ("x_0", "y_0", False),
+)
+_FLUX_COLUMNS = ("flux", "flux_auto", "flux_psf", "flux_aper")
+_SNR_COLUMNS = ("snr", "snr_win", "s/n")
+_FLAG_COLUMNS = ("flags", "flag")
+_TEXT_SUFFIXES = (".csv", ".txt", ".dat", ".ecsv", ".tsv")
+
+
+def _read_table(path, hdu):
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise ValueError(f"Catalogue file {path!r} does not exist.")
+    lower = path.lower()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", AstropyUserWarning)
+            if lower.endswith(_TEXT_SUFFIXES):
+                fmt = ("ascii.ecsv" if lower.endswith(".ecsv")
+                       else "ascii.csv" if lower.endswith(".csv") else "ascii")
+                return Table.read(path, format=fmt)
+            with fits.open(path, memmap=False) as hdul:
+                if hdu is None:
+                    names = [h.name for h in hdul]
+                    if "LDAC_OBJECTS" in names:  # SExtractor FITS_LDAC
+                        hdu = "LDAC_OBJECTS"
+                    else:
+                        tables = [i for i, h in enumerate(hdul)
+                                  if isinstance(h, (fits.BinTableHDU, fits.TableHDU))]
+                        if not tables:
+                            raise ValueError(
+                                f"{path!r} holds no table HDU: pass a FITS table or a CSV "
+                                "file with x, y columns."
+                            )
+                        hdu = tables[0]
+                return Table.read(hdul[hdu])
+    except _FileError:
+        raise
+    except (ValueError, OSError, TypeError, KeyError, IndexError, EOFError, fits.VerifyError,
+            AstropyUserWarning) as exc:
+        raise ValueError(
+            f"Could not read the catalogue {path!r} ({type(exc).__name__}: {exc}); pass a "
+            "complete FITS table or a CSV file with x, y columns."
+        ) from None
+
+
+def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = None,
+                 y_col: str | None = None, hdu=None) -> Table:
+    """Read a catalogue of positions into a table with 0-based ``x``, ``y`` columns.
+
+    Column names are matched without regard to case. Positions come from, in this order:
+    ``x_col``/``y_col`` if given; ``XWIN_IMAGE``/``YWIN_IMAGE`` or ``X_IMAGE``/``Y_IMAGE``
+    (SExtractor, **1-based**: the centre of the first pixel is 1.0); ``x``/``y``,
+    ``xcentroid``/``ycentroid`` (photutils) or ``x_0``/``y_0`` (**0-based**, the package's
+    convention). ``one_based`` overrides the convention of the name: True subtracts 1 from
+    both coordinates, False keeps them.
+
+    Optional columns are copied under standard names: ``flux`` (``FLUX``, ``FLUX_AUTO``,
+    ``FLUX_PSF``, ``FLUX_APER``), ``snr`` (``SNR``, ``SNR_WIN``, else ``FLUX_AUTO /
+    FLUXERR_AUTO``) and ``flags`` (``FLAGS``, ``FLAG``; non-zero skips the star when stamps
+    are cut). Other columns are kept as they are.
+
+    Parameters
+    ----------
+    catalog : str, os.PathLike or astropy.table.Table
+        FITS table (first table HDU, or SExtractor's ``LDAC_OBJECTS``), CSV/ECSV/ASCII file,
+        or a table.
+    one_based : bool, optional
+        Whether the positions are 1-based; default from the column names (see above).
+    x_col, y_col : str, optional
+        Names of the position columns.
+    hdu : int or str, optional
+        Table HDU of a FITS file.
+
+    Returns
+    -------
+    astropy.table.Table
+        Columns ``x``, ``y`` (float64, 0-based), then the optional standard columns and the
+        others. ``meta``: ``x_column``, ``y_column``, ``one_based``.
+
+    Raises
+    ------
+    ValueError
+        For an unreadable file, or no position columns (the message lists the columns found).
+
+    Examples
+    --------
+    >>> from astropy.table import Table
+    >>> from sklearn_psf.io import read_catalog
+    >>> sex = Table({"X_IMAGE": [1.0, 10.5], "Y_IMAGE": [1.0, 20.0], "FLAGS": [0, 2]})
+    >>> cat = read_catalog(sex)
+    >>> cat["x"].tolist(), cat["y"].tolist(), cat["flags"].tolist()
+    ([0.0, 9.5], [0.0, 19.0], [0, 2])
+    """
+    if isinstance(catalog, Table):
+        table = catalog
+    else:
+        table = _read_table(catalog, hdu)
+    lower = {name.lower(): name for name in table.colnames}
+    if (x_col is None) != (y_col is None):
+        raise ValueError("Give both x_col and y_col, or neither.")
+    if x_col is not None:
+        missing = [c for c in (x_col, y_col) if c.lower() not in lower]
+        if missing:
+            raise ValueError(
+                f"The catalogue has no column {missing[0]!r}; columns found: "
+                f"{', '.join(table.colnames) or 'none'}."
+            )
+        xname, yname, convention = lower[x_col.lower()], lower[y_col.lower()], False
+    else:
+        for xn, yn, conv in _POSITION_COLUMNS:
+            if xn in lower and yn in lower:
+                xname, yname, convention = lower[xn], lower[yn], conv
+                break
+        else:
+            raise ValueError(
+                "The catalogue has no position columns: expected x, y (0-based) or "
+                "X_IMAGE, Y_IMAGE / XWIN_IMAGE, YWIN_IMAGE (SExtractor, 1-based), or give "
+                f"x_col/y_col; columns found: {', '.join(table.colnames) or 'none'}."
+            )
+    base = convention if one_based is None else bool(one_based)
+    try:
+        x = np.asarray(table[xname], dtype=np.float64)
+        y = np.asarray(table[yname], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"Columns {xname!r}, {yname!r} do not hold numbers.") from None
+    if x.ndim != 1:
+        raise ValueError(f"Column {xname!r} must hold one number per row.")
+    out = Table({"x": x - 1.0 if base else x, "y": y - 1.0 if base else y})
+    for std, names in (("flux", _FLUX_COLUMNS), ("snr", _SNR_COLUMNS), ("flags", _FLAG_COLUMNS)):
+        for name in names:
+            if name in lower:
+                out[std] = np.asarray(table[lower[name]])
+                break
+    if "snr" not in out.colnames and "flux_auto" in lower and "fluxerr_auto" in lower:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out["snr"] = (np.asarray(table[lower["flux_auto"]], dtype=np.float64)
+                          / np.asarray(table[lower["fluxerr_auto"]], dtype=np.float64))
+    for name in table.colnames:
+        if name not in (xname, yname) and name.lower() not in out.colnames \
+                and name not in out.colnames:
+            out[name] = table[name]
+    out.meta.update({"x_column": xname, "y_column": yname, "one_based": base})
+    return out

@@ -1,0 +1,132 @@
+"""Reading FITS images (plain or tile-compressed) with their weight/mask plane."""
+
+from __future__ import annotations
+
+import os
+import warnings
+
+import numpy as np
+from astropy.io import fits
+from astropy.utils.exceptions import AstropyUserWarning
+
+__all__ = ["read_image"]
+
+_READ_ERRORS = (OSError, TypeError, KeyError, IndexError, ValueError, EOFError,
+                fits.VerifyError, AstropyUserWarning)
+
+
+class _FileError(ValueError):
+    """A clear message about the file's content (re-raised as it is)."""
+
+
+def _hdu_key(hdu):
+    """An HDU index (int, or a string of digits) or an EXTNAME (str)."""
+    if hdu is None or isinstance(hdu, (int, np.integer)):
+        return hdu
+    if isinstance(hdu, str):
+        text = hdu.strip()
+        return int(text) if text.lstrip("-").isdigit() else text
+    raise TypeError(f"hdu must be an index or an EXTNAME, got {type(hdu).__name__}.")
+
+
+def _describe(hdul):
+    return ", ".join(f"{i}:{h.name or '-'}({type(h).__name__})" for i, h in enumerate(hdul))
+
+
+def _select(hdul, key, path, what):
+    if key is None:
+        for h in hdul:
+            if h.is_image and h.data is not None and np.ndim(h.data) == 2:
+                return h
+        raise _FileError(f"{path!r} holds no 2-D image HDU (HDUs: {_describe(hdul)}).")
+    try:
+        h = hdul[key]
+    except (KeyError, IndexError):
+        raise _FileError(
+            f"{path!r} has no HDU {key!r} for the {what} (HDUs: {_describe(hdul)})."
+        ) from None
+    if not h.is_image or h.data is None or np.ndim(h.data) != 2:
+        raise _FileError(
+            f"HDU {key!r} of {path!r} ({what}) is not a 2-D image (HDUs: {_describe(hdul)})."
+        )
+    return h
+
+
+def read_image(path, hdu=None, weight_hdu=None):
+    """Read a 2-D image, and optionally its weight map, from a FITS file.
+
+    Tile-compressed images (``.fits.fz``, astropy ``CompImageHDU``) are read like plain ones.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        FITS file.
+    hdu : int or str, optional
+        Image HDU: index (0 = primary) or EXTNAME (e.g. ``"SCI"``); a string of digits is
+        an index. Default: the first HDU holding a 2-D image.
+    weight_hdu : int or str, optional
+        HDU of the weight (inverse variance) or mask map, same shape as the image; zero
+        means a bad pixel. Default: no weight map.
+
+    Returns
+    -------
+    image : ndarray of shape (ny, nx), float64
+    weight : ndarray of shape (ny, nx), float64, or None
+    header : astropy.io.fits.Header
+        Header of the image HDU (for a compressed HDU, the image header). Keywords of the
+        primary header (e.g. ``SATURATE`` on DECam/HSC files) that are absent from it are
+        copied in.
+
+    Raises
+    ------
+    ValueError
+        For a missing, corrupt or truncated file, an unknown HDU, an HDU that is not a 2-D
+        image, or a weight map of another shape.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from astropy.io import fits
+    >>> from sklearn_psf.io import read_image
+    >>> path = os.path.join(tempfile.mkdtemp(), "ccd.fits.fz")
+    >>> fits.HDUList([fits.PrimaryHDU(),
+    ...               fits.CompImageHDU(np.ones((20, 30), np.float32), name="SCI"),
+    ...               fits.ImageHDU(np.ones((20, 30)), name="WGT")]).writeto(path)
+    >>> image, weight, header = read_image(path, hdu="SCI", weight_hdu=2)
+    >>> image.shape, weight.shape
+    ((20, 30), (20, 30))
+    """
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise ValueError(f"FITS file {path!r} does not exist.")
+    key, wkey = _hdu_key(hdu), _hdu_key(weight_hdu)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", AstropyUserWarning)  # "may have been truncated"
+            with fits.open(path, memmap=False) as hdul:
+                chosen = _select(hdul, key, path, "image")
+                image = np.array(chosen.data, dtype=np.float64)
+                header = chosen.header.copy()
+                primary = hdul[0].header
+                for card in primary.cards:
+                    if card.keyword not in header and card.keyword not in (
+                            "SIMPLE", "BITPIX", "NAXIS", "EXTEND", "COMMENT", "HISTORY", ""):
+                        header[card.keyword] = (card.value, card.comment)
+                weight = None
+                if wkey is not None:
+                    weight = np.array(_select(hdul, wkey, path, "weight map").data,
+                                      dtype=np.float64)
+    except _FileError:
+        raise
+    except _READ_ERRORS as exc:
+        raise ValueError(
+            f"Could not read {path!r} as a FITS image ({type(exc).__name__}: {exc}); "
+            "check that the file is a complete, valid FITS file."
+        ) from None
+    if weight is not None and weight.shape != image.shape:
+        raise ValueError(
+            f"The weight map (HDU {weight_hdu!r}) has shape {weight.shape}, the image "
+            f"{image.shape}: give the weight HDU that belongs to the image."
+        )
+    return image, weight, header

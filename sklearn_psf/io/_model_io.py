@@ -1,0 +1,545 @@
+"""PSF model files: a self-describing FITS format, written atomically.
+
+Format (``SKPSFFMT = 'SKPSF-MODEL'``, ``FORMAT = 1``)
+---------------------------------------------------
+HDU 0 (primary, no data)
+    ``SKPSFFMT``, ``FORMAT`` (format version, int), ``SKPSFVER`` (package version that wrote
+    it), ``STAMPSZ`` (s), ``NCOMP`` (k), ``NSTARS``, ``NINLIER``, ``INTERP`` (interpolator
+    class), ``DATE`` (UTC).
+``SPEC`` (binary table: ``key``, ``json``)
+    JSON descriptions of the constructor parameters: ``interpolator``, ``basis``,
+    ``outliers`` (a scikit-learn/sklearn_psf estimator is ``{"__estimator__": "module.Class",
+    "params": {...}}`` of its ``get_params(deep=False)``; array parameters point to ``ARRAY_i``
+    HDUs), ``normalizers`` (the fitted basis's :class:`StampNormalizer` steps), ``versions``
+    (numpy, scikit-learn, astropy, sklearn_psf) and, after validation, ``validation_summary``.
+``BASIS_MEAN`` (image (s, s)) and ``BASIS_COMPONENTS`` (image (k, s, s))
+    The fitted linear basis: stamps = coefficients @ components + mean.
+``STARS`` (binary table)
+    ``x``, ``y`` (0-based), ``coeffs`` (k per row) and ``inlier`` of every fitted star: the
+    interpolator's training data.
+``ARRAY_0``, ... (images, optional)
+    Array-valued constructor parameters (e.g. a ``FixedBasis``'s components).
+``RESERVED`` (binary table, optional)
+    Reserved-star residuals of :func:`sklearn_psf.validation.fit_and_validate`.
+``RHO1`` (binary table, optional)
+    rho1 on the reserved stars (``theta``, ``xi``, ``sigma_xi``, ``npairs``).
+
+Loading rebuilds the basis as ``StampNormalizer`` steps + a fitted :class:`FixedBasis` of
+the stored mean and components, and refits the interpolator (and the outlier detector) on the
+stored stars: our interpolators are deterministic, so predictions are identical to the saved
+model's, and the file does not depend on pickled internals of any library version.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime
+import importlib
+import json
+import os
+import tempfile
+import warnings
+
+import numpy as np
+from astropy.io import fits
+from astropy.table import Table
+from astropy.utils.exceptions import AstropyUserWarning
+from sklearn.base import BaseEstimator, clone
+from sklearn.pipeline import Pipeline
+
+__all__ = ["save_model", "load_model", "read_model_validation", "MODEL_FORMAT",
+           "MODEL_FORMAT_VERSION", "write_fits_atomic"]
+
+#: Value of the ``SKPSFFMT`` keyword of a model file.
+MODEL_FORMAT = "SKPSF-MODEL"
+#: Format version written by this version of the package (``FORMAT`` keyword).
+MODEL_FORMAT_VERSION = 1
+_ALLOWED_MODULES = ("sklearn", "sklearn_psf")
+
+
+# ----------------------------------------------------------------------------- atomic writes
+def write_fits_atomic(hdul: fits.HDUList, path, overwrite: bool = False) -> None:
+    """Write an HDU list to ``path`` through a temporary file in the same folder.
+
+    The temporary file is renamed over ``path`` (``os.replace``) only once it is complete;
+    on any error it is removed, so ``path`` is never left half-written.
+    """
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    if os.path.exists(path) and not overwrite:
+        raise FileExistsError(f"{path!r} already exists: pass overwrite=True to replace it.")
+    if not os.path.isdir(folder):
+        raise FileNotFoundError(f"The folder {folder!r} of {path!r} does not exist.")
+    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp",
+                               dir=folder)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            hdul.writeto(f)
+            f.flush()
+            os.fsync(f.fileno())
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+# ----------------------------------------------------------------------------- estimator specs
+def _public_path(cls):
+    """'package.Class' with the shortest public module exposing the class."""
+    module = cls.__module__
+    parts = module.split(".")
+    for i in range(1, len(parts) + 1):
+        candidate = ".".join(parts[:i])
+        if any(p.startswith("_") for p in parts[:i]):
+            break
+        try:
+            if getattr(importlib.import_module(candidate), cls.__name__, None) is cls:
+                return f"{candidate}.{cls.__name__}"
+        except ImportError:  # pragma: no cover
+            break
+    return f"{module}.{cls.__name__}"
+
+
+def _encode(obj, arrays, where):
+    if obj is None or isinstance(obj, (bool, str)):
+        return obj
+    if isinstance(obj, (int, float)):
+        return obj
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        arrays.append(np.asarray(obj))
+        return {"__array__": len(arrays) - 1}
+    if isinstance(obj, tuple):
+        return {"__tuple__": [_encode(v, arrays, where) for v in obj]}
+    if isinstance(obj, list):
+        return [_encode(v, arrays, where) for v in obj]
+    if isinstance(obj, dict):
+        return {"__dict__": {str(k): _encode(v, arrays, where) for k, v in obj.items()}}
+    if isinstance(obj, BaseEstimator):
+        path = _public_path(type(obj))
+        if path.split(".")[0] not in _ALLOWED_MODULES:
+            raise ValueError(
+                f"Cannot store the {where} {type(obj).__name__} (module {type(obj).__module__}) "
+                "in a model file: only scikit-learn and sklearn_psf estimators are described "
+                "there. Save this model with joblib.dump instead."
+            )
+        params = obj.get_params(deep=False)
+        return {"__estimator__": path,
+                "params": {k: _encode(v, arrays, where) for k, v in params.items()}}
+    raise ValueError(
+        f"Cannot store a parameter of type {type(obj).__name__} of the {where} in a model "
+        "file; save this model with joblib.dump instead."
+    )
+
+
+def _decode(obj, arrays):
+    if isinstance(obj, list):
+        return [_decode(v, arrays) for v in obj]
+    if not isinstance(obj, dict):
+        return obj
+    if "__array__" in obj:
+        return np.array(arrays[int(obj["__array__"])], copy=True)
+    if "__tuple__" in obj:
+        return tuple(_decode(v, arrays) for v in obj["__tuple__"])
+    if "__dict__" in obj:
+        return {k: _decode(v, arrays) for k, v in obj["__dict__"].items()}
+    if "__estimator__" in obj:
+        path = str(obj["__estimator__"])
+        module, _, name = path.rpartition(".")
+        if module.split(".")[0] not in _ALLOWED_MODULES:
+            raise ValueError(f"The model file names the estimator {path!r}, outside "
+                             "scikit-learn and sklearn_psf: refusing to import it.")
+        try:
+            cls = getattr(importlib.import_module(module), name)
+        except (ImportError, AttributeError):
+            raise ValueError(
+                f"The model file needs the estimator {path!r}, which this installation does "
+                "not provide (a different scikit-learn or sklearn_psf version?)."
+            ) from None
+        params = {k: _decode(v, arrays) for k, v in obj["params"].items()}
+        try:
+            return cls(**params)
+        except TypeError as exc:
+            raise ValueError(f"Cannot rebuild {path} from the model file: {exc}.") from None
+    raise ValueError(f"Unknown entry in the model file's description: {obj!r}.")
+
+
+def _json_default(obj):
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, (dict,)):
+        return dict(obj)
+    return str(obj)
+
+
+# ----------------------------------------------------------------------------- the basis
+def _leaf_steps(transformer):
+    if isinstance(transformer, Pipeline):
+        out = []
+        for _, step in transformer.steps:
+            if step is None or step == "passthrough":
+                continue
+            out.extend(_leaf_steps(step))
+        return out
+    return [transformer]
+
+
+def _linear_basis(basis, s):
+    """(normalizer params list, mean (p,), components (k, p)) of a fitted basis, or raise."""
+    from ..preprocessing import StampNormalizer
+
+    leaves = _leaf_steps(basis)
+    *pre, last = leaves
+    bad = [type(t).__name__ for t in pre if not isinstance(t, StampNormalizer)]
+    comps = getattr(last, "components_", None)
+    mean = getattr(last, "mean_", None)
+    if bad or comps is None or mean is None or getattr(last, "whiten", False):
+        raise ValueError(
+            "save_model stores bases made of StampNormalizer steps and a linear basis (PCA "
+            "without whitening, FixedBasis); this model's basis is "
+            f"{[type(t).__name__ for t in leaves]}. Save it with joblib.dump instead."
+        )
+    comps = np.asarray(comps, dtype=np.float64).reshape(len(comps), -1)
+    mean = np.asarray(mean, dtype=np.float64).reshape(-1)
+    if comps.shape[1] != s * s or mean.size != s * s:
+        raise ValueError("The basis's components do not match the stamp size.")
+    # the rebuilt basis must give the same stamps: check inverse_transform on a probe
+    probe = np.random.default_rng(0).normal(size=(3, comps.shape[0]))
+    if not np.allclose(basis.inverse_transform(probe), probe @ comps + mean, rtol=1e-12,
+                       atol=1e-15):
+        raise ValueError("The model's basis is not linear (inverse_transform differs from "
+                         "coefficients @ components + mean): save it with joblib.dump instead.")
+    return [t.get_params(deep=False) for t in pre], mean, comps
+
+
+def _rebuild_basis(normalizer_params, mean, comps):
+    from ..preprocessing import FixedBasis, StampNormalizer
+
+    steps = [(f"stampnormalizer{i or ''}", StampNormalizer(**p))
+             for i, p in enumerate(normalizer_params)]
+    steps.append(("fixedbasis", FixedBasis(comps, mean)))
+    pipe = Pipeline(steps)
+    return pipe.fit(mean.reshape(1, -1))
+
+
+# ----------------------------------------------------------------------------- save
+def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = False) -> None:
+    """Write a fitted :class:`~sklearn_psf.model.PSFModel` to a FITS file.
+
+    The file format is described in :mod:`sklearn_psf.io._model_io` (and the user guide):
+    primary header with ``SKPSFFMT = 'SKPSF-MODEL'`` and ``FORMAT`` (version), a ``SPEC``
+    table of JSON parameter descriptions, the basis (``BASIS_MEAN``, ``BASIS_COMPONENTS``),
+    the fitted stars (``STARS``: positions, coefficients, inlier flag) and, optionally, the
+    reserved-star residuals (``RESERVED``) and their rho1 (``RHO1``). The file is written to
+    a temporary file in the same folder, then renamed: never left half-written.
+
+    Parameters
+    ----------
+    model : PSFModel
+        Fitted model whose basis is StampNormalizer steps + a linear basis (PCA without
+        whitening or FixedBasis) and whose interpolator/outlier detector are scikit-learn or
+        sklearn_psf estimators (use joblib for anything else).
+    path : str or os.PathLike
+    residuals : astropy.table.Table, optional
+        Reserved-star residuals.
+    summary : dict, optional
+        Validation summary (JSON-able values; a ``rho1`` entry with ``theta``, ``xi``,
+        ``sigma_xi``, ``npairs`` becomes the ``RHO1`` table).
+    overwrite : bool, default=False
+
+    Raises
+    ------
+    ValueError
+        For an unfitted model or parts that cannot be described in the file.
+    FileExistsError
+        When ``path`` exists and ``overwrite`` is False.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from astropy.io import fits
+    >>> from sklearn_psf.io import save_model
+    >>> from sklearn_psf.model import PSFModel
+    >>> from sklearn_psf.interpolate import PolynomialRegressor
+    >>> rng = np.random.default_rng(0)
+    >>> X = rng.uniform(0, 1000, (40, 2))
+    >>> yy, xx = np.mgrid[0:11, 0:11] - 5.0
+    >>> y = np.exp(-0.5 * (xx.ravel() ** 2 + yy.ravel() ** 2) / (1.5 + X[:, :1] / 1e3) ** 2)
+    >>> model = PSFModel(interpolator=PolynomialRegressor(degree=2), outliers=None).fit(X, y)
+    >>> path = os.path.join(tempfile.mkdtemp(), "psf.fits")
+    >>> save_model(model, path)
+    >>> fits.getheader(path)["FORMAT"], [h.name for h in fits.open(path)][1:3]
+    (1, ['SPEC', 'BASIS_MEAN'])
+    """
+    from sklearn.utils.validation import check_is_fitted
+
+    from .. import __version__
+    from ..model import PSFModel
+
+    if not isinstance(model, PSFModel):
+        raise TypeError(f"save_model needs a PSFModel, got {type(model).__name__}.")
+    check_is_fitted(model)
+    if not hasattr(model, "coefficients_"):
+        raise ValueError("This PSFModel was fitted by an older sklearn_psf without the stars' "
+                         "coefficients (coefficients_): refit it, or use joblib.dump.")
+    s, k = int(model.stamp_size_), int(model.n_components_)
+    normalizers, mean, comps = _linear_basis(model.basis_, s)
+    arrays = []
+    spec = {
+        "interpolator": _encode(model.interpolator, arrays, "interpolator"),
+        "basis": _encode(model.basis, arrays, "basis"),
+        "outliers": _encode(model.outliers, arrays, "outlier detector"),
+        "normalizers": [{k2: _encode(v, arrays, "normalizer") for k2, v in p.items()}
+                        for p in normalizers],
+        "versions": _versions(),
+    }
+    if summary is not None:
+        spec["validation_summary"] = summary
+    rows = [(key, json.dumps(value, default=_json_default, allow_nan=True))
+            for key, value in spec.items()]
+
+    primary = fits.PrimaryHDU()
+    h = primary.header
+    h["SKPSFFMT"] = (MODEL_FORMAT, "sklearn_psf PSF model file")
+    h["FORMAT"] = (MODEL_FORMAT_VERSION, "format version of this model file")
+    h["SKPSFVER"] = (__version__, "sklearn_psf version that wrote the file")
+    h["STAMPSZ"] = (s, "stamp side in pixels")
+    h["NCOMP"] = (k, "number of basis components")
+    h["NSTARS"] = (len(model.inlier_mask_), "stars given to fit")
+    h["NINLIER"] = (int(np.sum(model.inlier_mask_)), "stars kept for the interpolation")
+    interp = model.interpolator_
+    last = interp.steps[-1][1] if isinstance(interp, Pipeline) else interp
+    h["INTERP"] = (type(last).__name__, "interpolator of the coefficients")
+    h["DATE"] = (datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S"),
+                 "UTC time of writing")
+    spec_hdu = fits.table_to_hdu(Table({"key": [r[0] for r in rows],
+                                        "json": [r[1] for r in rows]}))
+    spec_hdu.name = "SPEC"
+    hdus = [primary, spec_hdu,
+            fits.ImageHDU(mean.reshape(s, s), name="BASIS_MEAN"),
+            fits.ImageHDU(comps.reshape(k, s, s), name="BASIS_COMPONENTS")]
+    stars = fits.table_to_hdu(Table({
+        "x": np.asarray(model.X_fit_[:, 0], dtype=np.float64),
+        "y": np.asarray(model.X_fit_[:, 1], dtype=np.float64),
+        "coeffs": np.asarray(model.coefficients_, dtype=np.float64).reshape(-1, k),
+        "inlier": np.asarray(model.inlier_mask_, dtype=bool),
+    }))
+    stars.name = "STARS"
+    hdus.append(stars)
+    for i, arr in enumerate(arrays):
+        hdus.append(fits.ImageHDU(np.asarray(arr), name=f"ARRAY_{i}"))
+    if residuals is not None:
+        res = fits.table_to_hdu(Table(residuals))
+        res.name = "RESERVED"
+        hdus.append(res)
+    if summary is not None and isinstance(summary.get("rho1"), dict):
+        r = summary["rho1"]
+        rho = fits.table_to_hdu(Table({key: np.asarray(r[key], dtype=np.float64)
+                                       for key in ("theta", "xi", "sigma_xi", "npairs")
+                                       if key in r}))
+        rho.name = "RHO1"
+        hdus.append(rho)
+    write_fits_atomic(fits.HDUList(hdus), path, overwrite=overwrite)
+
+
+def _versions():
+    import astropy
+    import sklearn
+
+    from .. import __version__
+
+    return {"sklearn_psf": __version__, "numpy": np.__version__,
+            "scikit-learn": sklearn.__version__, "astropy": astropy.__version__}
+
+
+# ----------------------------------------------------------------------------- load
+class _ModelFileError(ValueError):
+    pass
+
+
+def _open_checked(path):
+    """Read every HDU of a model file into memory; clear ValueErrors for bad files."""
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise ValueError(f"Model file {path!r} does not exist.")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", AstropyUserWarning)  # "may have been truncated"
+            with fits.open(path, memmap=False, lazy_load_hdus=False) as hdul:
+                hdul.verify("exception")
+                header = hdul[0].header.copy()
+                if header.get("SKPSFFMT") != MODEL_FORMAT:
+                    raise _ModelFileError(
+                        f"{path!r} is not a sklearn_psf PSF model file (no SKPSFFMT = "
+                        f"'{MODEL_FORMAT}' keyword in its primary header); write one with "
+                        "PSFModel.save or 'sklearn-psf fit'."
+                    )
+                content = {}
+                for h in hdul[1:]:
+                    if isinstance(h, (fits.BinTableHDU, fits.TableHDU)):
+                        content[h.name] = Table.read(h)
+                    else:
+                        content[h.name] = np.array(h.data, dtype=np.float64)
+                return header, content
+    except _ModelFileError:
+        raise
+    except (OSError, TypeError, KeyError, IndexError, ValueError, EOFError, fits.VerifyError,
+            AstropyUserWarning) as exc:
+        raise ValueError(
+            f"Could not read the model file {path!r} ({type(exc).__name__}: {exc}); the file "
+            "is corrupt or truncated: write it again."
+        ) from None
+
+
+def _check_format(header, path):
+    version = header.get("FORMAT")
+    if not isinstance(version, (int, np.integer)) or isinstance(version, bool):
+        raise ValueError(f"{path!r} has no integer FORMAT keyword: not a valid model file.")
+    version = int(version)
+    if version > MODEL_FORMAT_VERSION:
+        raise ValueError(
+            f"{path!r} is a model file of format version {version}, written by sklearn_psf "
+            f"{header.get('SKPSFVER', '?')}; this sklearn_psf reads format versions up to "
+            f"{MODEL_FORMAT_VERSION}: upgrade sklearn_psf to read it."
+        )
+    if version not in _READERS:
+        raise ValueError(
+            f"{path!r} has format version {version}, which no sklearn_psf release wrote "
+            f"(known versions: {sorted(_READERS)}): the file is damaged or not a model file."
+        )
+    return version
+
+
+def _read_v1(header, content, path):
+    from ..model import PSFModel
+
+    try:
+        spec_table = content["SPEC"]
+        spec = {str(k): json.loads(str(v)) for k, v in zip(spec_table["key"], spec_table["json"])}
+        mean = np.asarray(content["BASIS_MEAN"], dtype=np.float64).reshape(-1)
+        comps = np.asarray(content["BASIS_COMPONENTS"], dtype=np.float64)
+        stars = content["STARS"]
+        s, k = int(header["STAMPSZ"]), int(header["NCOMP"])
+    except (KeyError, ValueError, TypeError) as exc:
+        raise ValueError(f"The model file {path!r} is incomplete (missing or damaged {exc}): "
+                         "write it again.") from None
+    comps = comps.reshape(k, s * s)
+    arrays = [content[f"ARRAY_{i}"] for i in range(len([n for n in content
+                                                        if n.startswith("ARRAY_")]))]
+    interpolator = _decode(spec["interpolator"], arrays)
+    basis = _decode(spec["basis"], arrays)
+    outliers = _decode(spec["outliers"], arrays)
+    normalizers = [{key: _decode(v, arrays) for key, v in p.items()}
+                   for p in spec["normalizers"]]
+    model = PSFModel(interpolator=interpolator, basis=basis, outliers=outliers)
+    X = np.column_stack([np.asarray(stars["x"], dtype=np.float64),
+                         np.asarray(stars["y"], dtype=np.float64)])
+    coef = np.asarray(stars["coeffs"], dtype=np.float64).reshape(len(X), k)
+    mask = np.asarray(stars["inlier"], dtype=bool)
+    # the model's own fit path, minus the basis: same interpolator, same data
+    detector = model._make_outliers()
+    if detector is not None:
+        detector.fit(coef)
+    from ..model import make_default_interpolator
+
+    interp = make_default_interpolator() if interpolator is None else clone(interpolator)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # warnings were already shown when the model was fitted
+        interp.fit(X[mask], coef[mask])
+    model.basis_ = _rebuild_basis(normalizers, mean, comps)
+    model.outliers_ = detector
+    model.interpolator_ = interp
+    model.inlier_mask_ = mask
+    model.n_components_ = k
+    model.stamp_size_ = s
+    model.n_features_in_ = 2
+    model.X_fit_ = X
+    model.coefficients_ = coef
+    return model
+
+
+_READERS = {1: _read_v1}
+
+
+def load_model(path):
+    """Read a PSF model file written by :func:`save_model` / ``PSFModel.save``.
+
+    Files of every known format version (``FORMAT`` keyword, see
+    :data:`MODEL_FORMAT_VERSION`) load; a newer or unknown version fails with a message
+    naming the version and what to do.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    model : PSFModel
+        Fitted; predictions are identical to the saved model's.
+
+    Raises
+    ------
+    ValueError
+        For a missing, corrupt or truncated file, a FITS file that is not a model file, or an
+        unknown/newer format version.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from sklearn_psf.io import load_model, save_model
+    >>> from sklearn_psf.model import PSFModel
+    >>> rng = np.random.default_rng(0)
+    >>> X = rng.uniform(0, 1000, (40, 2))
+    >>> yy, xx = np.mgrid[0:11, 0:11] - 5.0
+    >>> y = np.exp(-0.5 * (xx.ravel() ** 2 + yy.ravel() ** 2) / (1.5 + X[:, :1] / 1e3) ** 2)
+    >>> model = PSFModel(outliers=None).fit(X, y)
+    >>> path = os.path.join(tempfile.mkdtemp(), "psf.fits")
+    >>> save_model(model, path)
+    >>> bool(np.array_equal(load_model(path).predict(X), model.predict(X)))
+    True
+    """
+    path = os.fspath(path)
+    header, content = _open_checked(path)
+    version = _check_format(header, path)
+    return _READERS[version](header, content, path)
+
+
+def read_model_validation(path):
+    """The reserved-star residuals and validation summary stored in a model file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    residuals : astropy.table.Table or None
+        The ``RESERVED`` table (None when the model was saved without validation).
+    summary : dict or None
+        The validation summary.
+
+    Examples
+    --------
+    >>> from sklearn_psf.io import read_model_validation
+    >>> read_model_validation  # doctest: +ELLIPSIS
+    <function read_model_validation at ...>
+    """
+    header, content = _open_checked(path)
+    _check_format(header, os.fspath(path))
+    residuals = content.get("RESERVED")
+    summary = None
+    spec = content.get("SPEC")
+    if spec is not None:
+        for key, value in zip(spec["key"], spec["json"]):
+            if str(key) == "validation_summary":
+                summary = json.loads(str(value))
+    return residuals, summary
