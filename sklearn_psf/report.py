@@ -701,9 +701,16 @@ def _markdown(result, config, schemes, figure_entries, notes, written):
     # configuration
     lines += ["## Configuration", ""]
     study_config = getattr(result, "config", None) or {}
+    sim_configs = study_config.get("configs") or []
     if study_config:
         lines += [_md_table(["setting", "value"],
-                            [(k, json.dumps(_jsonable(v))) for k, v in study_config.items()]), ""]
+                            [(k, json.dumps(_jsonable(v))) for k, v in study_config.items()
+                             if k != "configs"]), ""]
+    if sim_configs:  # one row per simulated configuration, one column per setting
+        keys = [k for k in sim_configs[0] if k != "label"]
+        lines += [_md_table(["configuration", *keys],
+                            [(c.get("label", ""), *(json.dumps(_jsonable(c.get(k))) for k in keys))
+                             for c in sim_configs]), ""]
     configs = _unique_in_order(scores["config"])
     lines += [f"- Configurations: {', '.join(configs)}",
               f"- Schemes: {', '.join(_unique_in_order(scores['scheme']))}",
