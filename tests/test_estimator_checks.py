@@ -1,0 +1,52 @@
+"""scikit-learn's estimator checks for the stamp transformers and the PSF model.
+
+The interpolation regressors and the IQR detector run these checks in their own test files.
+Here, every check a stamp estimator cannot pass is listed with its reason: the checks feed
+2 to 10 arbitrary features, while a stamp must have a square number of pixels and positive
+flux, and a fixed basis fixes the number of pixels. The same behaviours (clone, pickle,
+pipelines, fit/transform consistency, untouched input) are tested on real stamps in
+tests/test_preprocessing.py and tests/test_model.py.
+"""
+
+import numpy as np
+from sklearn.utils.estimator_checks import parametrize_with_checks
+
+from sklearn_psf import FixedBasis, StampNormalizer
+
+_NOT_SQUARE = ("the check's data have a non-square number of pixels (2-10 features); "
+               "StampNormalizer needs square stamps to centre them")
+_FIXED_SIZE = ("the check's data have 1-10 features; a FixedBasis of 9-pixel components only "
+               "projects 9-pixel stamps")
+
+_STAMP_DATA_CHECKS = [
+    "check_dict_unchanged", "check_dont_overwrite_parameters", "check_dtype_object",
+    "check_estimators_dtypes", "check_estimators_fit_returns_self", "check_estimators_nan_inf",
+    "check_estimators_overwrite_params", "check_estimators_pickle",
+    "check_f_contiguous_array_estimator", "check_fit2d_1sample", "check_fit2d_predict1d",
+    "check_fit_check_is_fitted", "check_fit_idempotent", "check_fit_score_takes_y",
+    "check_methods_sample_order_invariance", "check_methods_subset_invariance",
+    "check_n_features_in", "check_pipeline_consistency", "check_readonly_memmap_input",
+    "check_transformer_data_not_an_array", "check_transformer_general",
+    "check_transformer_preserve_dtypes",
+]
+EXPECTED_FAILURES = {
+    "StampNormalizer": dict.fromkeys(_STAMP_DATA_CHECKS, _NOT_SQUARE),
+    "FixedBasis": {
+        **dict.fromkeys(_STAMP_DATA_CHECKS, _FIXED_SIZE),
+        "check_fit2d_1feature": _FIXED_SIZE,
+        "check_n_features_in_after_fitting": _FIXED_SIZE,
+        "check_positive_only_tag_during_fit": _FIXED_SIZE,
+    },
+}
+
+
+def _expected(estimator):
+    return EXPECTED_FAILURES.get(type(estimator).__name__, {})
+
+
+@parametrize_with_checks(
+    [StampNormalizer(), FixedBasis(components=np.random.default_rng(0).random((2, 9)))],
+    expected_failed_checks=_expected,
+)
+def test_sklearn_compatible(estimator, check):
+    check(estimator)
