@@ -19,9 +19,12 @@ ESTIMATORS = [
     ChebyshevRegressor(degree=1),
     RBFRegressor(),
     RBFRegressor(kernel="thin_plate_spline"),
+    RBFRegressor(n_neighbors=5),
     ShepardRegressor(),
+    ShepardRegressor(n_neighbors=3),
     KrigingRegressor(),
     KrigingRegressor(variogram="spherical", nugget=0.1),
+    KrigingRegressor(n_neighbors=4),
     DelaunayRegressor(),
 ]
 

@@ -137,3 +137,19 @@ class _BaseInterpolator(RegressorMixin, BaseEstimator):
         """
         X = self._validate_predict_data(X)
         return self._format_output(self._predict(X))
+
+
+def _check_n_neighbors(owner: str, n_neighbors):
+    """``None`` or a positive integer (returned as int); a ValueError otherwise."""
+    if n_neighbors is None:
+        return None
+    if (
+        isinstance(n_neighbors, (bool, np.bool_))
+        or not isinstance(n_neighbors, (int, np.integer))
+        or n_neighbors < 1
+    ):
+        raise ValueError(
+            f"{owner}: n_neighbors must be None (all stars) or a positive integer, got "
+            f"{n_neighbors!r}."
+        )
+    return int(n_neighbors)

@@ -6,9 +6,20 @@ import numbers
 
 import numpy as np
 from scipy.linalg import LinAlgError, cho_factor, cho_solve, solve_triangular
+from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
-from ._base import _BaseInterpolator, _check_n_samples, _merge_duplicates, _query_chunks
+from ._base import (
+    _BaseInterpolator,
+    _check_n_neighbors,
+    _check_n_samples,
+    _merge_duplicates,
+    _query_chunks,
+)
+
+#: Local Kriging: queries per batch of stacked (k+1, k+1) bordered systems are bounded so
+#: that the batch's arrays stay around this many float64 elements (~16 MB).
+_LOCAL_BATCH_ELEMENTS = 2**21
 
 
 def _exp_corr(r):
@@ -156,6 +167,16 @@ class KrigingRegressor(_BaseInterpolator):
         unit square: use ``make_pipeline(MinMaxScaler(), KrigingRegressor())``).
     nugget : float, default=0.0
         Nugget as a fraction of the sill, in [0, 1].
+    n_neighbors : int or None, default=None
+        ``None``: exact Kriging with all stars (one factorisation of the ``n_stars``
+        system, cost ``O(n_stars^3)`` and memory ``O(n_stars^2)``). An integer ``k``:
+        local Kriging in a moving neighbourhood: each query is predicted by ordinary
+        Kriging from its ``k`` nearest stars only (found with
+        :class:`scipy.spatial.cKDTree`; small bordered systems solved in batches), cost
+        ``O(n_queries k^3)``, for large numbers of stars (``10^4`` and more). Each
+        neighbourhood has its own unbiasedness constraint (a local mean); the sill of each
+        target stays the variance over all stars. ``k >= n_stars`` is exact Kriging with
+        a per-query solve (slower than ``None``).
 
     Attributes
     ----------
@@ -164,9 +185,13 @@ class KrigingRegressor(_BaseInterpolator):
     sill_ : ndarray of shape (n_targets,)
         Variance of each target over the stars.
     mean_ : ndarray of shape (n_targets,)
-        Generalised-least-squares estimate of each target's mean.
+        Generalised-least-squares estimate of each target's mean (exact mode; in local
+        mode the mean of the targets over the stars, for reference only).
     dual_coef_ : ndarray of shape (n_stars, n_targets)
-        ``C^-1 (y - mean_)`` with ``C`` the normalised covariance matrix of the stars.
+        ``C^-1 (y - mean_)`` with ``C`` the normalised covariance matrix of the stars
+        (exact mode only).
+    y_fit_ : ndarray of shape (n_stars, n_targets)
+        Star values (local mode only).
     n_features_in_ : int
         Number of features seen during fit.
 
@@ -178,6 +203,10 @@ class KrigingRegressor(_BaseInterpolator):
     factorises ``C`` once (Cholesky) and predicts ``mean + c(x)^T C^-1 (y - mean)`` in
     chunks of queries; the Kriging variance is
     ``sill (1 - c^T C^-1 c + (1 - 1^T C^-1 c)^2 / 1^T C^-1 1)``.
+
+    In local mode (``n_neighbors=k``) each query solves the bordered system
+    ``[C_k 1; 1^T 0] [lambda; mu] = [c_k; 1]`` of its ``k`` nearest stars; the prediction
+    is ``lambda^T y_k`` and the variance ``sill (1 - lambda^T c_k - mu)``.
 
     The variogram is 0 at distance 0, so a query exactly on a star returns that star's
     value (and standard deviation 0) even with a nugget.
@@ -201,12 +230,19 @@ class KrigingRegressor(_BaseInterpolator):
     (True, True)
     >>> reg.predict([[0.5, 0.5]]).shape
     (1, 2)
+
+    Local Kriging from the 20 nearest stars of each query:
+
+    >>> local = KrigingRegressor(range=0.5, n_neighbors=20).fit(X, y)
+    >>> bool(np.allclose(local.predict(X[:2]), y[:2]))
+    True
     """
 
-    def __init__(self, variogram="exponential", range=0.5, nugget=0.0):
+    def __init__(self, variogram="exponential", range=0.5, nugget=0.0, n_neighbors=None):
         self.variogram = variogram
         self.range = range
         self.nugget = nugget
+        self.n_neighbors = n_neighbors
 
     def _correlation(self, D):
         """(1 - nugget) rho(D / a), overwriting D (a fresh distance matrix)."""
@@ -249,6 +285,14 @@ class KrigingRegressor(_BaseInterpolator):
                 X, Y, owner=name, reason="with nugget=0 the Kriging system would be singular."
             )
         _check_n_samples(name, X.shape[0], 2, "(distinct positions)")
+        k = _check_n_neighbors(name, self.n_neighbors)
+        self.sill_ = Y.var(axis=0)
+        self.X_fit_ = X
+        if k is not None:
+            self._fit_local(X, Y, k)
+            return
+        for attr in ("y_fit_", "_tree", "_k"):
+            self.__dict__.pop(attr, None)
         C = self._star_covariance(X)
         try:
             factor = cho_factor(C, lower=True, overwrite_a=True, check_finite=False)
@@ -264,10 +308,18 @@ class KrigingRegressor(_BaseInterpolator):
         self._one_c_one = float(ones @ w)
         self.mean_ = (w @ Y) / self._one_c_one
         self.dual_coef_ = cho_solve(factor, Y - self.mean_, check_finite=False)
-        self.sill_ = Y.var(axis=0)
-        self.X_fit_ = X
-        self._chol = np.tril(factor[0])
+        # The lower triangle holds L; the upper one is never read (no tril copy: at 10^4
+        # stars that would be another 800 MB).
+        self._chol = factor[0]
         self._c_inv_one = w
+
+    def _fit_local(self, X, Y, k):
+        for attr in ("dual_coef_", "_chol", "_c_inv_one", "_one_c_one"):
+            self.__dict__.pop(attr, None)
+        self.y_fit_ = Y
+        self.mean_ = Y.mean(axis=0)
+        self._k = min(k, X.shape[0])
+        self._tree = cKDTree(X)
 
     def predict(self, X, return_std=False):
         """Kriging prediction, and optionally its standard deviation.
@@ -287,22 +339,81 @@ class KrigingRegressor(_BaseInterpolator):
             Kriging standard deviation (only with ``return_std=True``).
         """
         X = self._validate_predict_data(X)
-        m, T = X.shape[0], self.dual_coef_.shape[1]
-        pred = np.empty((m, T))
-        var = np.empty(m) if return_std else None
-        for sl in _query_chunks(m, self.X_fit_.shape[0]):
-            c, on_star = self._query_covariance(X[sl])
-            pred[sl] = self.mean_ + c @ self.dual_coef_
-            if return_std:
-                v = solve_triangular(self._chol, c.T, lower=True, check_finite=False)
-                u = 1.0 - c @ self._c_inv_one
-                var[sl] = 1.0 - np.einsum("ij,ij->j", v, v) + u**2 / self._one_c_one
-                var[sl][on_star] = 0.0  # exactly 0 on a star, not rounding noise
+        if getattr(self, "_tree", None) is not None:
+            pred, var = self._predict_local(X, return_std)
+        else:
+            pred, var = self._predict_exact(X, return_std)
         pred = self._format_output(pred)
         if not return_std:
             return pred
         std = np.sqrt(np.clip(var, 0.0, None)[:, None] * self.sill_)
         return pred, self._format_output(std)
+
+    def _predict_exact(self, X, return_std):
+        m, T = X.shape[0], self.dual_coef_.shape[1]
+        pred = np.empty((m, T))
+        var = np.empty(m) if return_std else None
+        for sl in _query_chunks(m, self.X_fit_.shape[0]):
+            c, on_star = self._query_covariance(X[sl])
+            np.matmul(c, self.dual_coef_, out=pred[sl])
+            pred[sl] += self.mean_
+            if return_std:
+                u = 1.0 - c @ self._c_inv_one
+                # c^T C^-1 c = |L^-1 c|^2: one triangular solve on the chunk, in place on
+                # c.T (Fortran-contiguous, so LAPACK needs no copy; c is not used after).
+                v = solve_triangular(self._chol, c.T, lower=True, check_finite=False,
+                                     overwrite_b=True)
+                q = np.einsum("ij,ij->j", v, v)
+                var[sl] = 1.0 - q + u * u / self._one_c_one
+                var[sl][on_star] = 0.0  # exactly 0 on a star, not rounding noise
+        return pred, var
+
+    def _predict_local(self, X, return_std):
+        m, T = X.shape[0], self.y_fit_.shape[1]
+        k = self._k
+        pred = np.empty((m, T))
+        var = np.empty(m) if return_std else None
+        batch = int(max(1, _LOCAL_BATCH_ELEMENTS // ((k + 1) ** 2 + k * T)))
+        Xs, Ys = self.X_fit_, self.y_fit_
+        for start in range(0, m, batch):
+            sl = slice(start, min(start + batch, m))
+            dist, idx = self._tree.query(X[sl], k=k)
+            if k == 1:
+                dist, idx = dist[:, None], idx[:, None]
+            b = idx.shape[0]
+            P = Xs[idx]  # (b, k, d) neighbour positions
+            # bordered systems [C 1; 1^T 0] of every query's neighbourhood, stacked
+            A = np.empty((b, k + 1, k + 1))
+            D = A[:, :k, :k]
+            diff = P[:, :, None, :] - P[:, None, :, :]
+            np.sqrt(np.einsum("bijd,bijd->bij", diff, diff), out=D)
+            del diff
+            D[...] = self._correlation(D)
+            diag = np.arange(k)
+            A[:, diag, diag] = 1.0  # distinct stars: nugget between them, 1 on the diagonal
+            A[:, :k, k] = 1.0
+            A[:, k, :k] = 1.0
+            A[:, k, k] = 0.0
+            rhs = np.empty((b, k + 1))
+            on = dist == 0
+            rhs[:, :k] = self._correlation(dist.copy())
+            rhs[:, :k][on] = 1.0  # on a star: covariance 1 (the variogram is 0 there)
+            rhs[:, k] = 1.0
+            try:
+                sol = np.linalg.solve(A, rhs[:, :, None])[:, :, 0]
+            except np.linalg.LinAlgError:
+                raise ValueError(
+                    "KrigingRegressor: a local Kriging system is singular (stars almost at "
+                    "the same position relative to the range). Add a small nugget (e.g. "
+                    "nugget=1e-6) or merge close stars."
+                ) from None
+            lam = sol[:, :k]
+            pred[sl] = np.einsum("bk,bkt->bt", lam, Ys[idx])
+            if return_std:
+                v = 1.0 - np.einsum("bk,bk->b", lam, rhs[:, :k]) - sol[:, k]
+                v[on.any(axis=1)] = 0.0
+                var[sl] = v
+        return pred, var
 
     def _predict(self, X):  # pragma: no cover - predict is overridden
         raise NotImplementedError

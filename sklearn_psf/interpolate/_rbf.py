@@ -8,7 +8,7 @@ from math import comb
 import numpy as np
 from scipy.interpolate import RBFInterpolator
 
-from ._base import _BaseInterpolator, _check_n_samples, _merge_duplicates
+from ._base import _BaseInterpolator, _check_n_neighbors, _check_n_samples, _merge_duplicates
 
 #: kernels exposed, and the degree of the polynomial that scipy adds by default
 _KERNELS = {
@@ -45,6 +45,11 @@ default="gaussian"
     smoothing : float, default=0.0
         Smoothing parameter of scipy (added to the kernel matrix's diagonal); 0 gives an
         exact interpolant.
+    n_neighbors : int or None, default=None
+        ``None``: one global RBF system of all stars. An integer ``k``: scipy's local
+        interpolation (``RBFInterpolator(neighbors=k)``): each query uses an RBF system of
+        its ``k`` nearest stars, for large numbers of stars. ``k`` must be at least the
+        number of polynomial terms (3 for the thin-plate spline in 2-D).
 
     Attributes
     ----------
@@ -71,10 +76,11 @@ default="gaussian"
     True
     """
 
-    def __init__(self, kernel="gaussian", epsilon=1.0, smoothing=0.0):
+    def __init__(self, kernel="gaussian", epsilon=1.0, smoothing=0.0, n_neighbors=None):
         self.kernel = kernel
         self.epsilon = epsilon
         self.smoothing = smoothing
+        self.n_neighbors = n_neighbors
 
     def _fit(self, X, Y):
         name = "RBFRegressor"
@@ -95,7 +101,14 @@ default="gaussian"
                 X, Y, owner=name,
                 reason="with smoothing=0 the RBF system would be singular.",
             )
+        k = _check_n_neighbors(name, self.n_neighbors)
         degree = _KERNELS[self.kernel]
+        n_poly = max(comb(X.shape[1] + degree, degree), 1)
+        if k is not None and k < n_poly:
+            raise ValueError(
+                f"{name}: n_neighbors must be at least {n_poly} (the polynomial terms of the "
+                f"{self.kernel} kernel in {X.shape[1]} features), got {k}."
+            )
         _check_n_samples(
             name, X.shape[0], max(comb(X.shape[1] + degree, degree), 1),
             f"(distinct positions) for the degree-{degree} polynomial of the "
@@ -104,7 +117,7 @@ default="gaussian"
         try:
             self.interpolator_ = RBFInterpolator(
                 X, Y, kernel=self.kernel, epsilon=float(self.epsilon),
-                smoothing=float(self.smoothing),
+                smoothing=float(self.smoothing), neighbors=k,
             )
         except np.linalg.LinAlgError as exc:
             raise ValueError(
