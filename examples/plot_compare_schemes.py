@@ -1,7 +1,7 @@
 """
-==============================================
+=================================================
 Compare interpolation schemes with cross_validate
-==============================================
+=================================================
 
 The paper's comparison is a cross-validation with a predefined split: the model is trained on
 the stars and tested on the galaxy-PSFs, where the simulation knows the true PSF.

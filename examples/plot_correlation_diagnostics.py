@@ -1,7 +1,7 @@
 """
-====================================================
+=====================================================
 Ellipticity correlations and weak-lensing systematics
-====================================================
+=====================================================
 
 A PSF model is judged by what its errors do to a cosmic-shear measurement. The paper's
 diagnostics, on one simulation, for Kriging and a degree-5 polynomial:
@@ -54,11 +54,18 @@ theta_pos = X_gal * field.pixel_scale / 60.0  # positions in arcmin
 
 schemes = default_schemes()
 model_e = {}
+measured = np.asarray(field.galaxies["moments_flag"]) == 0  # true PSF measured
 for name in ("kriging", "polynomial"):
     model = make_psf_model(schemes[name], reference=field.reference)
     model.fit(X_stars, stamps[flags == 0])
     moments = adaptive_moments(model.predict(X_gal))
+    measured &= np.asarray(moments["flag"]) == 0
     model_e[name] = np.asarray(moments["e1"]), np.asarray(moments["e2"])
+
+# keep the galaxy-PSFs whose true and model stamps were all measured (flag 0)
+print(f"{measured.sum()} of {len(X_gal)} galaxy-PSFs measured")
+theta_pos, e1_true, e2_true = theta_pos[measured], e1_true[measured], e2_true[measured]
+model_e = {name: (e1[measured], e2[measured]) for name, (e1, e2) in model_e.items()}
 
 # %%
 # Correlation functions
@@ -78,8 +85,8 @@ theta = np.asarray(corr["input"].theta_nominal)
 # %%
 # Implied systematics
 # -------------------
-# |delta xi+| <= |D1| / P_gamma^2 * (R_PSF / R_gal)^4 with P_gamma = 1.84 and
-# R_PSF / R_gal = 2/3 (the defaults), then sigma_sys^2 is the integral of the bias's power
+# :math:`|\delta\xi_+| \le |D_1| \, (R_\mathrm{PSF} / R_\mathrm{gal})^4 / P_\gamma^2` with
+# :math:`P_\gamma = 1.84` and :math:`R_\mathrm{PSF} / R_\mathrm{gal} = 2/3` (the defaults), then sigma_sys^2 is the integral of the bias's power
 # spectrum. Compare with the surveys' requirements.
 implied = {name: sigma_sys2(theta, shear_bias_bound(np.asarray(corr[f"D1 {name}"].xi)))
            for name in model_e}
@@ -96,7 +103,7 @@ print(surveys)
 # %%
 # The figure
 # ----------
-# |xi| on log axes (open symbols where the mean is negative), with the D1 limits of three
+# :math:`|\xi|` on log axes (open symbols where the mean is negative), with the D1 limits of three
 # sigma_sys^2 levels (dotted). A residual curve below a dotted line meets that level on
 # these scales. A small field gives noisy correlations at large separations.
 curves = requirement_curves(theta)

@@ -1,7 +1,7 @@
 """
-=====================================
+=======================================
 Fit a PSF model and predict galaxy-PSFs
-=====================================
+=======================================
 
 The basic workflow of sklearn_psf on one simulated field: cut the stars from the image,
 fit a :class:`~sklearn_psf.PSFModel` (stamp normalisation, PCA keeping 90% of the variance,
@@ -85,8 +85,9 @@ from sklearn_psf.compare import default_schemes, make_psf_model
 forced = make_psf_model(default_schemes()["kriging"], reference=field.reference)
 forced.fit(X_stars, stamps)
 mom_forced = adaptive_moments(forced.predict(X_gal))
+ok_forced = np.asarray(mom_forced["flag"]) == 0
 de_forced = np.hypot(np.asarray(mom_forced["e1"]) - field.galaxies["e1"],
-                     np.asarray(mom_forced["e2"]) - field.galaxies["e2"])
+                     np.asarray(mom_forced["e2"]) - field.galaxies["e2"])[ok_forced]
 print(f"reference basis ({forced.n_components_} components): "
       f"|de| rms {np.sqrt(np.mean(de_forced ** 2)):.4f}")
 

@@ -1,7 +1,7 @@
 """
-============================================
+=====================================
 A miniature of the paper's comparison
-============================================
+=====================================
 
 ``sklearn-psf compare`` runs the study of Bergé et al. (2012): every interpolation scheme on
 many simulated PSF fields, evaluated at the galaxy-PSFs, then a report with the paper's

@@ -76,7 +76,8 @@ plt.show()
 # Ellipticity whisker map
 # -----------------------
 # The PSF ellipticity e = e1 + i e2 = (Q11 - Q22 + 2i Q12) / (Q11 + Q22) at the grid
-# galaxy-PSFs: each whisker has length |e| and position angle arctan2(e2, e1) / 2.
+# galaxy-PSFs: each whisker has length :math:`|e|` and position angle
+# :math:`\arctan(e_2, e_1) / 2`.
 e1, e2 = np.asarray(field.galaxies["e1"]), np.asarray(field.galaxies["e2"])
 modulus = np.hypot(e1, e2)
 angle = 0.5 * np.arctan2(e2, e1)
@@ -92,7 +93,7 @@ ax.set_ylabel("y (pixels)")
 plt.show()
 
 # %%
-# The paper's simulations have PSF ellipticities of mean |e| about 0.05 with a spread about
+# The paper's simulations have PSF ellipticities of mean :math:`|e|` about 0.05 with a spread about
 # 0.02; the default reference was tuned to match.
 print(f"mean |e| = {modulus.mean():.4f}, standard deviation of |e| = {modulus.std():.4f}")
 print(f"standard deviation of e1 = {e1.std():.4f}, of e2 = {e2.std():.4f}")

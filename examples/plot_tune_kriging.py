@@ -1,7 +1,7 @@
 """
-=========================================
+========================================
 Tune the Kriging range with GridSearchCV
-=========================================
+========================================
 
 On real data there are no galaxy-PSFs with a known PSF: the only way to choose the
 hyperparameters of an interpolation scheme is to hold out some stars. Because
@@ -49,7 +49,7 @@ print(sorted(k for k in model.get_params() if k.startswith("interpolator__krigin
 # %%
 # Grid search with K-fold on the stars
 # ------------------------------------
-# The score is minus the mean |rho1| of the held-out stars (their measured, noisy stamps
+# The score is minus the mean :math:`|\rho_1|` of the held-out stars (their measured, noisy stamps
 # against the model's prediction) between 1/20 and 3/4 of the image width.
 width = image_shape[1]
 param_grid = {
