@@ -9,8 +9,18 @@ from sklearn_psf.measure import (
     FLAG_NO_FLUX,
     adaptive_moments,
 )
+from sklearn_psf.measure import _moments
 
 SIZE = 33
+
+BACKENDS = ["numpy"] + (["numba"] if _moments._iterate_numba is not None else [])
+
+
+@pytest.fixture(params=BACKENDS, autouse=True)
+def backend(request, monkeypatch):
+    """Every test runs on the numpy path and, when numba is installed, the compiled one."""
+    monkeypatch.setattr(_moments, "_USE_NUMBA", request.param == "numba")
+    return request.param
 
 
 def _profiles():
@@ -140,3 +150,20 @@ def test_max_iter_flag():
     st = _draw(_profiles()["kolmogorov"])
     t = adaptive_moments(st[None], max_iter=2)
     assert t["flag"][0] != 0 and np.isnan(t["e1"][0])
+
+
+@pytest.mark.skipif(_moments._iterate_numba is None, reason="numba is not installed")
+def test_numba_and_numpy_paths_agree():
+    rng = np.random.default_rng(3)
+    profs = list(_profiles().values())
+    cube = np.array([_draw(profs[i % 4], rng.uniform(-1, 1, 2)) for i in range(40)])
+    cube += rng.normal(0.0, 1e-4, cube.shape)
+    cube[5, 3, 3] = np.inf
+    cube[6] = 0.0
+    tables = {}
+    for use in (False, True):
+        _moments._USE_NUMBA = use
+        tables[use] = adaptive_moments(cube)
+    np.testing.assert_array_equal(tables[True]["flag"], tables[False]["flag"])
+    for col in ("e1", "e2", "sigma", "x0", "y0", "Mxx", "Mxy", "Myy", "amplitude"):
+        np.testing.assert_allclose(tables[True][col], tables[False][col], rtol=0, atol=1e-6)

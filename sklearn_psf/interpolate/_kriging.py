@@ -295,7 +295,9 @@ class KrigingRegressor(_BaseInterpolator):
             self.__dict__.pop(attr, None)
         C = self._star_covariance(X)
         try:
-            factor = cho_factor(C, lower=True, overwrite_a=True, check_finite=False)
+            # C is symmetric: its transpose is the same matrix in Fortran order, which LAPACK
+            # factorises in place (no copy of an n_stars^2 array)
+            factor = cho_factor(C.T, lower=True, overwrite_a=True, check_finite=False)
         except LinAlgError:
             raise ValueError(
                 f"{name}: the Kriging covariance matrix is not positive definite (stars "

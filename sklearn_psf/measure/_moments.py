@@ -36,6 +36,14 @@ FLAG_DIVERGED = 4
 #: The iteration did not converge within ``max_iter`` steps.
 FLAG_MAX_ITER = 8
 
+try:  # the compiled kernel is used when numba is installed (much faster, same results)
+    from ._moments_numba import iterate_numba as _iterate_numba
+except ImportError:  # pragma: no cover - depends on the environment
+    _iterate_numba = None
+
+#: Use the compiled kernel when available (tests switch it off to check the numpy path).
+_USE_NUMBA = _iterate_numba is not None
+
 _BOUND_CORRECT = 0.25  # largest relative change of any parameter in one step (as HSM)
 _CHUNK_PIXELS = 1 << 18  # pixels per chunk of stamps iterated together (~2 MB per float array)
 
@@ -70,7 +78,10 @@ def adaptive_moments(
     smallest box holding that ellipse, pixels in the box corners included (their weight is
     below ``precision / 10``, so the moments change by less than that, relatively). Stamps are
     processed in cache-sized chunks; the iteration stops, per stamp, as in HSM, when no
-    parameter moves by more than ``precision`` (relative).
+    parameter moves by more than ``precision`` (relative). When numba is installed a compiled
+    kernel runs the same iteration stamp by stamp on HSM's elliptical region, with the
+    Gaussian weight updated multiplicatively along each row (two ``exp`` per row instead of
+    one per pixel): several times faster, same results to ~1e-8.
 
     Parameters
     ----------
@@ -156,17 +167,21 @@ def adaptive_moments(
     n_iter = np.zeros(n, dtype=np.int64)
     flag = np.zeros(n, dtype=np.int64)
 
-    finite = np.isfinite(cube).all(axis=(1, 2))
-    flag[~finite] |= FLAG_BAD_PIXELS
-    nonzero = np.zeros(n, dtype=bool)
-    nonzero[finite] = (cube[finite] != 0).any(axis=(1, 2))
-    flag[finite & ~nonzero] |= FLAG_NO_FLUX
+    if not _USE_NUMBA:  # the compiled kernel makes these checks stamp by stamp
+        finite = np.isfinite(cube).all(axis=(1, 2))
+        flag[~finite] |= FLAG_BAD_PIXELS
+        nonzero = np.zeros(n, dtype=bool)
+        nonzero[finite] = (cube[finite] != 0).any(axis=(1, 2))
+        flag[finite & ~nonzero] |= FLAG_NO_FLUX
 
     # Pixels whose weight is below precision / 10 are ignored (as HSM does).
     max_rho2 = -2.0 * np.log(precision / 10.0)
 
     state = dict(x0=x0, y0=y0, mxx=mxx, mxy=mxy, myy=myy, amp=amp, n_iter=n_iter, flag=flag)
     todo = np.flatnonzero(flag == 0)
+    if _USE_NUMBA and todo.size:
+        _iterate_numba(cube, todo, state, max_rho2, precision, max_iter, max_moment, max_shift)
+        todo = todo[:0]
     # Chunks keep the temporaries in cache: much faster than one pass over a large batch.
     chunk = max(1, _CHUNK_PIXELS // (s * s))
     for start in range(0, todo.size, chunk):
