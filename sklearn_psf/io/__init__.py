@@ -1,5 +1,8 @@
 """Real data in and out: FITS images and star catalogues, star selection, model files.
 
+To try the workflow without data, :func:`write_example_exposure` writes a simulated exposure
+(image, weight HDU, SExtractor-like catalogue, galaxy positions, truth) to a folder.
+
 Running on a survey exposure
 ----------------------------
 A single CCD of a survey exposure, e.g. a DECam or HSC calexp, usually comes as a
@@ -41,6 +44,7 @@ Notes for real data:
 """
 
 from ._catalog import read_catalog
+from ._example import write_example_exposure
 from ._image import read_image
 from ._model_io import (
     MODEL_FORMAT,
@@ -63,4 +67,5 @@ __all__ = [
     "read_image",
     "read_model_validation",
     "save_model",
+    "write_example_exposure",
 ]

@@ -10,7 +10,7 @@ from astropy.io import fits
 from astropy.table import Table
 from astropy.utils.exceptions import AstropyUserWarning
 
-from ._image import _FileError
+from ._image import _FileError, _one_line
 
 __all__ = ["read_catalog"]
 
@@ -60,7 +60,7 @@ def _read_table(path, hdu):
     except (ValueError, OSError, TypeError, KeyError, IndexError, EOFError, fits.VerifyError,
             AstropyUserWarning) as exc:
         raise ValueError(
-            f"Could not read the catalogue {path!r} ({type(exc).__name__}: {exc}); pass a "
+            f"Could not read the catalogue {path!r} ({type(exc).__name__}: {_one_line(exc)}); pass a "
             "complete FITS table or a CSV file with x, y columns."
         ) from None
 

@@ -15,6 +15,11 @@ _READ_ERRORS = (OSError, TypeError, KeyError, IndexError, ValueError, EOFError,
                 fits.VerifyError, AstropyUserWarning)
 
 
+def _one_line(exc) -> str:
+    """An exception's message on one line (astropy's span several)."""
+    return " ".join(str(exc).split())
+
+
 class _FileError(ValueError):
     """A clear message about the file's content (re-raised as it is)."""
 
@@ -121,7 +126,7 @@ def read_image(path, hdu=None, weight_hdu=None):
         raise
     except _READ_ERRORS as exc:
         raise ValueError(
-            f"Could not read {path!r} as a FITS image ({type(exc).__name__}: {exc}); "
+            f"Could not read {path!r} as a FITS image ({type(exc).__name__}: {_one_line(exc)}); "
             "check that the file is a complete, valid FITS file."
         ) from None
     if weight is not None and weight.shape != image.shape:

@@ -47,6 +47,8 @@ from astropy.utils.exceptions import AstropyUserWarning
 from sklearn.base import BaseEstimator, clone
 from sklearn.pipeline import Pipeline
 
+from ._image import _one_line
+
 __all__ = ["save_model", "load_model", "read_model_validation", "MODEL_FORMAT",
            "MODEL_FORMAT_VERSION", "write_fits_atomic"]
 
@@ -394,7 +396,7 @@ def _open_checked(path):
     except (OSError, TypeError, KeyError, IndexError, ValueError, EOFError, fits.VerifyError,
             AstropyUserWarning) as exc:
         raise ValueError(
-            f"Could not read the model file {path!r} ({type(exc).__name__}: {exc}); the file "
+            f"Could not read the model file {path!r} ({type(exc).__name__}: {_one_line(exc)}); the file "
             "is corrupt or truncated: write it again."
         ) from None
 

@@ -1,0 +1,415 @@
+"""sklearn_psf.io and sklearn_psf.validation: images, catalogues, star selection, model files,
+reserved-star validation."""
+
+import os
+import pickle
+
+import joblib
+import numpy as np
+import pytest
+from astropy.io import fits
+from astropy.table import Table
+from numpy.testing import assert_allclose, assert_array_equal
+from scipy.spatial import cKDTree
+from sklearn.base import BaseEstimator, RegressorMixin
+from sklearn.neighbors import KNeighborsRegressor
+
+from sklearn_psf.compare import SimulationConfig, default_schemes, make_psf_model, run_study
+from sklearn_psf.io import (
+    MODEL_FORMAT_VERSION,
+    extract_star_stamps,
+    find_stars,
+    load_model,
+    read_catalog,
+    read_image,
+    read_model_validation,
+    save_model,
+    write_example_exposure,
+)
+from sklearn_psf.measure import adaptive_moments
+from sklearn_psf.model import PSFModel
+from sklearn_psf.simulate import ReferenceBasis, make_psf_field
+from sklearn_psf.validation import fit_and_validate
+
+
+@pytest.fixture(scope="module")
+def field():
+    return make_psf_field(n_stars=120, n_galaxies=30, image_shape=(1400, 1400), snr=150.0,
+                          random_state=3, galaxy_snr=None)
+
+
+@pytest.fixture(scope="module")
+def star_data(field):
+    X = np.column_stack([field.stars["x"], field.stars["y"]]).astype(float)
+    stamps, flags = field.star_stamps(normalize=False)
+    assert (flags == 0).all()
+    return X, stamps
+
+
+# ----------------------------------------------------------------------------- model files
+@pytest.mark.parametrize("scheme", ["kriging", "polynomial", "delaunay", "shepard"])
+def test_save_load_predict_identical(tmp_path, star_data, field, scheme):
+    X, stamps = star_data
+    model = make_psf_model(default_schemes()[scheme]).fit(X, stamps)
+    path = tmp_path / "model.fits"
+    model.save(path)
+    back = PSFModel.load(path)
+    Xg = np.column_stack([field.galaxies["x"], field.galaxies["y"]]).astype(float)
+    assert_allclose(back.predict(Xg), model.predict(Xg), rtol=1e-12, atol=1e-15)
+    assert_array_equal(back.inlier_mask_, model.inlier_mask_)
+    assert_allclose(back.transform_stamps(stamps[:5]), model.transform_stamps(stamps[:5]),
+                    rtol=1e-10, atol=1e-13)
+    # constructor parameters survive: the loaded model refits like the original
+    assert repr(back.get_params()) == repr(model.get_params())
+    refit = back.__class__(**back.get_params(deep=False)).fit(X, stamps)
+    assert_allclose(refit.predict(Xg), model.predict(Xg), rtol=1e-12, atol=1e-15)
+
+
+def test_fixed_basis_array_parameters_and_pickle(tmp_path, star_data, field):
+    X, stamps = star_data
+    model = make_psf_model(default_schemes()["kriging"], reference=field.reference)
+    model.fit(X, stamps)
+    save_model(model, tmp_path / "m.fits")
+    back = load_model(tmp_path / "m.fits")
+    assert_allclose(back.predict(X[:7]), model.predict(X[:7]), rtol=1e-12, atol=1e-15)
+    comps = back.basis.steps[1][1].named_steps["basis"].components
+    assert_array_equal(comps, field.reference.components.reshape(len(comps), -1))
+    # joblib and pickle work too
+    joblib.dump(model, tmp_path / "m.joblib")
+    assert_allclose(joblib.load(tmp_path / "m.joblib").predict(X[:3]), model.predict(X[:3]), rtol=1e-12, atol=1e-15)
+    assert_allclose(pickle.loads(pickle.dumps(back)).predict(X[:3]), model.predict(X[:3]), rtol=1e-12, atol=1e-15)
+
+
+def _restamp(path, out, **cards):
+    with fits.open(path) as hdul:
+        for key, value in cards.items():
+            hdul[0].header[key] = value
+        hdul.writeto(out)
+
+
+def test_format_versions(tmp_path, star_data):
+    X, stamps = star_data
+    model = PSFModel(interpolator=KNeighborsRegressor(4), outliers=None).fit(X, stamps)
+    path = tmp_path / "m.fits"
+    model.save(path)
+    assert fits.getheader(path)["FORMAT"] == MODEL_FORMAT_VERSION == 1
+    # the oldest known version (1) loads
+    _restamp(path, tmp_path / "v1.fits", FORMAT=1)
+    assert_allclose(load_model(tmp_path / "v1.fits").predict(X[:4]), model.predict(X[:4]), rtol=1e-12, atol=1e-15)
+    # a newer version: a clear message, not a wrong model
+    _restamp(path, tmp_path / "v2.fits", FORMAT=2)
+    with pytest.raises(ValueError, match="format version 2.*upgrade sklearn_psf"):
+        load_model(tmp_path / "v2.fits")
+    # an older, unknown version
+    _restamp(path, tmp_path / "v0.fits", FORMAT=0)
+    with pytest.raises(ValueError, match="format version 0, which no sklearn_psf release"):
+        load_model(tmp_path / "v0.fits")
+    _restamp(path, tmp_path / "vs.fits", FORMAT="one")
+    with pytest.raises(ValueError, match="no integer FORMAT"):
+        load_model(tmp_path / "vs.fits")
+
+
+def test_wrong_or_damaged_model_files(tmp_path, star_data):
+    X, stamps = star_data
+    image = tmp_path / "image.fits"
+    fits.PrimaryHDU(np.zeros((10, 10))).writeto(image)
+    with pytest.raises(ValueError, match="not a sklearn_psf PSF model file"):
+        load_model(image)
+    garbage = tmp_path / "garbage.fits"
+    garbage.write_bytes(os.urandom(5000))
+    with pytest.raises(ValueError, match="corrupt or truncated"):
+        load_model(garbage)
+    with pytest.raises(ValueError, match="does not exist"):
+        load_model(tmp_path / "missing.fits")
+    model = PSFModel(outliers=None).fit(X, stamps)
+    path = tmp_path / "m.fits"
+    model.save(path)
+    data = path.read_bytes()
+    for cut in (len(data) - 2880, len(data) // 2, 2880 + 100):
+        (tmp_path / "t.fits").write_bytes(data[:cut])
+        with pytest.raises(ValueError, match="model file .*(corrupt or truncated|incomplete)"):
+            load_model(tmp_path / "t.fits")
+    # a model file missing one of its extensions
+    with fits.open(path) as hdul:
+        del hdul["STARS"]
+        hdul.writeto(tmp_path / "nostars.fits")
+    with pytest.raises(ValueError, match="incomplete"):
+        load_model(tmp_path / "nostars.fits")
+
+
+def test_atomic_write_leaves_nothing_half_written(tmp_path, star_data, monkeypatch):
+    X, stamps = star_data
+    model = PSFModel(outliers=None).fit(X, stamps)
+    path = tmp_path / "m.fits"
+    real_writeto = fits.HDUList.writeto
+
+    def failing_writeto(self, fileobj, *args, **kwargs):
+        fileobj.write(b"SIMPLE  =                    T" + b" " * 2000)  # partial content
+        raise OSError("disk full")
+
+    monkeypatch.setattr(fits.HDUList, "writeto", failing_writeto)
+    with pytest.raises(OSError, match="disk full"):
+        model.save(path)
+    assert os.listdir(tmp_path) == []
+    # an existing model survives a failed overwrite
+    monkeypatch.setattr(fits.HDUList, "writeto", real_writeto)
+    model.save(path)
+    before = path.read_bytes()
+    monkeypatch.setattr(fits.HDUList, "writeto", failing_writeto)
+    with pytest.raises(OSError):
+        model.save(path, overwrite=True)
+    assert path.read_bytes() == before
+    assert os.listdir(tmp_path) == ["m.fits"]
+    monkeypatch.setattr(fits.HDUList, "writeto", real_writeto)
+    with pytest.raises(FileExistsError, match="overwrite=True"):
+        model.save(path)
+
+
+class _MyRegressor(RegressorMixin, BaseEstimator):
+    def fit(self, X, y):
+        self.mean_ = np.mean(y, axis=0)
+        return self
+
+    def predict(self, X):
+        return np.tile(self.mean_, (len(X), 1))
+
+
+def test_save_refuses_undescribable_models(tmp_path, star_data):
+    X, stamps = star_data
+    model = PSFModel(interpolator=_MyRegressor(), outliers=None).fit(X, stamps)
+    with pytest.raises(ValueError, match="joblib"):
+        model.save(tmp_path / "m.fits")
+    assert not (tmp_path / "m.fits").exists()
+    from sklearn.exceptions import NotFittedError
+
+    with pytest.raises(NotFittedError):
+        PSFModel().save(tmp_path / "m.fits")
+
+
+# ----------------------------------------------------------------------------- images
+def test_read_image_compressed_weight_and_errors(tmp_path):
+    rng = np.random.default_rng(0)
+    img = rng.normal(size=(60, 80)).astype(np.float32)
+    w = rng.uniform(0.5, 1, size=(60, 80))
+    hdr = fits.Header()
+    hdr["SATURATE"] = 1000.0
+    path = tmp_path / "x.fits.fz"
+    fits.HDUList([fits.PrimaryHDU(header=fits.Header([("GAIN", 4.0)])),
+                  fits.CompImageHDU(img, header=hdr, name="SCI", quantize_level=0.0,
+                                    compression_type="GZIP_2"),
+                  fits.ImageHDU(w, name="WGT"), fits.ImageHDU(w[:10], name="SMALL")]
+                 ).writeto(path)
+    for key, wkey in (("SCI", "WGT"), (1, 2), ("1", "2")):
+        data, weight, header = read_image(path, hdu=key, weight_hdu=wkey)
+        assert_array_equal(data, img)  # lossless
+        assert_array_equal(weight, w)
+        assert header["SATURATE"] == 1000.0 and header["GAIN"] == 4.0
+    data, weight, _ = read_image(path)
+    assert weight is None and data.shape == (60, 80)
+    with pytest.raises(ValueError, match="no HDU 'NOPE'.*SCI"):
+        read_image(path, hdu="NOPE")
+    with pytest.raises(ValueError, match="weight map.*shape"):
+        read_image(path, hdu="SCI", weight_hdu="SMALL")
+    with pytest.raises(ValueError, match="not a 2-D image"):
+        read_image(path, hdu=0)
+    bad = tmp_path / "bad.fits"
+    bad.write_bytes(b"garbage" * 1000)
+    with pytest.raises(ValueError, match="FITS"):
+        read_image(bad)
+    plain = tmp_path / "plain.fits"
+    fits.PrimaryHDU(img).writeto(plain)
+    (tmp_path / "trunc.fits").write_bytes(plain.read_bytes()[:9000])
+    with pytest.raises(ValueError, match="complete, valid FITS"):
+        read_image(tmp_path / "trunc.fits")
+
+
+# ----------------------------------------------------------------------------- catalogues
+def test_read_catalog_conventions(tmp_path):
+    sex = Table({"NUMBER": [1, 2], "X_IMAGE": [1.0, 50.5], "Y_IMAGE": [1.0, 20.0],
+                 "FLAGS": [0, 3], "FLUX_AUTO": [100.0, 50.0], "FLUXERR_AUTO": [2.0, 5.0]})
+    sex.write(tmp_path / "sex.fits")
+    cat = read_catalog(tmp_path / "sex.fits")
+    assert cat["x"].tolist() == [0.0, 49.5] and cat["y"].tolist() == [0.0, 19.0]
+    assert cat["flags"].tolist() == [0, 3] and cat["snr"].tolist() == [50.0, 10.0]
+    assert cat.meta["one_based"] and "NUMBER" in cat.colnames
+    assert read_catalog(sex, one_based=False)["x"].tolist() == [1.0, 50.5]
+    plain = Table({"x": [3.0, 4.0], "y": [5.0, 6.0], "id": ["a", "b"]})
+    plain.write(tmp_path / "p.csv", format="ascii.csv")
+    cat = read_catalog(tmp_path / "p.csv")
+    assert cat["x"].tolist() == [3.0, 4.0] and not cat.meta["one_based"]
+    assert read_catalog(tmp_path / "p.csv", one_based=True)["y"].tolist() == [4.0, 5.0]
+    assert read_catalog(Table({"RA": [1.0], "col_a": [2.0], "col_b": [3.0]}),
+                        x_col="col_a", y_col="COL_B")["y"].tolist() == [3.0]
+    with pytest.raises(ValueError, match="no position columns.*columns found: ra, dec, mag"):
+        read_catalog(Table({"ra": [1.0], "dec": [2.0], "mag": [20.0]}))
+    with pytest.raises(ValueError, match="no column 'xc'.*RA"):
+        read_catalog(Table({"RA": [1.0]}), x_col="xc", y_col="yc")
+    (tmp_path / "bad.fits").write_bytes(b"\x00garbage" * 500)
+    with pytest.raises(ValueError, match="Could not read the catalogue"):
+        read_catalog(tmp_path / "bad.fits")
+    fits.PrimaryHDU(np.zeros((3, 3))).writeto(tmp_path / "img.fits")
+    with pytest.raises(ValueError, match="no table HDU"):
+        read_catalog(tmp_path / "img.fits")
+
+
+# ----------------------------------------------------------------------------- stars
+def test_find_stars_recovers_truth_and_is_from_images_finder(field):
+    stars = find_stars(field.image, stamp_size=25)
+    truth = np.column_stack([field.stars["x"], field.stars["y"]])
+    d, _ = cKDTree(truth).query(np.column_stack([stars["x"], stars["y"]]))
+    assert d.max() < 0.1  # integer-pixel truth, windowed centroids
+    assert len(stars) >= 0.95 * len(truth)
+    assert sum(stars.meta["rejected"].values()) == stars.meta["n_detections"] - len(stars)
+    # ReferenceBasis.from_image selects exactly the same stars (one shared star finder)
+    ref = ReferenceBasis.from_image(field.image, stamp_size=25)
+    assert_array_equal(ref.positions, np.column_stack([stars["x"], stars["y"]]))
+    assert ref.catalog.meta["rejected"] == stars.meta["rejected"]
+
+
+def test_find_stars_noise_saturation_and_masks():
+    rng = np.random.default_rng(1)
+    noise = rng.normal(0, 1, (400, 400))
+    stars = find_stars(noise)
+    assert len(stars) == 0  # no error: the caller decides
+    f = make_psf_field(n_stars=40, n_galaxies=0, image_shape=(700, 700), snr=200.0,
+                       random_state=2)
+    img = f.image.astype(float)
+    xs, ys = np.asarray(f.stars["x"], int), np.asarray(f.stars["y"], int)
+    sat = 0.5 * img[ys[0], xs[0]]  # star 0 is above it
+    bright = img[ys, xs] >= 0.9 * sat / 1.0
+    stars = find_stars(img, saturation=sat)
+    assert stars.meta["rejected"]["saturated"] == bright.sum() > 0
+    img[ys[1], xs[1]] = np.nan
+    stars = find_stars(img)
+    d, _ = cKDTree(np.column_stack([stars["x"], stars["y"]])).query([[xs[1], ys[1]]])
+    assert d[0] > 5  # the star with a NaN pixel is not selected
+    assert len(stars) >= 35
+
+
+def test_extract_star_stamps_reasons(field):
+    img = field.image.astype(float)
+    pos = np.column_stack([field.stars["x"], field.stars["y"]]).astype(float)[:20]
+    xs, ys = pos[:, 0].astype(int), pos[:, 1].astype(int)
+    weight = np.ones_like(img)
+    weight[ys[0], xs[0]] = 0          # masked core
+    j = 5 + int(np.argmin(img[ys[5:], xs[5:]]))  # a faint star
+    weight[ys[j] + 10, xs[j] + 10] = 0  # masked wing: kept, pixel set to 0
+    img[ys[2], xs[2] + 2] = np.nan     # NaN under the star (with a non-zero weight)
+    peaks = np.array([np.nanmax(img[y - 12:y + 13, x - 12:x + 13]) for x, y in zip(xs, ys)])
+    sat = np.sort(peaks)[-4]  # the four brightest stars reach the saturation level
+    cat = Table({"x": pos[:, 0], "y": pos[:, 1], "flags": np.zeros(20, int)})
+    cat["flags"][4] = 2
+    extra = Table({"x": [-40.0, 5.0, np.nan], "y": [10.0, 700.0, 3.0], "flags": [0, 0, 0]})
+    from astropy.table import vstack
+
+    out = extract_star_stamps(img, vstack([cat, extra]), 25, weight=weight, saturation=sat,
+                              subtract_background=False)
+    brighter = (peaks >= sat) & ~np.isin(np.arange(20), [0, 2, 4])  # not skipped before
+    assert out.counts["input"] == 23
+    assert out.counts["off_image"] == 1 and out.counts["edge"] == 1
+    assert out.counts["bad_position"] == 1 and out.counts["catalog_flag"] == 1
+    assert out.counts["masked"] == 2  # weight 0 in the core, and NaN (a bad pixel) in the core
+    assert out.counts["saturated"] == int(brighter.sum()) >= 1
+    assert out.counts["used"] == 23 - sum(v for k, v in out.counts.items()
+                                          if k not in ("input", "used"))
+    # used stamps are the image's pixels (numpy slicing reference), wing mask set to 0
+    used = np.flatnonzero(out.catalog["used"])
+    k = list(used).index(j)
+    ref = field.image[ys[j] - 12:ys[j] + 13, xs[j] - 12:xs[j] + 13].astype(float).copy()
+    ref[22, 22] = 0.0
+    assert_array_equal(out.stamps[k].reshape(25, 25), ref)
+    # NaN without a weight map: "nan"
+    out = extract_star_stamps(img, cat[:5], 25, subtract_background=False)
+    assert out.counts["nan"] == 1 and out.counts["catalog_flag"] == 1
+    with pytest.raises(ValueError, match="All 2 catalogue positions fall outside.*one-based"):
+        extract_star_stamps(img, [[-100.0, 5.0], [5000.0, 3.0]], 25)
+    with pytest.raises(ValueError, match="no x column.*columns: X_IMAGE"):
+        extract_star_stamps(img, Table({"X_IMAGE": [1.0], "y": [2.0]}), 25)
+
+
+# ----------------------------------------------------------------------------- validation
+def test_fit_and_validate_matches_truth_and_study():
+    """Reserved-star e rms against the truth and against run_study on the same config.
+
+    Criterion: on a simulated exposure (400 stars, S/N 100, 3000 x 3000 pixels, Kriging),
+    the reserved-star e rms (star - model, what a user sees) is within a factor 2 of the
+    model-minus-truth e rms (model error alone) and of run_study's e rms at galaxy-PSFs for
+    the same configuration; once the stars' measured noise (star - truth) is removed in
+    quadrature it agrees with model-minus-truth within 30%.
+    """
+    n, shape, snr = 400, (3000, 3000), 100.0
+    f = make_psf_field(n_stars=n, n_galaxies=0, image_shape=shape, snr=snr, random_state=1)
+    stars = find_stars(f.image, stamp_size=25, min_snr=30)
+    cut = extract_star_stamps(f.image, stars, 25)
+    model, res, summ = fit_and_validate(cut.positions, cut.stamps,
+                                        make_psf_model(default_schemes()["kriging"]),
+                                        reserve=0.2, random_state=0)
+    assert summ["n_reserved"] == len(res) == round(0.2 * len(stars))
+    # reserved stars are not used in the fit
+    d_fit, _ = cKDTree(model.X_fit_).query(np.column_stack([res["x"], res["y"]]))
+    assert d_fit.min() > 1
+    truth = np.column_stack([f.stars["x"], f.stars["y"]])
+    d, i = cKDTree(truth).query(np.column_stack([res["x"], res["y"]]))
+    assert d.max() < 0.1
+    ok = np.asarray(res["flag"]) == 0
+    te1, te2 = np.asarray(f.stars["e1"])[i][ok], np.asarray(f.stars["e2"])[i][ok]
+    model_truth = np.sqrt(np.mean((res["e1_model"][ok] - te1) ** 2
+                                  + (res["e2_model"][ok] - te2) ** 2))
+    noise = np.sqrt(np.mean((res["e1_star"][ok] - te1) ** 2 + (res["e2_star"][ok] - te2) ** 2))
+    observed = summ["e_rms"]
+    assert_allclose(observed, np.sqrt(np.mean(res["de1"][ok] ** 2 + res["de2"][ok] ** 2)))
+    assert model_truth <= observed <= 2 * model_truth
+    assert abs(np.sqrt(observed**2 - noise**2) / model_truth - 1) < 0.3
+    study = run_study([SimulationConfig(n_stars=n, n_galaxies=300, snr=snr, image_shape=shape)],
+                      {"kriging": default_schemes()["kriging"]}, n_simulations=1,
+                      random_state=0)
+    study_rms = float(study.scores["e_rms"][0])
+    assert 0.5 * study_rms < observed < 2 * study_rms
+    assert 0.5 * study_rms < model_truth < 2 * study_rms
+    assert summ["rho1"] is not None and np.isfinite(summ["rho1_mean_abs"])
+
+
+def test_fit_and_validate_seeds_cv_and_errors(star_data, tmp_path):
+    X, stamps = star_data
+    m1, r1, s1 = fit_and_validate(X, stamps, reserve=0.25, random_state=4)
+    m2, r2, s2 = fit_and_validate(X, stamps, reserve=0.25, random_state=4)
+    assert_array_equal(r1["index"], r2["index"])
+    assert_array_equal(m1.predict(X[:3]), m2.predict(X[:3]))
+    assert s1["n_fit"] + s1["n_reserved"] == len(X) == 120
+    # shapes: independent re-measurement of the stored stamps
+    mom = adaptive_moments(np.asarray(r1["stamp_model"]))
+    assert_allclose(r1["e1_model"], mom["e1"])
+    _, r3, _ = fit_and_validate(X, stamps, reserve=0.25, random_state=5)
+    assert set(r3["index"]) != set(r1["index"])
+    # CV choice between two schemes: Kriging beats a constant (1-neighbour average of 60)
+    cands = {"kriging": default_schemes()["kriging"], "flat": KNeighborsRegressor(60)}
+    model, _, summ = fit_and_validate(X, stamps, reserve=0.2, random_state=0,
+                                      candidates=cands, cv=3)
+    assert summ["scheme"] == "kriging"
+    assert {r["scheme"] for r in summ["cv"]} == {"kriging", "flat"}
+    # validation results go into the model file
+    save_model(m1, tmp_path / "m.fits", residuals=r1, summary=s1)
+    res, summary = read_model_validation(tmp_path / "m.fits")
+    assert_allclose(res["de1"], r1["de1"])
+    assert summary["e_rms"] == pytest.approx(s1["e_rms"])
+    assert fits.getdata(tmp_path / "m.fits", "RHO1")["xi"] == pytest.approx(s1["rho1"]["xi"],
+                                                                             nan_ok=True)
+    with pytest.raises(ValueError, match="reserve"):
+        fit_and_validate(X, stamps, reserve=1.0)
+    with pytest.raises(ValueError, match="too few"):
+        fit_and_validate(X[:4], stamps[:4], reserve=0.5)
+    with pytest.raises(ValueError, match="positions but stamps"):
+        fit_and_validate(X[:5], stamps[:4])
+
+
+def test_example_exposure_files(tmp_path):
+    paths = write_example_exposure(tmp_path, n_stars=30, image_shape=(600, 700),
+                                   n_galaxies=10, compress=True)
+    image, weight, header = read_image(paths["image"], hdu="SCI", weight_hdu="WGT")
+    assert np.isnan(image).sum() == 1 and (weight == 0).sum() == 9
+    assert np.nanmax(image) == pytest.approx(paths["saturate"])
+    cat = read_catalog(paths["stars"])
+    assert_array_equal(cat["x"], paths["field"].stars["x"])
+    out = extract_star_stamps(image, cat, 25, weight=weight, saturation=header["SATURATE"])
+    assert out.counts["masked"] == 2 and out.counts["saturated"] == 1
+    assert out.counts["used"] == 27
