@@ -109,7 +109,8 @@ def read_image(path, hdu=None, weight_hdu=None):
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error", AstropyUserWarning)  # "may have been truncated"
-            with fits.open(path, memmap=False) as hdul:
+            # every header is read: a truncated file fails here, whichever HDU is asked for
+            with fits.open(path, memmap=False, lazy_load_hdus=False) as hdul:
                 chosen = _select(hdul, key, path, "image")
                 image = np.array(chosen.data, dtype=np.float64)
                 header = chosen.header.copy()
