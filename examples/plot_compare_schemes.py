@@ -62,7 +62,7 @@ scoring = {
 # ----------------------------
 # Each scheme of :func:`~sklearn_psf.compare.default_schemes` is a ``MinMaxScaler`` and a
 # regressor; :func:`~sklearn_psf.compare.make_psf_model` wraps it in the paper's
-# :class:`~sklearn_psf.PSFModel`, forcing the simulation's basis as the paper does.
+# :class:`~sklearn_psf.model.PSFModel`, forcing the simulation's basis as the paper does.
 schemes = default_schemes()
 rows = []
 for name in ("polynomial", "delaunay", "kriging"):

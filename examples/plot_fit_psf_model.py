@@ -4,7 +4,7 @@ Fit a PSF model and predict galaxy-PSFs
 =======================================
 
 The basic workflow of sklearn_psf on one simulated field: cut the stars from the image,
-fit a :class:`~sklearn_psf.PSFModel` (stamp normalisation, PCA keeping 90% of the variance,
+fit a :class:`~sklearn_psf.model.PSFModel` (stamp normalisation, PCA keeping 90% of the variance,
 the interquartile-range cut of outlying stars, and ordinary Kriging of the PCA coefficients),
 then predict the PSF at the positions of galaxies, where the simulation knows the true PSF.
 """
@@ -12,7 +12,7 @@ then predict the PSF at the positions of galaxies, where the simulation knows th
 # %%
 # Simulate a field
 # ----------------
-# :func:`~sklearn_psf.make_psf_field` draws stars (S/N 100) and galaxy-PSFs on a noisy image.
+# :func:`~sklearn_psf.simulate.make_psf_field` draws stars (S/N 100) and galaxy-PSFs on a noisy image.
 # The PSF varies across the field as Gaussian random fields of the weights of a reference PCA
 # basis. The documentation builds this example at a reduced size.
 import os
@@ -47,7 +47,7 @@ print(f"{len(X_stars)} star stamps of {field.stamp_size} x {field.stamp_size} pi
 # %%
 # Fit the PSF model
 # -----------------
-# The default :class:`~sklearn_psf.PSFModel` is the paper's pipeline. PCA keeps 90% of the
+# The default :class:`~sklearn_psf.model.PSFModel` is the paper's pipeline. PCA keeps 90% of the
 # variance of the *noisy* stamps, so it keeps many components; ``inlier_mask_`` tells which
 # stars survived the IQR cut.
 model = PSFModel().fit(X_stars, stamps)

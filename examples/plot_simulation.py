@@ -5,7 +5,7 @@ Simulate a PSF field image
 
 The simulations of Bergé et al. (2012), section 3: mock PSFs are built from the principal
 components of the stars of a reference image, with weights that vary across the field as
-Gaussian random fields of power spectrum P(k) ~ k^-11/4. :func:`~sklearn_psf.make_psf_field`
+Gaussian random fields of power spectrum P(k) ~ k^-11/4. :func:`~sklearn_psf.simulate.make_psf_field`
 draws the stars (S/N 100 by default) and the "galaxy-PSFs" (positions where the true PSF is
 known, to test a model) into a noisy image. This example looks at one simulation: the image,
 example PSFs and the ellipticity pattern.

@@ -5,7 +5,7 @@ Tune the Kriging range with GridSearchCV
 
 On real data there are no galaxy-PSFs with a known PSF: the only way to choose the
 hyperparameters of an interpolation scheme is to hold out some stars. Because
-:class:`~sklearn_psf.PSFModel` is a scikit-learn estimator, :class:`~sklearn.model_selection.GridSearchCV`
+:class:`~sklearn_psf.model.PSFModel` is a scikit-learn estimator, :class:`~sklearn.model_selection.GridSearchCV`
 does it with a K-fold split of the stars and the residual ellipticity correlation (rho1) of
 the held-out stars as the score. The paper tuned the Kriging range by hand; here it is a
 grid search over the range and the nugget of the variogram.
