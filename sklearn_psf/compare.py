@@ -30,6 +30,7 @@ from sklearn.base import clone
 from sklearn.model_selection import PredefinedSplit
 from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import MinMaxScaler
+from threadpoolctl import threadpool_limits
 
 from .interpolate import (
     ChebyshevRegressor,
@@ -384,7 +385,16 @@ def _evaluate(model, X_gal, gal, theta_bins, pixel_scale):
 
 
 def _run_one(config, sim_index, seed, schemes, reference, theta_bins):
-    """One simulation of one configuration, every scheme: rows of the three result tables."""
+    """One simulation of one configuration, every scheme: rows of the three result tables.
+
+    BLAS runs on one thread, so that a simulation gives the same digits wherever it runs
+    (serially, in a joblib worker or on a Dask worker); the study is parallel over simulations.
+    """
+    with threadpool_limits(1):
+        return _run_one_simulation(config, sim_index, seed, schemes, reference, theta_bins)
+
+
+def _run_one_simulation(config, sim_index, seed, schemes, reference, theta_bins):
     from .simulate import make_psf_field, realistic_snr
 
     rng = np.random.default_rng(seed)

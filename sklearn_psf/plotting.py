@@ -33,6 +33,7 @@ import numpy as np
 from matplotlib.colors import LogNorm, Normalize
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
 
 __all__ = [
     "SCHEME_COLORS",
@@ -49,6 +50,7 @@ __all__ = [
     "density_groups",
     "plot_density_boxplots",
     "plot_density_stats",
+    "plot_outlier_study",
 ]
 
 #: Colour of each interpolation scheme, the same in every figure (paper: polynomial black,
@@ -124,6 +126,11 @@ def _mask(table, **equal):
             continue
         mask &= np.asarray(table[name]) == value
     return mask
+
+
+def _unique_in_order(values):
+    """Distinct values as strings, in order of first appearance."""
+    return list(dict.fromkeys(np.asarray(values).astype(str).tolist()))
 
 
 def _as_list(value):
@@ -789,7 +796,7 @@ def _snr_value(label):
 
 
 def _snr_configs(correlations):
-    labels = list(dict.fromkeys(np.asarray(correlations["config"]).astype(str).tolist()))
+    labels = _unique_in_order(correlations["config"])
     snr = [c for c in labels if c.startswith("snr=")]
     if not snr:
         return []
@@ -872,7 +879,7 @@ def plot_snr_study(result, scheme: str = "kriging", configs=None) -> Figure:
 
 
 def _global_density_values(galaxies, scores, configs, densities):
-    present = list(dict.fromkeys(np.asarray(galaxies["config"]).astype(str).tolist()))
+    present = _unique_in_order(galaxies["config"])
     if configs is None:
         configs = [c for c in present if c.startswith("n_stars=")]
     values = {}
@@ -1140,4 +1147,78 @@ def plot_density_stats(galaxies, schemes, by: str = "local", component="e1",
                 ax.set_xscale("log")
         axes[ci, 1].set_ylim(bottom=0)
     axes[0, 0].legend(fontsize=7)
+    return fig
+
+
+# ----------------------------------------------------------------------------- outliers
+
+
+def plot_outlier_study(scores, schemes=None, metrics=("e_rms", "rho1_mean_abs"),
+                       configs=None) -> Figure:
+    """Residuals with planted outlying stars, with and without the IQR cut (the paper's
+    section 5.4).
+
+    One panel per metric; for each scheme, one bar per configuration (median over simulations,
+    error bar: 16-84% range). Local schemes (Delaunay, Kriging) are hurt most by outliers when
+    the cut is off.
+
+    Parameters
+    ----------
+    scores : astropy.table.Table
+        The ``scores`` table of a study.
+    schemes : list of str, optional
+        Schemes to show (default: every scheme of the outlier configurations).
+    metrics : sequence of str
+        Columns of ``scores`` to plot, lower is better.
+    configs : list of str, optional
+        Configurations to compare (default: those whose label starts with ``outliers=``, and
+        ``default`` when present, as the reference without outliers).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> from astropy.table import Table
+    >>> from sklearn_psf.plotting import plot_outlier_study
+    >>> scores = Table({"config": ["outliers=0.02,iqr=on", "outliers=0.02,iqr=off"] * 2,
+    ...                 "scheme": ["kriging"] * 2 + ["polynomial"] * 2,
+    ...                 "e_rms": [0.010, 0.035, 0.016, 0.018]})
+    >>> fig = plot_outlier_study(scores, metrics=("e_rms",))
+    >>> len(fig.axes[0].patches)
+    4
+    """
+    _require_columns(scores, ["config", "scheme", *metrics], "the outlier study")
+    labels = np.asarray(scores["config"]).astype(str)
+    if configs is None:
+        configs = [c for c in _unique_in_order(labels) if c.startswith("outliers=")]
+        if "default" in labels:
+            configs = ["default", *configs]
+    if not any(c.startswith("outliers=") for c in configs):
+        raise MissingDataError("no outlier configuration ('outliers=...') in the scores.")
+    names = np.asarray(scores["scheme"]).astype(str)
+    in_study = np.isin(labels, [c for c in configs if c.startswith("outliers=")])
+    schemes = _unique_in_order(names[in_study]) if schemes is None else _as_list(schemes)
+    fig, axes = _new_figure(1, len(metrics), panel=(1.2 + 0.9 * len(schemes), 3.2))
+    width = 0.8 / len(configs)
+    hatches = ["", "//", "..", "xx", "\\\\"]
+    for ax, metric in zip(axes[0], metrics):
+        values = np.asarray(scores[metric], dtype=float)
+        for j, config in enumerate(configs):
+            for i, scheme in enumerate(schemes):
+                v = values[(labels == config) & (names == scheme) & np.isfinite(values)]
+                if v.size == 0:
+                    continue
+                lo, med, hi = np.percentile(v, [16, 50, 84])
+                ax.bar(i + (j - (len(configs) - 1) / 2) * width, med, width,
+                       yerr=[[med - lo], [hi - med]], color=scheme_color(scheme),
+                       edgecolor="0.6", hatch=hatches[j % len(hatches)])
+        ax.set_xticks(range(len(schemes)), schemes, rotation=30, ha="right")
+        ax.set_yscale("log")
+        ax.set_ylabel(f"{metric} (median over simulations)")
+    handles = [Patch(facecolor="white", edgecolor="0.3", hatch=hatches[j % len(hatches)],
+                     label=config) for j, config in enumerate(configs)]
+    axes[0][0].legend(handles=handles, fontsize="small")
+    fig.suptitle("Outlying stars: residuals with and without the IQR cut")
     return fig

@@ -27,7 +27,7 @@ from astropy.table import Table
 
 from . import plotting
 from .metrics import survey_table
-from .plotting import MissingDataError
+from .plotting import MissingDataError, _unique_in_order
 
 __all__ = [
     "PAPER_SURVEYS",
@@ -48,10 +48,6 @@ _PAPER_TRIO = ("polynomial", "delaunay", "kriging")
 
 #: The paper's table 1 (maximum sigma_sys^2 per survey), used when a result has no surveys.
 PAPER_SURVEYS = survey_table()
-
-
-def _unique_in_order(values):
-    return list(dict.fromkeys(np.asarray(values).astype(str).tolist()))
 
 
 def _fmt(value) -> str:
@@ -579,6 +575,10 @@ def _figure_specs(result, config, schemes, map_schemes, stamps, positions):
                             "one configuration each).",
          lambda: plotting.plot_density_boxplots(need_galaxies(), map_schemes, "global",
                                                 ("e1", "e2"), config, scores=scores)),
+        ("fig_outliers", "Median ellipticity residual rms and mean |rho1| with planted outlying "
+                         "stars, with and without the IQR cut (error bars: 16-84% over "
+                         "simulations); 'default' has no planted outliers.",
+         lambda: plotting.plot_outlier_study(scores)),
     ]
 
 

@@ -55,3 +55,30 @@ def test_unwritable_output(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "cannot write to the output folder" in err
     assert len(err.strip().splitlines()) == 1
+
+
+def test_scheduler_runs_on_a_dask_cluster(tmp_path):
+    distributed = pytest.importorskip("distributed", reason="the dask extra is not installed")
+    serial, on_dask = tmp_path / "serial", tmp_path / "dask"
+    args = [*SMALL, "--schemes", "kriging", "--studies", "none"]
+    assert main(["compare", *args, "-o", str(serial)]) == 0
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        assert main(["compare", *args, "--scheduler", cluster.scheduler_address,
+                     "-o", str(on_dask)]) == 0
+    assert (serial / "scores.csv").read_text() != ""
+    a = (serial / "scores.csv").read_text().splitlines()
+    b = (on_dask / "scores.csv").read_text().splitlines()
+    # identical tables but for the fit times
+    drop = a[0].split(",").index("fit_seconds")
+    strip = [[",".join(v for k, v in enumerate(line.split(",")) if k != drop) for line in t]
+             for t in (a, b)]
+    assert strip[0] == strip[1]
+
+
+def test_unreachable_scheduler_is_a_one_line_error(tmp_path, capsys):
+    pytest.importorskip("distributed", reason="the dask extra is not installed")
+    code = main(["compare", *SMALL, "--studies", "none", "--scheduler", "tcp://127.0.0.1:9",
+                 "-o", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 2 and "Dask scheduler" in err and len(err.strip().splitlines()) == 1

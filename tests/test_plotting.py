@@ -370,3 +370,24 @@ def test_no_pyplot_state_and_consistent_colours():
     assert plt.get_fignums() == before
     assert plotting.scheme_color("kriging") == "tab:green"
     assert plotting.scheme_color("new-scheme") == plotting.scheme_color("new-scheme")
+
+
+def test_outlier_study_bars_are_the_medians():
+    from sklearn_psf.plotting import plot_outlier_study
+
+    rng = np.random.default_rng(1)
+    rows = []
+    for config, scale in (("default", 1.0), ("outliers=0.02,iqr=on", 1.05),
+                          ("outliers=0.02,iqr=off", 3.0)):
+        for scheme in ("polynomial", "kriging"):
+            for sim in range(5):
+                rows.append((config, scheme, sim, scale * rng.uniform(0.9, 1.1) * 0.01))
+    scores = Table(rows=rows, names=["config", "scheme", "simulation", "e_rms"])
+    fig = plot_outlier_study(scores, metrics=("e_rms",))
+    heights = sorted(p.get_height() for p in fig.axes[0].patches)
+    expected = sorted(np.median(scores["e_rms"][(scores["config"] == c) & (scores["scheme"] == s)])
+                      for c in ("default", "outliers=0.02,iqr=on", "outliers=0.02,iqr=off")
+                      for s in ("polynomial", "kriging"))
+    np.testing.assert_allclose(heights, expected)
+    with pytest.raises(ValueError, match="outlier configuration"):
+        plot_outlier_study(scores[scores["config"] == "default"], metrics=("e_rms",))
