@@ -11,13 +11,13 @@ image would be (sep background and detection, point-source selection, stamps, no
 PCA keeping 90% of the variance):
 
 - PSF = Kolmogorov atmosphere (FWHM 0.7 arcsec) sheared by a small coherent atmospheric
-  shear (g1, g2) = (0.012, 0.006), convolved with a GalSim ``OpticalPSF`` (lambda/D = 0.04
+  shear (g1, g2) = (0.015, 0.0075), convolved with a GalSim ``OpticalPSF`` (lambda/D = 0.04
   arcsec, central obscuration 0.3) whose aberrations (in waves) vary smoothly with the field
-  position (u, v) in [-1, 1]^2: defocus 0.3 + 0.2 (u^2 + v^2), astigmatism
+  position (u, v) in [-1, 1]^2: defocus 0.3 + 0.05 (u^2 + v^2), astigmatism
   (0.05 + A (u^2 - v^2), 0.025 + 2 A u v) with A = ``ASTIG``, coma (0.1 u, 0.1 v), and
   drawn with the pixel response. The resulting FWHM is about 0.84 arcsec.
 - 300 stars at random sub-pixel positions at least 40 pixels apart, fluxes log-uniform in
-  [2e4, 5e5] counts; 6 saturated bright stars (clipped at SATURATE = 6e4 counts) and 40
+  [1.5e5, 2e6] counts; 6 saturated bright stars (clipped at SATURATE = 4e5 counts) and 40
   exponential galaxies (half-light radius 0.6-1.2 arcsec) that the selection must reject.
 - Sky of 300 counts plus Gaussian noise of rms 10 counts.
 
