@@ -329,7 +329,7 @@ def _predict(args):
     hdu.name = "PSF"
     hdu.header["MODEL"] = (os.path.basename(args.model), "PSF model file")
     hdu.header["STAMPSZ"] = (s, "stamp side in pixels")
-    hdu.header["COMMENT"] = "x, y are 0-based pixel positions (x = column); psf stamps have unit sum"
+    hdu.header["COMMENT"] = "x, y: 0-based pixel positions (x = column); psf: unit-sum stamps"
     write_fits_atomic(fits.HDUList([fits.PrimaryHDU(), hdu]), args.output, overwrite=True)
     flagged = int(np.sum(out["moments_flag"] != 0))
     print(f"PSFs at {len(X)} positions ({s}x{s} stamps, e1/e2/sigma measured"

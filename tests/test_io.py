@@ -76,8 +76,9 @@ def test_fixed_basis_array_parameters_and_pickle(tmp_path, star_data, field):
     assert_array_equal(comps, field.reference.components.reshape(len(comps), -1))
     # joblib and pickle work too
     joblib.dump(model, tmp_path / "m.joblib")
-    assert_allclose(joblib.load(tmp_path / "m.joblib").predict(X[:3]), model.predict(X[:3]), rtol=1e-12, atol=1e-15)
-    assert_allclose(pickle.loads(pickle.dumps(back)).predict(X[:3]), model.predict(X[:3]), rtol=1e-12, atol=1e-15)
+    tol = {"rtol": 1e-12, "atol": 1e-15}
+    assert_allclose(joblib.load(tmp_path / "m.joblib").predict(X[:3]), model.predict(X[:3]), **tol)
+    assert_allclose(pickle.loads(pickle.dumps(back)).predict(X[:3]), model.predict(X[:3]), **tol)
 
 
 def _restamp(path, out, **cards):
@@ -95,7 +96,8 @@ def test_format_versions(tmp_path, star_data):
     assert fits.getheader(path)["FORMAT"] == MODEL_FORMAT_VERSION == 1
     # the oldest known version (1) loads
     _restamp(path, tmp_path / "v1.fits", FORMAT=1)
-    assert_allclose(load_model(tmp_path / "v1.fits").predict(X[:4]), model.predict(X[:4]), rtol=1e-12, atol=1e-15)
+    assert_allclose(load_model(tmp_path / "v1.fits").predict(X[:4]), model.predict(X[:4]),
+                    rtol=1e-12, atol=1e-15)
     # a newer version: a clear message, not a wrong model
     _restamp(path, tmp_path / "v2.fits", FORMAT=2)
     with pytest.raises(ValueError, match="format version 2.*upgrade sklearn_psf"):

@@ -60,8 +60,8 @@ def _read_table(path, hdu):
     except (ValueError, OSError, TypeError, KeyError, IndexError, EOFError, fits.VerifyError,
             AstropyUserWarning) as exc:
         raise ValueError(
-            f"Could not read the catalogue {path!r} ({type(exc).__name__}: {_one_line(exc)}); pass a "
-            "complete FITS table or a CSV file with x, y columns."
+            f"Could not read the catalogue {path!r} ({type(exc).__name__}: "
+            f"{_one_line(exc)}); pass a complete FITS table or a CSV file with x, y columns."
         ) from None
 
 

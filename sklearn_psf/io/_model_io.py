@@ -396,7 +396,8 @@ def _open_checked(path):
     except (OSError, TypeError, KeyError, IndexError, ValueError, EOFError, fits.VerifyError,
             AstropyUserWarning) as exc:
         raise ValueError(
-            f"Could not read the model file {path!r} ({type(exc).__name__}: {_one_line(exc)}); the file "
+            f"Could not read the model file {path!r} ({type(exc).__name__}: "
+            f"{_one_line(exc)}); the file "
             "is corrupt or truncated: write it again."
         ) from None
 
