@@ -76,7 +76,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
     Parameters
     ----------
     interpolator : regressor, optional
-        A multi-output scikit-learn regressor from positions (n, 2) to coefficients (n, k).
+        A multi-output scikit-learn regressor from positions (n, d) to coefficients (n, k).
         Default :func:`make_default_interpolator` (MinMaxScaler + exponential Kriging,
         range 0.5).
     basis : transformer, optional
@@ -103,7 +103,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
         Side s of the stamps.
     n_features_in_ : int
         2.
-    X_fit_ : ndarray of shape (n_stars, 2)
+    X_fit_ : ndarray of shape (n_stars, n_features)
         Positions of the stars given to ``fit``.
     coefficients_ : ndarray of shape (n_stars, n_components_)
         Basis coefficients of those stars (the interpolator is fitted on
@@ -156,8 +156,9 @@ class PSFModel(RegressorMixin, BaseEstimator):
 
         Parameters
         ----------
-        X : array-like of shape (n_stars, 2)
-            Star positions (x, y).
+        X : array-like of shape (n_stars, n_features)
+            Star positions, usually (x, y) in pixels; further columns (e.g. an exposure
+            index for a multi-exposure model) are passed to the interpolator as they are.
         y : array-like of shape (n_stars, s*s) or (n_stars, s, s)
             Star stamps. Not modified.
 
@@ -171,12 +172,13 @@ class PSFModel(RegressorMixin, BaseEstimator):
             For NaN positions or pixels, non-square stamps, too few stars for the basis, or
             when outlier rejection leaves too few stars.
         """
+        if y is None:
+            raise ValueError(f"{type(self).__name__} requires y to be passed, but the target y "
+                             "is None: pass the star stamps.")
         y = np.asarray(y)
         if y.ndim == 3:
             y = y.reshape(y.shape[0], -1)
         X, y = validate_data(self, X, y, multi_output=True, y_numeric=True, dtype=np.float64)
-        if X.shape[1] != 2:
-            raise ValueError(f"X must hold (x, y) positions, shape (n, 2); got {X.shape}.")
         if y.ndim != 2:
             raise ValueError("y must hold flattened stamps of shape (n_stars, s*s).")
         s = int(round(np.sqrt(y.shape[1])))
@@ -187,7 +189,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
             )
         n = X.shape[0]
         if n < 3:
-            raise ValueError(f"PSFModel needs at least 3 stars, got {n}.")
+            raise ValueError(f"PSFModel needs at least 3 stars, got n_samples = {n}.")
 
         basis = make_default_basis() if self.basis is None else clone(self.basis)
         coef = np.asarray(basis.fit_transform(y), dtype=np.float64)

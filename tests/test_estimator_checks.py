@@ -11,10 +11,13 @@ tests/test_preprocessing.py and tests/test_model.py.
 import numpy as np
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
-from sklearn_psf import FixedBasis, StampNormalizer
+from sklearn_psf import FixedBasis, PSFModel, StampNormalizer
 
 _NOT_SQUARE = ("the check's data have a non-square number of pixels (2-10 features); "
                "StampNormalizer needs square stamps to centre them")
+_NOT_STAMPS = ("the check's targets are 1 to 5 values per sample, many zero or negative: "
+               "PSFModel's y must be star stamps with a square number of pixels and positive "
+               "flux, to be flux-normalised and projected on a basis")
 _FIXED_SIZE = ("the check's data have 1-10 features; a FixedBasis of 9-pixel components only "
                "projects 9-pixel stamps")
 
@@ -29,7 +32,20 @@ _STAMP_DATA_CHECKS = [
     "check_transformer_data_not_an_array", "check_transformer_general",
     "check_transformer_preserve_dtypes",
 ]
+_MODEL_CHECKS = [
+    "check_dict_unchanged", "check_dont_overwrite_parameters", "check_dtype_object",
+    "check_estimators_fit_returns_self", "check_estimators_nan_inf",
+    "check_estimators_overwrite_params", "check_estimators_pickle",
+    "check_f_contiguous_array_estimator", "check_fit2d_predict1d", "check_fit_check_is_fitted",
+    "check_fit_idempotent", "check_fit_score_takes_y", "check_methods_sample_order_invariance",
+    "check_methods_subset_invariance", "check_n_features_in", "check_n_features_in_after_fitting",
+    "check_pipeline_consistency", "check_positive_only_tag_during_fit",
+    "check_readonly_memmap_input", "check_regressor_data_not_an_array",
+    "check_regressor_multioutput", "check_regressors_int", "check_regressors_no_decision_function",
+    "check_regressors_train",
+]
 EXPECTED_FAILURES = {
+    "PSFModel": dict.fromkeys(_MODEL_CHECKS, _NOT_STAMPS),
     "StampNormalizer": dict.fromkeys(_STAMP_DATA_CHECKS, _NOT_SQUARE),
     "FixedBasis": {
         **dict.fromkeys(_STAMP_DATA_CHECKS, _FIXED_SIZE),
@@ -45,7 +61,8 @@ def _expected(estimator):
 
 
 @parametrize_with_checks(
-    [StampNormalizer(), FixedBasis(components=np.random.default_rng(0).random((2, 9)))],
+    [StampNormalizer(), FixedBasis(components=np.random.default_rng(0).random((2, 9))),
+     PSFModel()],
     expected_failed_checks=_expected,
 )
 def test_sklearn_compatible(estimator, check):

@@ -415,3 +415,18 @@ def test_example_exposure_files(tmp_path):
     out = extract_star_stamps(image, cat, 25, weight=weight, saturation=header["SATURATE"])
     assert out.counts["masked"] == 2 and out.counts["saturated"] == 1
     assert out.counts["used"] == 27
+
+
+def test_model_with_extra_position_columns_is_refused_by_the_file_format(tmp_path):
+    from sklearn.neighbors import KNeighborsRegressor
+
+    from sklearn_psf.model import PSFModel
+
+    rng = np.random.default_rng(0)
+    X = np.c_[rng.uniform(0, 1000, (30, 2)), np.repeat([0.0, 1.0], 15)]
+    yy, xx = np.mgrid[0:9, 0:9] - 4.0
+    y = np.exp(-0.5 * (xx.ravel() ** 2 + yy.ravel() ** 2) / (1.5 + X[:, :1] / 1e3) ** 2)
+    model = PSFModel(interpolator=KNeighborsRegressor(3), outliers=None).fit(X, y)
+    with pytest.raises(ValueError, match="joblib"):
+        model.save(tmp_path / "m.fits")
+    assert not list(tmp_path.iterdir())

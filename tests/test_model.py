@@ -170,8 +170,12 @@ def test_bad_input(data):
         PSFModel(interpolator=knn).fit(X[:20], yn)
     with pytest.raises(ValueError, match="square"):
         PSFModel(interpolator=knn).fit(X[:20], y[:20, :-1])
-    with pytest.raises(ValueError, match=r"\(n, 2\)"):
-        PSFModel(interpolator=knn).fit(np.c_[X[:20], X[:20, :1]], y[:20])
+    # extra position columns (e.g. an exposure index) go to the interpolator as they are,
+    # and predictions must then give as many
+    three = PSFModel(interpolator=knn).fit(np.c_[X[:20], np.zeros(20)], y[:20])
+    assert three.n_features_in_ == 3
+    with pytest.raises(ValueError, match="features"):
+        three.predict(X[:3])
     y0 = y[:20].copy()
     y0[5] = 0.0
     with pytest.raises(ValueError, match="All-zero stamps at rows 5"):

@@ -292,6 +292,10 @@ def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = F
     if not hasattr(model, "coefficients_"):
         raise ValueError("This PSFModel was fitted by an older sklearn_psf without the stars' "
                          "coefficients (coefficients_): refit it, or use joblib.dump.")
+    if model.X_fit_.shape[1] != 2:
+        raise ValueError(f"Model files (format {MODEL_FORMAT_VERSION}) hold (x, y) star positions; "
+                         f"this model was fitted on {model.X_fit_.shape[1]} position columns: "
+                         "use joblib.dump.")
     s, k = int(model.stamp_size_), int(model.n_components_)
     normalizers, mean, comps = _linear_basis(model.basis_, s)
     arrays = []
