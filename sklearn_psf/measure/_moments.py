@@ -79,9 +79,9 @@ def adaptive_moments(
     below ``precision / 10``, so the moments change by less than that, relatively). Stamps are
     processed in cache-sized chunks; the iteration stops, per stamp, as in HSM, when no
     parameter moves by more than ``precision`` (relative). When numba is installed a compiled
-    kernel runs the same iteration stamp by stamp on HSM's elliptical region, with the
-    Gaussian weight updated multiplicatively along each row (two ``exp`` per row instead of
-    one per pixel): several times faster, same results to ~1e-8.
+    kernel runs the same iteration stamp by stamp on the same box, with the Gaussian weight
+    updated multiplicatively from pixel to pixel (a few ``exp`` per iteration instead of one
+    per pixel): several times faster, same results to ~1e-8.
 
     Parameters
     ----------
