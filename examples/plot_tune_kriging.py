@@ -39,8 +39,9 @@ y = stamps[flags == 0]
 # %%
 # The model and its nested parameters
 # -----------------------------------
-# Passing the interpolator explicitly exposes its parameters to ``set_params`` under
-# ``interpolator__<step>__<parameter>``: here ``interpolator__krigingregressor__range`` (in
+# The interpolator's parameters are reached as ``interpolator__<step>__<parameter>``
+# (``PSFModel()`` accepts them too: ``set_params`` builds its default pipeline first; passing
+# the pipeline explicitly also lists them in ``get_params``): here ``interpolator__krigingregressor__range`` (in
 # units of the scaled positions, the image being mapped to the unit square) and
 # ``interpolator__krigingregressor__nugget`` (fraction of the variogram's sill).
 model = PSFModel(interpolator=make_pipeline(MinMaxScaler(), KrigingRegressor()))

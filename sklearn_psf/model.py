@@ -102,7 +102,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
     stamp_size_ : int
         Side s of the stamps.
     n_features_in_ : int
-        2.
+        Number of position columns (2 for (x, y)).
     X_fit_ : ndarray of shape (n_stars, n_features)
         Positions of the stars given to ``fit``.
     coefficients_ : ndarray of shape (n_stars, n_components_)
@@ -134,6 +134,25 @@ class PSFModel(RegressorMixin, BaseEstimator):
         self.interpolator = interpolator
         self.basis = basis
         self.outliers = outliers
+
+    def set_params(self, **params):
+        """Set parameters, including nested ones of the default basis and interpolator.
+
+        ``interpolator__krigingregressor__range`` works on ``PSFModel()`` (whose
+        ``interpolator`` is None): a nested key first replaces None by the default pipeline,
+        as ``GridSearchCV(PSFModel(), {"interpolator__krigingregressor__range": [...]})``
+        expects.
+
+        Returns
+        -------
+        self : PSFModel
+        """
+        defaults = {"interpolator": make_default_interpolator, "basis": make_default_basis}
+        for name, make in defaults.items():
+            nested = any(key.startswith(f"{name}__") for key in params)
+            if nested and params.get(name, getattr(self, name)) is None:
+                params = {name: make(), **{k: v for k, v in params.items() if k != name}}
+        return super().set_params(**params)
 
     def _make_outliers(self):
         if self.outliers is None:

@@ -192,3 +192,22 @@ def test_bad_input(data):
         model.predict([[1.0, np.nan]])
     with pytest.raises(ValueError):
         model.predict(np.ones((3, 3)))
+
+
+def test_grid_search_reaches_the_default_interpolator_and_basis(data):
+    """GridSearchCV(PSFModel(), {"interpolator__krigingregressor__range": ...}) as in the
+    design: a nested key materialises the default pipeline without touching the original."""
+    from sklearn.model_selection import GridSearchCV
+
+    X, y, _, _ = data
+    model = PSFModel()
+    search = GridSearchCV(model, {"interpolator__krigingregressor__range": [0.2, 0.6],
+                                  "basis__pca__n_components": [0.8, 0.9]}, cv=3)
+    search.fit(X, y)
+    assert model.interpolator is None and model.basis is None  # clone + set_params only
+    best = search.best_estimator_
+    assert best.interpolator.named_steps["krigingregressor"].range in (0.2, 0.6)
+    assert best.basis.named_steps["pca"].n_components in (0.8, 0.9)
+    # the same values set by hand give the same model
+    by_hand = PSFModel().set_params(**search.best_params_).fit(X, y)
+    np.testing.assert_allclose(by_hand.predict(X[:5]), best.predict(X[:5]))
