@@ -96,7 +96,7 @@ def main(argv=None):
             with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                               dashboard_address=None) as cluster, Client(cluster):
                 with joblib.parallel_backend("dask"):
-                    run_study(config, n_simulations=1, n_jobs=-1)  # warm the workers
+                    run_study(config, n_simulations=2, n_jobs=-1)  # warm both workers
                     t_dask, runs["dask"] = timed_study(n_sims, config, -1)
     print(f"run_study: {n_sims} simulations x {len(r1.config['schemes'])} schemes, "
           f"{config.n_stars} stars, {config.n_galaxies} galaxy-PSFs, image "
