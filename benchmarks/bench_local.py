@@ -19,6 +19,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 
@@ -28,16 +29,9 @@ from threadpoolctl import threadpool_limits
 
 from sklearn_psf.interpolate import KrigingRegressor, RBFRegressor, ShepardRegressor
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from bench_kriging import make_data  # noqa: E402  (the same smooth multi-target field)
 
-def make_data(n_stars, n_targets, n_queries, seed=0):
-    rng = np.random.default_rng(seed)
-    X = rng.uniform(size=(n_stars, 2))
-    Xq = rng.uniform(size=(n_queries, 2))
-    k = rng.normal(scale=5.0, size=(n_targets, 8, 2))
-    phase = rng.uniform(0, 2 * np.pi, size=(n_targets, 8))
-    amp = rng.normal(size=(n_targets, 8)) * np.logspace(0, -2, n_targets)[:, None]
-    Y = np.einsum("tk,ntk->nt", amp, np.cos(np.einsum("nd,tkd->ntk", X, k) + phase))
-    return X, Y, Xq
 
 
 def clock(fn):

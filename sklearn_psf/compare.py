@@ -525,7 +525,10 @@ def run_study(
     children = np.random.SeedSequence(random_state).spawn(n_simulations)
     seeds = [int(c.generate_state(1, dtype=np.uint32)[0]) for c in children]
     tasks = [(c, i, seeds[i]) for c in configs for i in range(n_simulations)]
-    jobs = Parallel(n_jobs=n_jobs, return_as="generator_unordered")(
+    # few tasks of seconds each: dispatch them all at once, one per batch (joblib's default
+    # keeps 2 * n_jobs in flight, which leaves Dask workers waiting on callbacks)
+    jobs = Parallel(n_jobs=n_jobs, return_as="generator_unordered", pre_dispatch="all",
+                    batch_size=1)(
         delayed(_run_one)(c, i, s, schemes, reference, theta_bins) for c, i, s in tasks
     )
     outputs = []
