@@ -43,9 +43,10 @@ FLAG_MASKED = 16
 
 try:  # the compiled kernel is used when numba is installed (much faster, same results)
     from ._moments_numba import iterate_numba as _iterate_numba
+    from ._moments_numba import mask_pixels_numba as _mask_pixels_numba
     from ._moments_numba import masked_core_fraction_numba as _masked_fraction_numba
 except ImportError:  # pragma: no cover - depends on the environment
-    _iterate_numba = _masked_fraction_numba = None
+    _iterate_numba = _masked_fraction_numba = _mask_pixels_numba = None
 
 #: Use the compiled kernel when available (tests switch it off to check the numpy path).
 _USE_NUMBA = _iterate_numba is not None
@@ -66,8 +67,9 @@ def _masked_pixels(cube, weights):
 
     A pixel is masked where its weight is 0 or its value is NaN; ``cube`` is not modified.
     """
-    masked = np.isnan(cube)
-    if weights is not None:
+    if weights is None:
+        masked = np.isnan(cube)
+    else:
         w = as_stamps(weights, name="weights")
         if w.shape != cube.shape:
             raise ValueError(
@@ -75,15 +77,21 @@ def _masked_pixels(cube, weights):
                 f"{cube.shape[1]}x{cube.shape[2]} pixels), got {w.shape[0]} stamps of "
                 f"{w.shape[1]}x{w.shape[2]} pixels."
             )
-        invalid = ~(np.isfinite(w) & (w >= 0)).all(axis=(1, 2))
-        if invalid.any():
-            rows = np.flatnonzero(invalid)
+        if _USE_NUMBA:  # one pass instead of five; None when a weight is invalid
+            result = _mask_pixels_numba(cube, w)
+            valid = result is not None
+        else:  # two reductions instead of a per-pixel test (a NaN fails both comparisons)
+            valid = w.min(initial=0.0) >= 0 and w.max(initial=0.0) < np.inf
+        if not valid:
+            rows = np.flatnonzero(~(np.isfinite(w) & (w >= 0)).all(axis=(1, 2)))
             raise ValueError(
                 f"weights hold negative, NaN or infinite values in rows {rows[:10].tolist()}"
                 f"{' ...' if rows.size > 10 else ''}: pass inverse variances >= 0, with 0 for "
                 "masked pixels."
             )
-        masked |= w == 0
+        if _USE_NUMBA:
+            return result
+        masked = np.isnan(cube) | (w == 0)
     if not masked.any():
         return cube, None
     return np.where(masked, 0.0, cube), masked

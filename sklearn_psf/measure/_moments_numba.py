@@ -237,3 +237,32 @@ def masked_core_fraction_numba(masked, idx, x0, y0, mxx, mxy, myy, max_rho2):
     _masked_fraction_loop(masked, np.ascontiguousarray(idx, np.int64), x0, y0, mxx, mxy, myy,
                           float(max_rho2), out)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _mask_loop(cube, weights, clean, masked):  # pragma: no cover - compiled
+    n_masked = 0
+    valid = True
+    for k in range(cube.shape[0]):
+        for i in range(cube.shape[1]):
+            for j in range(cube.shape[2]):  # branch-free: vectorised by the compiler
+                v = cube[k, i, j]
+                w = weights[k, i, j]
+                valid &= (w >= 0.0) & (w < math.inf)  # False for NaN
+                m = (w == 0.0) | (v != v)
+                masked[k, i, j] = m
+                clean[k, i, j] = 0.0 if m else v
+                n_masked += m
+    return n_masked if valid else -1
+
+
+def mask_pixels_numba(cube, weights):
+    """As ``_moments._masked_pixels`` with weights, in one pass: ``(clean, masked)``, ``(cube,
+    None)`` when no pixel is masked, ``None`` when a weight is negative or not finite."""
+    cube = np.ascontiguousarray(cube, dtype=np.float64)
+    clean = np.empty_like(cube)
+    masked = np.empty(cube.shape, dtype=np.bool_)
+    n_masked = _mask_loop(cube, np.ascontiguousarray(weights, dtype=np.float64), clean, masked)
+    if n_masked < 0:
+        return None
+    return (clean, masked) if n_masked else (cube, None)
