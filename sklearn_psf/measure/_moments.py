@@ -158,8 +158,9 @@ def adaptive_moments(
     ``FLAG_MASKED`` when more than ``max_masked_fraction`` of its core weight, the Gaussian of
     half the adaptive width ``exp(-2 rho^2)`` at the centroid summed over the stamp's pixels,
     falls on masked pixels; so is a stamp whose pixels are all masked. With the default 0.5, a
-    3x3 masked core on a star of sigma 1.2 px, or 5x5 on sigma 2 px, is flagged; a masked
-    column through the centre of a star of sigma >= 1.2 px is not.
+    masked 3x3 core is flagged on Gaussian stars of sigma up to ~1.8 px, 5x5 up to ~3 px; a
+    masked column through the centre of a star of sigma >= 1.2 px is not. Pass
+    ``max_masked_fraction=1`` to get HSM's moments whatever the mask.
 
     Parameters
     ----------
