@@ -150,13 +150,15 @@ class _BaseInterpolator(RegressorMixin, BaseEstimator):
         return tags
 
     def _validate_fit_data(self, X, y):
+        y_arr = np.asarray(y) if y is not None else None
+        if y_arr is not None and y_arr.dtype.kind in "fc" and y_arr.ndim in (1, 2):
+            _check_finite(type(self).__name__, y_arr, "y (values at the stars)")
         X, y = validate_data(
             self, X, y, multi_output=True, y_numeric=True, dtype=np.float64,
             ensure_all_finite=False,
         )
         y = np.asarray(y, dtype=np.float64)
         _check_finite(type(self).__name__, X, "X (star positions)")
-        _check_finite(type(self).__name__, y, "y (values at the stars)")
         self._y_ndim = y.ndim
         # copies: the fitted model never aliases (and never modifies) the caller's arrays
         X = np.array(X, dtype=np.float64, order="C", copy=True)
