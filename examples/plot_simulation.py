@@ -7,8 +7,9 @@ The simulations of Bergé et al. (2012), section 3: mock PSFs are built from the
 components of the stars of a reference image, with weights that vary across the field as
 Gaussian random fields of power spectrum P(k) ~ k^-11/4. :func:`~sklearn_psf.simulate.make_psf_field`
 draws the stars (S/N 100 by default) and the "galaxy-PSFs" (positions where the true PSF is
-known, to test a model) into a noisy image. This example looks at one simulation: the image,
-example PSFs and the ellipticity pattern.
+known, to test a model) into a noisy image, at sub-pixel positions. This example looks at one
+simulation: the image, example PSFs and the ellipticity pattern; then at a field as real data
+come: contaminated stars, masked pixels, a bad column, saturation, with the truth known.
 """
 
 # %%
@@ -97,3 +98,37 @@ plt.show()
 # 0.02; the default reference was tuned to match.
 print(f"mean |e| = {modulus.mean():.4f}, standard deviation of |e| = {modulus.std():.4f}")
 print(f"standard deviation of e1 = {e1.std():.4f}, of e2 = {e2.std():.4f}")
+
+# %%
+# A field as real data come
+# -------------------------
+# ``contaminants`` gives a fraction of the stars a cosmic ray, a blended neighbour, a binary
+# companion or replaces them by a compact galaxy; ``field.stars["contaminant"]`` is the
+# truth. Masked pixels, bad columns and saturated pixels get weight 0 in ``field.weight``
+# (inverse variance, including the stars' Poisson noise with ``gain``). The strengths and
+# their reasons are in :mod:`sklearn_psf.simulate`.
+dirty = make_psf_field(reference, n_stars=300, n_galaxies=0, image_shape=(1500, 2000),
+                       snr=100.0, random_state=3,
+                       contaminants={"cosmic_ray": 0.1, "neighbour": 0.1, "galaxy": 0.1,
+                                     "binary": 0.1},
+                       masked_fraction=1e-3, bad_columns=2, saturation=3000.0, gain=2.0)
+raw, weights, flags = dirty.star_stamps(return_weights=True)
+s = dirty.stamp_size
+kinds = ["", "cosmic_ray", "neighbour", "galaxy", "binary"]
+fig, axes = plt.subplots(2, 5, figsize=(9, 4), layout="constrained")
+for j, kind in enumerate(kinds):
+    rows = np.flatnonzero((dirty.stars["contaminant"] == kind) & (flags == 0))[:2]
+    for i, r in enumerate(rows):
+        ax = axes[i, j]
+        ax.imshow(np.arcsinh(raw[r].reshape(s, s) / dirty.noise_rms), origin="lower",
+                  cmap="gray")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.set_title(f"{kind or 'clean'}\nsignal S/N {dirty.stars['contaminant_snr'][r]:.0f}",
+                     fontsize=8)
+fig.suptitle("Star stamps at S/N 100 (asinh scale); signal S/N = sqrt of the chi^2 added")
+plt.show()
+
+print(f"{int((dirty.weight == 0).sum())} pixels of weight 0 "
+      f"({int((dirty.weight == 0).all(axis=0).sum())} bad columns, saturated cores, bad pixels); "
+      f"{int(((weights == 0).any(axis=1)).sum())} of {len(raw)} star stamps hold some")

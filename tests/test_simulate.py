@@ -327,7 +327,7 @@ def test_weight_map_masks_saturation_and_poisson(dirty):
     assert np.median(w) == pytest.approx(1 / dirty.noise_rms**2, rel=1e-6)
     # the weights are the inverse variance: chi = (data - model) sqrt(w) has unit spread
     clean = np.flatnonzero(dirty.stars["contaminant"] == "")
-    s, h = dirty.stamp_size, dirty.stamp_size // 2
+    s = dirty.stamp_size
     raw, wst, flags = dirty.star_stamps(return_weights=True)
     truth = fourier_shift(np.asarray(dirty.stars["stamp"]).reshape(-1, s, s),
                           dirty.stars["x"] - np.floor(dirty.stars["x"] + 0.5),

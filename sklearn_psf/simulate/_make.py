@@ -126,7 +126,8 @@ def _check_contaminants(contaminants):
             raise ValueError(f"Unknown contaminant {kind!r}: choose among {CONTAMINANT_KINDS}.")
         frac = float(frac)
         if not 0 <= frac <= 1:
-            raise ValueError(f"The fraction of stars with a {kind!r} must be in [0, 1], got {frac}.")
+            raise ValueError(f"The fraction of stars with a {kind!r} must be in [0, 1], "
+                             f"got {frac}.")
         out[kind] = frac
     if sum(out.values()) > 1:
         raise ValueError(f"The contaminant fractions add up to {sum(out.values()):.3g} > 1.")
