@@ -107,6 +107,9 @@ def _add_fit_parsers(sub):
     pred.add_argument("--y-col", help="column of the y positions")
     pred.add_argument("--one-based", action="store_true",
                       help="the catalogue's x, y are 1-based (FITS convention)")
+    pred.add_argument("--radec", action="store_true",
+                      help="positions are (RA, Dec) in degrees (ALPHA_J2000/DELTA_J2000, RA/DEC "
+                      "or --x-col/--y-col), converted with the WCS of the fitted image")
     pred.add_argument("--centered", action="store_true",
                       help="shift each PSF by the position's sub-pixel offset from the stamp's "
                       "centre pixel floor(x + 0.5), as PSFEx and PIFF draw it")
@@ -205,8 +208,8 @@ def _fit_one(args):
     from tqdm.auto import tqdm
 
     from .compare import default_schemes, make_psf_model
-    from .io import (extract_star_stamps, extract_vignettes, find_stars, read_catalog,
-                     read_image, save_model)
+    from .io import (celestial_wcs, extract_star_stamps, extract_vignettes, find_stars,
+                     read_catalog, read_image, save_model)
     from .validation import fit_and_validate
 
     schemes = default_schemes()
@@ -256,7 +259,9 @@ def _fit_one(args):
                         if skipped else ""))
         bar.update()
         bar.set_description("fitting and validating")
-        options = {"reserve": args.reserve, "random_state": args.seed, "weights": cut.weights}
+        wcs = celestial_wcs(header)
+        options = {"reserve": args.reserve, "random_state": args.seed, "weights": cut.weights,
+                   "wcs": wcs}
         if args.interpolator == "auto":
             candidates = {n: make_psf_model(schemes[n]) for n in FIT_INTERPOLATORS}
             model, residuals, summary = fit_and_validate(
@@ -268,6 +273,8 @@ def _fit_one(args):
         summary["selection"] = dict(cut.counts)
         summary["image"] = os.path.abspath(args.image or args.stars)
         summary["interpolator"] = summary.get("scheme", args.interpolator)
+        if wcs is not None:  # predict can then take and return (RA, Dec)
+            summary["wcs"] = wcs.to_header_string()
         bar.update()
         bar.set_description("saving")
         try:
@@ -300,7 +307,8 @@ def _fit_one(args):
             f"e rms {summary['e_rms']:.4f} (e1 mean {summary['de1_mean']:+.4f} rms "
             f"{summary['de1_rms']:.4f}, e2 mean {summary['de2_mean']:+.4f} rms "
             f"{summary['de2_rms']:.4f}), size mean {summary['dsigma_mean']:+.4f} rms "
-            f"{summary['dsigma_rms']:.4f} pixels, |rho1| mean {summary['rho1_mean_abs']:.2e}")
+            f"{summary['dsigma_rms']:.4f} pixels, |rho1| mean {summary['rho1_mean_abs']:.2e}"
+            + (" (rho statistics on the sky, arcmin)" if wcs is not None else ""))
     print("\n".join(lines))
     print(f"Wrote {', '.join(written)}")
     return 0
@@ -335,7 +343,8 @@ def _predict(args):
     from astropy.table import Table
     from tqdm.auto import tqdm
 
-    from .io import draw_psf, extrapolation_flags, load_model, read_catalog
+    from .io import (celestial_wcs, draw_psf, extrapolation_flags, load_model, pixel_to_sky,
+                     read_catalog, read_model_validation, sky_to_pixel)
     from .io._model_io import write_fits_atomic
     from .measure import adaptive_moments
 
@@ -343,8 +352,11 @@ def _predict(args):
     if (args.x_col is None) != (args.y_col is None):
         raise CLIInputError("give both --x-col and --y-col, or neither")
     model = load_model(args.model)
+    wcs = celestial_wcs((read_model_validation(args.model)[1] or {}).get("wcs"))
+    if args.radec and wcs is None:
+        raise CLIInputError(f"--radec: the model {args.model!r} has no WCS (its image had none)")
     catalog = read_catalog(args.positions, one_based=True if args.one_based else None,
-                           x_col=args.x_col, y_col=args.y_col)
+                           x_col=args.x_col, y_col=args.y_col, sky=args.radec)
     X = np.column_stack([np.asarray(catalog["x"]), np.asarray(catalog["y"])])
     if len(X) == 0:
         raise CLIInputError(f"the catalogue {args.positions} has no rows")
@@ -352,6 +364,11 @@ def _predict(args):
     if bad.any():
         raise CLIInputError(f"{int(bad.sum())} positions of {args.positions} are NaN or "
                             f"infinite (first at row {int(np.flatnonzero(bad)[0])})")
+    radec = X if args.radec else None
+    if args.radec:
+        X = sky_to_pixel(wcs, radec)
+    elif wcs is not None:
+        radec = pixel_to_sky(wcs, X)
     size = model.stamp_size_ * args.oversampling
     stamps = np.empty((len(X), size, size))
     chunk = 5000
@@ -363,8 +380,10 @@ def _predict(args):
             bar.update(stop - start)
     mom = adaptive_moments(stamps)
     out = Table({"x": X[:, 0], "y": X[:, 1]})
+    if radec is not None:
+        out["ra"], out["dec"] = radec[:, 0], radec[:, 1]
     for name in catalog.colnames:
-        if name not in ("x", "y"):
+        if name not in out.colnames:
             out[name] = catalog[name]
     out["psf"] = stamps
     for name in ("e1", "e2", "sigma"):

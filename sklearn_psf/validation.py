@@ -27,6 +27,7 @@ from .measure import adaptive_moments
 from .metrics import RHO_NAMES, make_ellipticity_rms_scorer, make_rho1_scorer, rho_statistics
 from .metrics._correlation import EmptyBinsWarning
 from .model import PSFModel
+from .io import pixel_to_sky
 from .preprocessing import StampNormalizer
 
 __all__ = ["fit_and_validate", "plot_stamp_residuals", "plot_whiskers", "plot_rho1",
@@ -60,7 +61,8 @@ def _rms(a):
 
 
 def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=None, *,
-                     candidates=None, cv: int = 5, rho1_nbins: int = 6, weights=None):
+                     candidates=None, cv: int = 5, rho1_nbins: int = 6, weights=None,
+                     wcs=None):
     """Fit a PSF model on most stars and validate it on reserved ones.
 
     1. A random fraction ``reserve`` of the stars (seeded by ``random_state``) is set aside;
@@ -104,6 +106,10 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
         Pixel weights (inverse variance, 0 = masked), e.g. ``StarStamps.weights``; passed to
         ``PSFModel.fit`` when it accepts ``weights`` (masked pixels should then already be 0
         in ``stamps``, as the readers leave them).
+    wcs : astropy.wcs.WCS, optional
+        Celestial WCS of the image (:func:`sklearn_psf.io.celestial_wcs`): the rho
+        statistics are then measured on the sky, in great-circle separations (arcmin); the
+        summary's ``rho_theta_units`` says which.
 
     Returns
     -------
@@ -251,13 +257,19 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
     summary.update(dict.fromkeys(RHO_NAMES[1:]))
     if ok.sum() >= 10:
         t = table[ok]
+        where, sky = X[reserved][ok], {}
+        if wcs is not None:  # xi+ ignores the uniform rotation of e from pixels to sky
+            arcmin = 60.0 * float(np.sqrt(np.abs(np.linalg.det(wcs.pixel_scale_matrix))))
+            where = pixel_to_sky(wcs, where)
+            sky = {"sky": True, "min_sep": min_sep * arcmin, "max_sep": max_sep * arcmin}
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", EmptyBinsWarning)
-            rho = rho_statistics(X[reserved][ok], t["e1_star"], t["e2_star"],
+            rho = rho_statistics(where, t["e1_star"], t["e2_star"],
                                  2 * np.asarray(t["sigma_star"]) ** 2, t["e1_model"],
                                  t["e2_model"], 2 * np.asarray(t["sigma_model"]) ** 2,
-                                 min_sep=min_sep, max_sep=max_sep, nbins=rho1_nbins,
-                                 num_threads=1)
+                                 **{"min_sep": min_sep, "max_sep": max_sep, **sky},
+                                 nbins=rho1_nbins, num_threads=1)
+        summary["rho_theta_units"] = "arcmin" if sky else "pixel"
         for name, r in rho.items():
             summary[name] = {"theta": np.asarray(r.theta_nominal, dtype=float).tolist(),
                              "xi": np.asarray(r.xi, dtype=float).tolist(),
@@ -480,7 +492,7 @@ def plot_rho_statistics(summary):
                         color=color)
         ax.set_xscale("log")
         ax.set_yscale("log")
-        ax.set_xlabel(r"separation $\theta$ [pixel]")
+        ax.set_xlabel(rf"separation $\theta$ [{summary.get('rho_theta_units', 'pixel')}]")
         ax.set_ylabel(r"$|\rho(\theta)|$ (open: negative)")
         ax.legend(fontsize=8)
     fig.suptitle("rho statistics of the reserved stars (Jarvis et al. 2016)")

@@ -203,6 +203,22 @@ def test_fit_on_ldac_vignettes_alone_then_predict(tmp_path, ldac, capsys):
     de = np.hypot(table["e1"][:30] - truth["e1"], table["e2"][:30] - truth["e2"])
     assert np.sqrt(np.mean(de**2)) < 0.02
 
+    # sky coordinates: the catalogue's WCS is kept with the model; RA/Dec in and out
+    assert summary["rho_theta_units"] == "arcmin" and "wcs" in summary
+    from astropy.wcs import WCS
+
+    wcs = WCS(fits.Header.fromstring(summary["wcs"]))
+    ra, dec = wcs.all_pix2world(truth["x"], truth["y"], 0)
+    Table({"ALPHA_J2000": ra, "DELTA_J2000": dec}).write(tmp_path / "sky.fits")
+    code, _, err = _run(["predict", tmp_path / "m.fits", "--positions", tmp_path / "sky.fits",
+                         "--radec", "-o", tmp_path / "psky.fits"], capsys)
+    assert code == 0, err
+    sky = Table.read(tmp_path / "psky.fits")
+    assert_allclose(sky["x"], truth["x"], atol=1e-6)
+    assert_allclose(sky["y"], truth["y"], atol=1e-6)
+    assert_allclose(sky["ra"], ra) and (sky["extrapolated"] == 0).all()
+    assert_allclose(table["ra"][:30], ra, rtol=1e-12)  # pixel input: RA/Dec returned too
+
 
 def test_predict_x_col_oversampling_and_errors(tmp_path, exposure, capsys):
     model_path = tmp_path / "m.fits"
@@ -240,6 +256,8 @@ def test_predict_x_col_oversampling_and_errors(tmp_path, exposure, capsys):
             (["fit", "--stars", exposure["stars"], "-o", tmp_path / "x.fits"],
              r"no VIGNET column"),
         ]
+        cases.append((["predict", model_path, "--positions", tmp_path / "g.csv", "--radec",
+                       "-o", tmp_path / "p.fits"], r"has no WCS"))
         if os.geteuid() == 0:   # root writes anywhere: only the other cases apply
             cases = cases[2:]
         for args, pattern in cases:

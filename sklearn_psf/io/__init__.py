@@ -57,6 +57,7 @@ from ._model_io import (
 from ._select import SELECTION_REASONS, select_stars
 from ._stars import REJECTION_REASONS, StarStamps, extract_star_stamps, find_stars
 from ._vignettes import VIGNET_MASKED, extract_vignettes
+from ._wcs import celestial_wcs, pixel_to_sky, sky_to_pixel
 
 __all__ = [
     "FITSHeaderWarning",
@@ -66,17 +67,20 @@ __all__ = [
     "SELECTION_REASONS",
     "StarStamps",
     "VIGNET_MASKED",
+    "celestial_wcs",
     "draw_psf",
     "extract_star_stamps",
     "extract_vignettes",
     "extrapolation_flags",
     "find_stars",
     "load_model",
+    "pixel_to_sky",
     "read_catalog",
     "read_image",
     "read_model_validation",
     "save_model",
     "select_stars",
+    "sky_to_pixel",
     "write_example_exposure",
     "write_example_ldac",
     "write_ldac",

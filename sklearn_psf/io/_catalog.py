@@ -20,6 +20,8 @@ _POSITION_COLUMNS = (
     ("xcentroid", "ycentroid", False),  # photutils
     ("x_0", "y_0", False),
 )
+_SKY_COLUMNS = (("alphawin_j2000", "deltawin_j2000"), ("alpha_j2000", "delta_j2000"),
+                ("ra", "dec"))
 _FLUX_COLUMNS = ("flux", "flux_auto", "flux_psf", "flux_aper")
 _SNR_COLUMNS = ("snr", "snr_win", "s/n")
 _FLAG_COLUMNS = ("flags", "flag")
@@ -135,7 +137,7 @@ def _read_table(path, hdu):
 
 
 def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = None,
-                 y_col: str | None = None, hdu=None) -> Table:
+                 y_col: str | None = None, hdu=None, sky: bool = False) -> Table:
     """Read a catalogue of positions into a table with 0-based ``x``, ``y`` columns.
 
     Column names are matched without regard to case. Positions come from, in this order:
@@ -168,6 +170,10 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
         Names of the position columns.
     hdu : int or str, optional
         Table HDU of a FITS file.
+    sky : bool, default=False
+        Read (RA, Dec) in degrees instead, into ``x``, ``y`` as they are: ``x_col``/``y_col``,
+        else ``ALPHAWIN_J2000``/``DELTAWIN_J2000``, ``ALPHA_J2000``/``DELTA_J2000`` or
+        ``RA``/``DEC``.
 
     Returns
     -------
@@ -204,6 +210,13 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
                 f"{', '.join(table.colnames) or 'none'}."
             )
         xname, yname, convention = lower[x_col.lower()], lower[y_col.lower()], False
+    elif sky:
+        pairs = [(lower[a], lower[d]) for a, d in _SKY_COLUMNS if a in lower and d in lower]
+        if not pairs:
+            raise ValueError(
+                "The catalogue has no (RA, Dec) columns: expected ALPHA_J2000, DELTA_J2000 or "
+                f"RA, DEC, or give x_col/y_col; columns found: {', '.join(table.colnames)}.")
+        (xname, yname), convention, one_based = pairs[0], False, False
     else:
         for xn, yn, conv in _POSITION_COLUMNS:
             if xn in lower and yn in lower:
