@@ -223,7 +223,8 @@ class PSFField:
         ``gain``, the source's Poisson noise) through the flux normalisation and the
         projection on the basis: ``sum_p (c_ip - c_i . T)^2 var_p / F^2`` for component
         c_i, truth stamp T and flux F. The noise of the centring (the centroid measured on
-        the noisy stamp) is not included: it adds ~10-30% at the default S/N (tested).
+        the noisy stamp) is not included: the measured scatter of the coefficients about the truth
+        is 0.94-1.08 times this at S/N 100 (tested within 0.8-1.5).
         Masked pixels are left out.
 
         Returns
