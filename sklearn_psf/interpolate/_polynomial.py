@@ -142,7 +142,8 @@ class PolynomialRegressor(_PolynomialBase):
     Attributes
     ----------
     degree_ : int
-        Degree used (the chosen one when ``degree="auto"``).
+        Degree used (the chosen one when ``degree="auto"``; lowered with a warning when
+        there are fewer stars than terms).
     powers_ : ndarray of shape (n_terms, n_features)
         Exponent vector of each term.
     coef_ : ndarray of shape (n_terms, n_targets)
@@ -165,6 +166,12 @@ class PolynomialRegressor(_PolynomialBase):
     per-target log-RSS makes the choice independent of each target's scale. Degrees
     with ``p >= n_samples`` are not tried.
 
+    ``fit(X, y, noise_var=...)``: weighted least squares, weights ``1 / noise_var`` per
+    star and target (the residuals of ``degree="auto"`` are weighted likewise). With
+    fewer stars than terms the degree is lowered to the largest one with at most as
+    many terms as stars, with a :class:`RankDeficientWarning` (as ``numpy.polyfit``
+    warns); stars aligned for the degree give the minimum-norm solution, also warned.
+
     Examples
     --------
     >>> import numpy as np
@@ -177,6 +184,14 @@ class PolynomialRegressor(_PolynomialBase):
     array([1.75])
     >>> PolynomialRegressor(degree="auto", max_degree=4).fit(X, y).degree_
     2
+
+    Weighted by per-star noise variances:
+
+    >>> noise_var = rng.uniform(1e-4, 1e-2, size=50)
+    >>> y_obs = y + rng.normal(size=50) * np.sqrt(noise_var)
+    >>> reg = PolynomialRegressor(degree=2).fit(X, y_obs, noise_var=noise_var)
+    >>> bool(abs(reg.predict([[0.5, 0.5]])[0] - 1.75) < 0.05)
+    True
     """
 
     def __init__(self, degree=5, max_degree=8):
@@ -243,6 +258,10 @@ class ChebyshevRegressor(_PolynomialBase):
         Centre and half width of the training bounding box.
     n_features_in_ : int
         Number of features seen during fit.
+
+    Notes
+    -----
+    ``noise_var`` and too few stars: as :class:`PolynomialRegressor`.
 
     Examples
     --------
