@@ -163,3 +163,12 @@ def test_parameter_validation(params, match):
     X, Y, _ = gp_field(20, 0.3, [1.0], seed=9)
     with pytest.raises(ValueError, match=match):
         KrigingRegressor(**params).fit(X, Y)
+
+
+def test_local_mode_uses_the_same_ml_hyperparameters():
+    X, Y, _ = gp_field(150, 0.2, [1.0, 0.3], seed=10)
+    exact = KrigingRegressor(range="auto", nugget="auto").fit(X, Y)
+    local = KrigingRegressor(range="auto", nugget="auto", n_neighbors=150).fit(X, Y)
+    assert local.range_ == exact.range_ and local.nugget_ == exact.nugget_
+    Xq = np.random.default_rng(0).uniform(size=(20, 2))
+    np.testing.assert_allclose(local.predict(Xq), exact.predict(Xq), rtol=1e-7, atol=1e-9)

@@ -254,3 +254,15 @@ def test_pipeline_passes_noise_var_without_routing():
     U = MinMaxScaler().fit(X)
     ref = KrigingRegressor().fit(U.transform(X), Y, noise_var=noise_var)
     np.testing.assert_allclose(pipe.predict(Xq), ref.predict(U.transform(Xq)), rtol=1e-12)
+
+
+@pytest.mark.parametrize("cls", [PolynomialRegressor, ChebyshevRegressor])
+def test_default_degree_is_lowered_for_few_stars(cls):
+    from sklearn_psf.interpolate import RankDeficientWarning
+
+    X, Y, _, Xq = noisy_stars(n=12)
+    with pytest.warns(RankDeficientWarning, match="lowered to 3"):
+        reg = cls().fit(X, Y)  # degree 5: 21 terms > 12 stars; degree 3: 10 terms
+    assert reg.degree_ == 3
+    np.testing.assert_allclose(reg.predict(Xq), cls(degree=3).fit(X, Y).predict(Xq),
+                               rtol=1e-12, atol=1e-12)
