@@ -270,6 +270,7 @@ def test_save_load_roundtrip(tmp_path, field, dirty):
         for col in t0.colnames:
             np.testing.assert_array_equal(np.asarray(t1[col]), np.asarray(t0[col]))
     assert back.meta["cell"] == dirty.meta["cell"] and back.meta["gain"] == dirty.meta["gain"]
+    np.testing.assert_allclose(back.meta["field_scales"], dirty.meta["field_scales"])
     field.save(path, overwrite=True)
     back = PSFField.load(path)
     np.testing.assert_array_equal(back.image, field.image)
@@ -451,14 +452,47 @@ def test_random_field_covariance_matches_many_seeds():
 def test_weight_covariance_and_coefficient_noise():
     f = make_psf_field(n_stars=300, n_galaxies=0, image_shape=SMALL, snr=100.0, random_state=8)
     pos = np.column_stack([f.stars["x"], f.stars["y"]])[:4]
-    cov = f.weight_covariance(pos)
+    cov = f.weight_covariance(pos, ensemble=True)
     k = RandomFieldSampler(f.image.shape, 0, cell=f.meta["cell"]).covariance(pos)
     np.testing.assert_allclose(cov, f.reference.coeff_std[:, None, None] ** 2 * k[None])
+    # given the draw: the same spatial structure per component, scaled by its field's scale
+    given = f.weight_covariance(pos)
+    scales = np.asarray(f.meta["field_scales"])
+    ratio = (given[:, 0, 1] - given[:, 0, 0]) / (given[:, 0, 1] - given[:, 0, 0])[0]
+    np.testing.assert_allclose(ratio, (f.reference.coeff_std / scales) ** 2
+                               / (f.reference.coeff_std[0] / scales[0]) ** 2, rtol=1e-10)
     # the true coefficient noise against the measured coefficients' scatter about the truth
     m = f.measure_stars()
     err2 = (np.asarray(m["coeffs"]) - np.asarray(f.stars["coeffs"])) ** 2
     ratio = err2.mean(axis=0) / f.coefficient_noise_var().mean(axis=0)
     assert np.all((ratio > 0.8) & (ratio < 1.5)), ratio
+
+
+def test_oracle_blup_is_calibrated():
+    """Ordinary kriging with the true covariance and noise (an oracle): its predicted error
+    variance at the galaxy-PSFs matches its actual squared error (mean over components and
+    two fields), and it beats the stars' mean by far."""
+    ratios, gains = [], []
+    for seed in (0, 1):
+        f = make_psf_field(n_stars=250, n_galaxies=250, image_shape=SMALL, snr=300.0,
+                           random_state=seed, galaxy_snr=None)
+        xs = np.column_stack([f.stars["x"], f.stars["y"]])
+        xg = np.column_stack([f.galaxies["x"], f.galaxies["y"]])
+        kss, kgs = f.weight_covariance(xs), f.weight_covariance(xg, xs)
+        kgg = np.array([np.diag(k) for k in f.weight_covariance(xg)])
+        noise = f.coefficient_noise_var()
+        n = len(xs)
+        for i in range(f.reference.n_components):
+            y, truth = np.asarray(f.stars["coeffs"])[:, i], np.asarray(f.galaxies["coeffs"])[:, i]
+            a = np.block([[kss[i] + np.diag(noise[:, i]), np.ones((n, 1))],
+                          [np.ones((1, n)), np.zeros((1, 1))]])
+            sol = np.linalg.solve(a, np.vstack([kgs[i].T, np.ones((1, len(xg)))]))
+            err = sol[:n].T @ y - truth
+            var = kgg[i] - np.sum(sol[:n] * kgs[i].T, axis=0) - sol[n]
+            ratios.append(np.mean(err**2) / np.mean(var))
+            gains.append(np.mean(err**2) / np.var(truth))
+    assert 0.8 < np.mean(ratios) < 1.25, ratios
+    assert np.max(gains) < 0.5
 
 
 # ----------------------------------------------------------------------------- reference basis

@@ -14,8 +14,10 @@ Conventions
   8 arcsec = 40 pixels at 0.2 arcsec/pixel) and interpolated with cubic splines: the cell is
   the smallest scale of PSF variation (no power at wavelengths below two cells). Their true
   covariance between any positions is :meth:`RandomFieldSampler.covariance` (per field) and
-  :meth:`PSFField.weight_covariance` (per component), e.g. for a best-linear-unbiased
-  oracle. Each synthesised stamp is passed through ``StampNormalizer(flux=True,
+  :meth:`PSFField.weight_covariance` (per component, given the field's draw by default), with
+  :meth:`PSFField.coefficient_noise_var` the stars' true coefficient noise: what a
+  best-linear-unbiased oracle needs (tested: its predicted error variance matches its actual
+  error). Each synthesised stamp is passed through ``StampNormalizer(flux=True,
   center=True)`` (unit sum, adaptive centroid at the stamp centre), the package-wide
   convention; the true ``coeffs`` are the projection of that normalised stamp on the basis,
   i.e. what the measurement pipeline returns for a noiseless star.

@@ -115,7 +115,9 @@ class PSFField:
         ``snr`` (as ``contaminant_snr``; NaN away from stars).
     meta : dict
         ``seed`` (int or None), ``slope``, ``smallest_scale`` (arcsec), ``cell`` (pixels),
-        ``galaxy_layout``, ``subpixel``, ``gain``, ``saturation``, ``version``.
+        ``field_scales`` (the random fields' scales before normalisation, see
+        :attr:`RandomFieldSampler.scales`), ``galaxy_layout``, ``subpixel``, ``gain``,
+        ``saturation``, ``version``.
     """
 
     def __init__(self, image, noise_rms, pixel_scale, reference, stars, galaxies, meta=None,
@@ -252,16 +254,16 @@ class PSFField:
             out[:, i] = np.sum((comps[i][None, :] - proj[:, i:i + 1]) ** 2 * var, axis=1)
         return out / flux[:, None] ** 2
 
-    def weight_covariance(self, positions_a, positions_b=None) -> np.ndarray:
+    def weight_covariance(self, positions_a, positions_b=None, *,
+                          ensemble: bool = False) -> np.ndarray:
         """True covariance of the PSF weights (PCA coefficients) between positions.
 
         Weight i at position r is ``coeff_mean_i + coeff_std_i * g_i(r)`` with independent
-        random fields g_i of covariance :meth:`RandomFieldSampler.covariance` (the
-        simulation's power spectrum, grid and interpolation); the weights of different
-        components are uncorrelated. The true coefficients of ``stars``/``galaxies`` are
-        those weights up to the normalisation and centring of the synthesised stamp (a
-        small non-linear change), so this is the covariance a best linear unbiased predictor
-        of the coefficients needs (with :meth:`coefficient_noise_var` for the noise).
+        random fields g_i (:class:`RandomFieldSampler`); the weights of different components
+        are uncorrelated. The true coefficients of ``stars``/``galaxies`` equal those
+        weights to 0.2% (the normalisation and centring of the synthesised stamp barely
+        change them), so this, with :meth:`coefficient_noise_var` for the noise, is what a
+        best linear unbiased predictor (an oracle) of the coefficients needs.
 
         Parameters
         ----------
@@ -269,6 +271,10 @@ class PSFField:
             (x, y) pixel positions.
         positions_b : array-like of shape (n_b, 2), optional
             Default ``positions_a``.
+        ensemble : bool, default=False
+            False: the covariance given this field's draw (its grid means and scales, see
+            ``RandomFieldSampler.covariance(field=i)``), the oracle's choice. True: the
+            ensemble covariance over seeds (the same for every field of this set-up).
 
         Returns
         -------
@@ -286,8 +292,13 @@ class PSFField:
         """
         sampler = RandomFieldSampler(self.image.shape, 0, self.meta.get("slope", 11 / 4),
                                      cell=self.meta["cell"])
-        k = sampler.covariance(positions_a, positions_b)
-        return self.reference.coeff_std[:, None, None] ** 2 * k[None]
+        std2 = self.reference.coeff_std[:, None, None] ** 2
+        scales = self.meta.get("field_scales")
+        if ensemble or scales is None:
+            return std2 * sampler.covariance(positions_a, positions_b)[None]
+        sampler.scales = np.ones(1)
+        base = sampler.covariance(positions_a, positions_b, field=0)
+        return std2 * base[None] / np.asarray(scales, dtype=np.float64)[:, None, None] ** 2
 
     def measure_stars(self) -> Table:
         """Measure the stars on the image with the real-data pipeline.
@@ -371,6 +382,8 @@ class PSFField:
                          "smallest scale of the PSF variations (arcsec)")
         h["CELL"] = (float(self.meta.get("cell", np.nan)), "random field grid cell (pixels)")
         h["SUBPIXEL"] = (bool(self.meta.get("subpixel", False)), "sub-pixel positions")
+        for i, scale in enumerate(self.meta.get("field_scales") or []):
+            h[f"FSCALE{i}"] = (float(scale), f"scale of random field {i} before normalising")
         for key, name in (("GAIN", "gain"), ("SATURATE", "saturation")):
             if self.meta.get(name) is not None:
                 h[key] = float(self.meta[name])
@@ -419,6 +432,8 @@ class PSFField:
                         "smallest_scale": float(cell) * h["PIXSCALE"], "cell": float(cell),
                         "subpixel": bool(h.get("SUBPIXEL", False)), "gain": h.get("GAIN"),
                         "saturation": h.get("SATURATE"), "galaxy_layout": h["LAYOUT"],
+                        "field_scales": [h[f"FSCALE{i}"] for i in range(ref.n_components)]
+                        if "FSCALE0" in h else None,
                         "version": h["SKPSFVER"]}
                 weight = (np.array(hdul["WEIGHT"].data, dtype=np.float32)
                           if "WEIGHT" in hdul else None)

@@ -457,7 +457,8 @@ def make_psf_field(
         stars["contaminant_snr"][i] = v
     contam = _contaminant_table(rows)
     meta = {"seed": seed, "slope": float(slope), "smallest_scale": float(smallest_scale),
-            "cell": cell, "galaxy_layout": galaxy_layout, "subpixel": bool(subpixel),
+            "cell": cell, "field_scales": [float(v) for v in sampler.scales],
+            "galaxy_layout": galaxy_layout, "subpixel": bool(subpixel),
             "gain": gain, "saturation": saturation, "version": _version()}
     return PSFField(image, noise_rms, pixel_scale, reference, stars, galaxies, meta,
                     weight=weight, contaminants=contam)

@@ -189,6 +189,8 @@ class RandomFieldSampler:
     ----------
     grids : ndarray of shape (n_fields, gy, gx)
         The fields on the grid, each with zero mean and unit variance over the grid.
+    scales : ndarray of shape (n_fields,)
+        Standard deviation of each drawn field over the grid before that normalisation.
     cell : float
         Grid spacing in pixels.
     slope : float
@@ -224,9 +226,12 @@ class RandomFieldSampler:
         gy = max(int(np.ceil((ny - 1) / self.cell)) + 1, 4)
         gx = max(int(np.ceil((nx - 1) / self.cell)) + 1, 4)
         rng = as_generator(random_state)
-        self.grids = np.stack(
-            [gaussian_random_field((gy, gx), slope, rng) for _ in range(int(n_fields))]
-        ) if int(n_fields) > 0 else np.zeros((0, gy, gx))
+        raw = [gaussian_random_field((gy, gx), slope, rng, normalize=False)
+               for _ in range(int(n_fields))]
+        # normalised as gaussian_random_field(normalize=True) does; the scales are kept
+        self.scales = np.array([(g - g.mean()).std() for g in raw])
+        self.grids = np.stack([(g - g.mean()) / s for g, s in zip(raw, self.scales)]
+                              ) if raw else np.zeros((0, gy, gx))
         # spline coefficients once, evaluation without prefiltering afterwards
         self._coeffs = [ndimage.spline_filter(g, order=3, mode="nearest") for g in self.grids]
         self._cov = None
@@ -247,12 +252,13 @@ class RandomFieldSampler:
             raise ValueError("positions hold NaN or infinite values.")
         return np.stack([pos[:, 1] / self.cell, pos[:, 0] / self.cell])
 
-    def covariance(self, positions_a, positions_b=None) -> np.ndarray:
-        """Ensemble covariance of each field between positions (the truth for an oracle).
+    def covariance(self, positions_a, positions_b=None, *, field=None) -> np.ndarray:
+        """Covariance of the fields between positions (the truth for an oracle).
 
-        Every field of the sampler has the same covariance: the one implied by its power
-        spectrum, its grid and its cubic-spline interpolation, over realisations of the seed,
-        after the per-realisation normalisation of the grid (zero mean, unit variance):
+        With ``field=None``, the ensemble covariance, the same for every field: the one
+        implied by the power spectrum, the grid and the cubic-spline interpolation, over
+        realisations, after the per-realisation normalisation of the grid (zero mean, unit
+        variance):
 
         ``K(a, b) = (T(b - a) - c(a) - c(b) + v) / (1 - v)``
 
@@ -265,17 +271,28 @@ class RandomFieldSampler:
         division by its expectation; both are tested to a few per cent against the empirical
         covariance of many seeds.
 
+        With ``field=i``, the covariance given the normalisation of the drawn field i (its
+        grid mean and its scale ``scales[i]``, which this draw fixed):
+        ``(T(b - a) - c(a) c(b) / v) / scales[i]^2``. This is the covariance a best linear
+        predictor of this realisation should use: the ensemble one misjudges the amplitude
+        of the small scales of one draw (by 1 / scale^2, a factor ~0.5-2 from draw to draw).
+
         Parameters
         ----------
         positions_a : array-like of shape (n_a, 2)
             (x, y) pixel positions.
         positions_b : array-like of shape (n_b, 2), optional
             Default ``positions_a``.
+        field : int, optional
+            Index of a drawn field (see above).
 
         Returns
         -------
         cov : ndarray of shape (n_a, n_b)
         """
+        if field is not None and not 0 <= int(field) < len(self.scales):
+            raise ValueError(f"field must be the index of one of the {len(self.scales)} drawn "
+                             f"fields, got {field!r}.")
         ca = self._node_coords(positions_a)
         cb = ca if positions_b is None else self._node_coords(positions_b)
         if self._cov is None:
@@ -292,8 +309,13 @@ class RandomFieldSampler:
             dx = (cb[1][None, :] - ca[1][sl, None] + gx - 1) * q
             lag = ndimage.map_coordinates(table, np.stack([dy.ravel(), dx.ravel()]), order=1,
                                           mode="nearest").reshape(dy.shape)
-            out[sl] = lag - ma[sl, None] - mb[None, :] + var_mean
-        return out / (1.0 - var_mean)
+            if field is None:
+                out[sl] = lag - ma[sl, None] - mb[None, :] + var_mean
+            else:
+                out[sl] = lag - ma[sl, None] * mb[None, :] / var_mean
+        if field is None:
+            return out / (1.0 - var_mean)
+        return out / self.scales[field] ** 2
 
 
 def _beta7(t):
