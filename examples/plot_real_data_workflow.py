@@ -6,8 +6,11 @@ The Monday-morning workflow of PIFF and PSFEx users, with sklearn_psf:
 
 1. read a FITS image (here tile-compressed, with its weight HDU) and select stars;
 2. cut their stamps, skipping stars that are masked, saturated or too close to an edge;
-3. fit a PSF model on most stars and validate it on reserved ones (shape residuals, rho1);
-4. save the model to a FITS file, load it later and evaluate the PSF at galaxy positions.
+3. fit a PSF model on most stars and validate it on reserved ones (shape residuals,
+   rho1-rho5);
+4. save the model to a FITS file, load it later and evaluate the PSF at galaxy positions;
+5. the PSFEx way: a SExtractor FITS_LDAC catalogue of every detection, with ``VIGNET``
+   stamps and no image: select the stars, fit, and draw the PSF at sub-pixel positions.
 
 The exposure is simulated by the package itself
 (:func:`sklearn_psf.io.write_example_exposure`, built on
@@ -17,6 +20,8 @@ the command line does the same in two commands::
 
     sklearn-psf fit exposure.fits.fz --hdu SCI --weight-hdu WGT -o psf.fits
     sklearn-psf predict psf.fits --positions galaxies.csv -o galaxy_psfs.fits
+    sklearn-psf fit --stars catalog.ldac -o psf.fits        # vignettes alone
+    sklearn-psf predict psf.fits --positions galaxies.cat --centered -o galaxy_psfs.fits
 
 Set ``SKLEARN_PSF_EXAMPLE_SIZE=small`` for a quick run (a smaller image, fewer stars).
 """
@@ -116,4 +121,71 @@ ax.plot([-lim, lim], [-lim, lim], "k:", lw=1)
 ax.set_xlabel("true PSF ellipticity at the galaxies")
 ax.set_ylabel("model (loaded from the file)")
 ax.legend()
+
+# %%
+# A SExtractor FITS_LDAC catalogue with vignettes, no image
+# ---------------------------------------------------------
+# PSFEx's input: every detection (here half of them galaxies, some barely resolved, plus
+# cosmic rays, saturated stars and masked pixels) with its ``VIGNET`` stamp.
+# :func:`~sklearn_psf.io.select_stars` keeps the unflagged, unsaturated sources of high S/N
+# on the stellar locus of the size-magnitude diagram (``FLUX_RADIUS`` against ``MAG_AUTO``);
+# :func:`~sklearn_psf.io.extract_vignettes` turns the masked pixels (-1e30) into zero-weight
+# pixels.
+from sklearn_psf.io import (
+    draw_psf,
+    extract_vignettes,
+    read_catalog,
+    select_stars,
+    write_example_ldac,
+)
+from sklearn_psf.simulate import realistic_snr
+from sklearn_psf.validation import plot_psf_maps, plot_rho_statistics
+
+ldac = write_example_ldac(folder, n_stars=n_stars // 2, n_galaxies=n_stars // 2,
+                         image_shape=(side, side), random_state=1,
+                         snr=realistic_snr(n_stars // 2, random_state=1, low=30.0))
+catalog = read_catalog(ldac["catalog"])
+saturate = catalog.meta["image_header"]["SATURATE"]
+keep, counts = select_stars(catalog, min_snr=20, saturation=saturate)
+kind = ldac["kind"]
+print(f"kept {keep[kind == 'star'].sum()} of {(kind == 'star').sum()} stars, "
+      f"{keep[kind == 'galaxy'].sum()} of {(kind == 'galaxy').sum()} galaxies; rejected:",
+      {k: v for k, v in counts.items() if v and not k.startswith("locus")})
+
+fig, ax = plt.subplots(figsize=(5.5, 4), layout="constrained")
+for name, marker in (("galaxy", "x"), ("cosmic", "^"), ("star", "o")):
+    sel = kind == name
+    ax.scatter(catalog["MAG_AUTO"][sel], catalog["flux_radius"][sel], s=10, marker=marker,
+               label=name, alpha=0.6)
+ax.scatter(catalog["MAG_AUTO"][keep], catalog["flux_radius"][keep], s=30, facecolor="none",
+           edgecolor="k", label="selected")
+ax.set_xlabel("MAG_AUTO")
+ax.set_ylabel("FLUX_RADIUS [pixel]")
+ax.set_ylim(0, 6)
+ax.set_title("size-magnitude diagram")
+ax.legend(fontsize=8)
+
+# %%
+# Fit on the vignettes with their pixel weights, validate (rho1-rho5, Jarvis et al. 2016),
+# and map the model's ellipticity and size across the chip.
+vig = extract_vignettes(catalog[keep], saturation=saturate)
+model2, residuals2, summary2 = fit_and_validate(vig.positions, vig.stamps, reserve=0.2,
+                                                random_state=0, weights=vig.weights)
+true_stars = ldac["truth"]
+mom2 = adaptive_moments(model2.predict(np.column_stack([true_stars["x"], true_stars["y"]])))
+de2 = np.hypot(mom2["e1"] - true_stars["e1"], mom2["e2"] - true_stars["e2"])
+print(f"model - truth e rms at the stars: {np.sqrt(np.mean(de2**2)):.4f}")
+plot_rho_statistics(summary2)
+plot_psf_maps(model2, (side, side))
+
+# %%
+# The PSF where a galaxy really is: ``draw_psf`` shifts the model by the sub-pixel offset
+# from the stamp's centre pixel ``floor(x + 0.5)`` (as PSFEx and PIFF draw it) and can
+# oversample it.
+psf = draw_psf(model2, [[1000.4, 800.0]], centered=True, oversampling=3)[0]
+fig, axes = plt.subplots(1, 2, figsize=(7, 3.4), layout="constrained")
+axes[0].imshow(draw_psf(model2, [[1000.4, 800.0]], centered=False)[0], origin="lower")
+axes[0].set_title("pixel grid, centred on the pixel")
+axes[1].imshow(psf, origin="lower")
+axes[1].set_title("x = 1000.4: shifted, 3x oversampled")
 plt.show()

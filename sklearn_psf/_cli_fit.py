@@ -130,9 +130,14 @@ def _check_output_file(path):
         raise CLIInputError(f"the folder of the output file {path!r} does not exist")
     if os.path.isdir(path):
         raise CLIInputError(f"the output {path!r} is a folder: give a file name")
-    if not os.access(folder, os.W_OK | os.X_OK) or (
-            os.path.exists(path) and not os.access(path, os.W_OK)):
-        raise CLIInputError(f"cannot write the output file {path!r}: permission denied")
+    try:  # the atomic write creates a temporary file there: try one now
+        with tempfile.NamedTemporaryFile(dir=folder):
+            pass
+        if os.path.exists(path) and not os.access(path, os.W_OK):
+            raise PermissionError(13, "permission denied")
+    except OSError as exc:
+        raise CLIInputError(f"cannot write the output file {path!r}: "
+                            f"{(exc.strerror or str(exc)).lower()}") from None
 
 
 def _image_hdus(path):

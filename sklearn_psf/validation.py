@@ -474,6 +474,8 @@ def plot_rho_statistics(summary):
     if not summary.get("rho1"):
         raise ValueError("The summary has no rho statistics (fewer than 10 measured reserved "
                          "stars).")
+    from matplotlib.ticker import NullFormatter
+
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), layout="constrained")
     panels = ((axes[0], ("rho1", "rho3", "rho4")), (axes[1], ("rho2", "rho5")))
     for ax, names in panels:
@@ -492,6 +494,7 @@ def plot_rho_statistics(summary):
                         color=color)
         ax.set_xscale("log")
         ax.set_yscale("log")
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel(rf"separation $\theta$ [{summary.get('rho_theta_units', 'pixel')}]")
         ax.set_ylabel(r"$|\rho(\theta)|$ (open: negative)")
         ax.legend(fontsize=8)

@@ -220,7 +220,7 @@ def test_fit_on_ldac_vignettes_alone_then_predict(tmp_path, ldac, capsys):
     assert_allclose(table["ra"][:30], ra, rtol=1e-12)  # pixel input: RA/Dec returned too
 
 
-def test_predict_x_col_oversampling_and_errors(tmp_path, exposure, capsys):
+def test_predict_x_col_oversampling_and_errors(tmp_path, exposure, capsys, monkeypatch):
     model_path = tmp_path / "m.fits"
     code, _, err = _run(["fit", exposure["image"], "--hdu", "SCI", "--stars",
                          exposure["stars"], "-o", model_path, "--no-plots", "--reserve", "0",
@@ -238,33 +238,45 @@ def test_predict_x_col_oversampling_and_errors(tmp_path, exposure, capsys):
     plain = load_model(model_path).predict([[300.5, 400.0]])
     sigma_plain = adaptive_moments(plain)["sigma"][0]
     assert_allclose(table["sigma"][0], sigma_plain, rtol=0.02)   # in image pixels
-    # fails before any work, naming the user's path
+    # an unwritable output fails before any work, naming the user's path
+    import sklearn_psf.io
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("the output must be checked before the work starts")
+
     locked = tmp_path / "locked"
     locked.mkdir()
     locked.chmod(0o500)
+    early = [(["fit", exposure["image"], "-o", "/proc/m.fits"],   # even for root
+              r"cannot write the output file '/proc/m\.fits'"),
+             (["predict", model_path, "--positions", tmp_path / "g.csv", "-o",
+               "/proc/p.fits"], r"cannot write the output file '/proc/p\.fits'")]
+    if os.geteuid() != 0:   # root writes anywhere
+        early.append((["fit", exposure["image"], "-o", locked / "m.fits"],
+                      r"cannot write the output file .*locked/m\.fits"))
     try:
-        cases = [
-            (["fit", exposure["image"], "-o", locked / "m.fits"],
-             r"cannot write the output file .*locked/m\.fits"),
-            (["predict", model_path, "--positions", tmp_path / "g.csv", "-o",
-              locked / "p.fits"], r"cannot write the output file .*locked/p\.fits"),
-            (["fit", "-o", tmp_path / "x.fits"], r"give a FITS image, or a catalogue"),
-            (["fit", exposure["image"], "--stars", exposure["stars"], "--x-col", "X_IMAGE",
-              "-o", tmp_path / "x.fits"], r"give both --x-col and --y-col"),
-            (["fit", exposure["image"], "--stars", exposure["stars"], "--x-col", "XX",
-              "--y-col", "YY", "-o", tmp_path / "x.fits"], r"no column 'XX'"),
-            (["fit", "--stars", exposure["stars"], "-o", tmp_path / "x.fits"],
-             r"no VIGNET column"),
-        ]
-        cases.append((["predict", model_path, "--positions", tmp_path / "g.csv", "--radec",
-                       "-o", tmp_path / "p.fits"], r"has no WCS"))
-        if os.geteuid() == 0:   # root writes anywhere: only the other cases apply
-            cases = cases[2:]
-        for args, pattern in cases:
-            code, _, err = _run(args, capsys)
-            _one_line_error(code, err, pattern)
+        with monkeypatch.context() as patch:
+            patch.setattr(sklearn_psf.io, "read_image", no_work)
+            patch.setattr(sklearn_psf.io, "load_model", no_work)
+            for args, pattern in early:
+                code, _, err = _run(args, capsys)
+                _one_line_error(code, err, pattern)
     finally:
         locked.chmod(0o700)
+    cases = [
+        (["fit", "-o", tmp_path / "x.fits"], r"give a FITS image, or a catalogue"),
+        (["fit", exposure["image"], "--stars", exposure["stars"], "--x-col", "X_IMAGE",
+          "-o", tmp_path / "x.fits"], r"give both --x-col and --y-col"),
+        (["fit", exposure["image"], "--stars", exposure["stars"], "--x-col", "XX",
+          "--y-col", "YY", "-o", tmp_path / "x.fits"], r"no column 'XX'"),
+        (["fit", "--stars", exposure["stars"], "-o", tmp_path / "x.fits"],
+         r"no VIGNET column"),
+        (["predict", model_path, "--positions", tmp_path / "g.csv", "--radec",
+          "-o", tmp_path / "p.fits"], r"has no WCS"),
+    ]
+    for args, pattern in cases:
+        code, _, err = _run(args, capsys)
+        _one_line_error(code, err, pattern)
 
 
 def test_multi_extension_one_model_per_ccd(tmp_path, exposure, capsys):

@@ -155,7 +155,7 @@ def _sextractor_columns(vignettes, noise_rms, aperture=8.0, sub=5):
 
 
 def write_example_ldac(folder, *, n_stars: int = 300, n_galaxies: int = 300,
-                       image_shape=(3000, 3000), snr: float = 100.0, random_state=0,
+                       image_shape=(3000, 3000), snr=100.0, random_state=0,
                        defects: bool = True) -> dict:
     """Write a simulated SExtractor FITS_LDAC catalogue with ``VIGNET`` stamps, as PSFEx reads.
 
@@ -177,7 +177,9 @@ def write_example_ldac(folder, *, n_stars: int = 300, n_galaxies: int = 300,
     folder : str or os.PathLike
     n_stars, n_galaxies : int, default=300
     image_shape : tuple (ny, nx), default=(3000, 3000)
-    snr : float, default=100
+    snr : float or array-like of shape (n_stars,), default=100
+        Star S/N (e.g. :func:`sklearn_psf.simulate.realistic_snr`); the galaxies take the
+        stars' fluxes in random order.
     random_state : int, default=0
     defects : bool, default=True
 
