@@ -284,6 +284,11 @@ def test_save_load_roundtrip(tmp_path, field, dirty):
 
     h = fits.getheader(path)
     assert h["PIXSCALE"] == 0.2 and h["SEED"] == 7 and "SKPSFVER" in h
+    # a file of the former format (GRIDSIZE instead of CELL) still loads
+    with fits.open(path, mode="update") as hdul:
+        del hdul[0].header["CELL"]
+        hdul[0].header["GRIDSIZE"] = 256
+    assert PSFField.load(path).meta["cell"] == pytest.approx(1999 / 255)
 
 
 def test_realistic_snr_distribution():
@@ -349,6 +354,10 @@ def test_star_stamps_weights_and_existing_return(dirty):
     np.testing.assert_array_equal(flags, flags2)
     assert np.all(w >= 0) and np.all(w[~np.isfinite(raw)] == 0)
     assert (w == 0).any(axis=1).sum() >= 5  # masked pixels and columns hit some stars
+    np.testing.assert_array_equal(dirty.stars["n_masked"], (w == 0).sum(axis=1))
+    sat = np.any(raw == np.float32(4000.0), axis=1)
+    assert sat.any()
+    np.testing.assert_array_equal(dirty.stars["saturated"], sat)
     with pytest.raises(ValueError, match="normalize=False"):
         dirty.star_stamps(normalize=True, return_weights=True)
     nan = make_psf_field(n_stars=10, n_galaxies=0, image_shape=(300, 400), random_state=0,

@@ -105,8 +105,10 @@ class PSFField:
         coefficients in the basis), ``e1``, ``e2``, ``sigma`` (adaptive moments of the true
         stamp), ``moments_flag``, ``snr`` and ``flux`` as rendered (0 for galaxy-PSFs not
         rendered). ``stars`` also has ``contaminant`` (str, "" for a clean star, else
-        "cosmic_ray", "neighbour", "galaxy" or "binary") and ``contaminant_snr`` (square
-        root of the chi^2 the contaminant adds to the star's stamp; 0 when clean).
+        "cosmic_ray", "neighbour", "galaxy" or "binary"), ``contaminant_snr`` (square
+        root of the chi^2 the contaminant adds to the star's stamp; 0 when clean),
+        ``n_masked`` (pixels of weight 0 in the star's stamp: bad pixels, columns,
+        saturation) and ``saturated`` (a pixel of the stamp clipped at the saturation level).
     contaminants : astropy.table.Table
         One row per injected contaminant: ``kind`` (the four kinds above, "field_galaxy",
         "field_cosmic_ray"), ``star`` (row in ``stars``, -1 away from stars), ``x``, ``y``

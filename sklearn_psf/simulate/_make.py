@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 from ..datasets import ReferenceBasis, load_default_reference
 from ..datasets._reference import _version
 from ..measure import adaptive_moments
-from ..preprocessing import StampNormalizer
+from ..preprocessing import StampNormalizer, cut_stamps
 from ._contaminants import (
     CONTAMINANT_KINDS,
     apply_defects,
@@ -455,6 +455,14 @@ def make_psf_field(
     stars["contaminant_snr"] = np.zeros(n_stars)
     for i, v in cont_snr:
         stars["contaminant_snr"][i] = v
+    n_masked, saturated = np.zeros(n_stars, dtype=np.int64), np.zeros(n_stars, dtype=bool)
+    if weight is not None:
+        w, _ = cut_stamps(weight, star_pos, s)
+        n_masked = np.sum(w == 0, axis=(1, 2))
+        if saturation is not None:
+            cut, _ = cut_stamps(image, star_pos, s)
+            saturated = np.any(cut == np.float32(saturation), axis=(1, 2))
+    stars["n_masked"], stars["saturated"] = n_masked, saturated
     contam = _contaminant_table(rows)
     meta = {"seed": seed, "slope": float(slope), "smallest_scale": float(smallest_scale),
             "cell": cell, "field_scales": [float(v) for v in sampler.scales],
