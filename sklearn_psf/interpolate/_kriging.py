@@ -77,13 +77,15 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         ``None``: ordinary Kriging (constant unknown mean). ``"linear"`` / ``"quadratic"``:
         universal Kriging with an unknown polynomial mean of that degree in the
         positions (PyKrige's ``regional_linear`` drift for ``"linear"``).
-    anisotropy_scaling : float, default=1.0
+    anisotropy_scaling : float or "auto", default=1.0
         Geometric anisotropy, PyKrige's convention (2 features only): positions are
         rotated by ``-anisotropy_angle`` and their second coordinate multiplied by
         ``anisotropy_scaling`` before distances are computed; the range applies in that
         frame, so it is ``range / anisotropy_scaling`` along the rotated second axis.
-    anisotropy_angle : float, default=0.0
-        Counter-clockwise angle in degrees of that rotation.
+        ``"auto"``: maximum likelihood, in [0.1, 10].
+    anisotropy_angle : float or "auto", default=0.0
+        Counter-clockwise angle in degrees of that rotation; ``"auto"``: maximum
+        likelihood.
     max_ml_samples : int, default=200
         Maximum likelihood uses at most this many stars, drawn at random (with
         ``random_state``) when there are more; the final Kriging system uses all stars.
@@ -101,6 +103,8 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         ``nugget`` (the paper), the maximum-likelihood sill otherwise.
     noise_scale_ : float
         Factor applied to ``noise_var`` (1 without noise).
+    anisotropy_scaling_, anisotropy_angle_ : float
+        Anisotropy used (fitted when ``"auto"``; the angle in degrees).
     log_likelihood_ : float or None
         Maximum of the summed log-likelihood (on the ``max_ml_samples`` subset), None
         without maximum likelihood.
@@ -141,11 +145,15 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     merged with a :class:`DuplicateStarsWarning` (values averaged, inverse-variance
     weighted with ``noise_var``, which is exact for Kriging).
 
-    Maximum likelihood (any of ``range``, ``nugget``, ``noise_scale`` ``"auto"``)
-    maximises the sum over targets of the Gaussian log-likelihood of the stars, with
-    shared range, nugget and noise scale, a sill per target and the drift profiled out
-    (generalised least squares), by L-BFGS-B on the log-parameters with analytic
-    gradients, starting from the best of three ranges. It matches
+    Maximum likelihood (any of ``range``, ``nugget``, ``noise_scale``,
+    ``anisotropy_scaling``, ``anisotropy_angle`` ``"auto"``) maximises the sum over
+    targets of the Gaussian log-likelihood of the stars, with shared range, nugget, noise
+    scale and anisotropy, a sill per target and the drift profiled out (generalised least
+    squares), by L-BFGS-B on the log-parameters with analytic gradients, starting from
+    the best point of a small grid (three ranges, three anisotropy angles). It runs on at
+    most ``max_ml_samples`` stars (cost ``O(n_targets max_ml_samples^3)`` per iteration
+    with ``noise_var``, one factorisation for all targets without it); the final system
+    uses all stars. It matches
     ``GaussianProcessRegressor(kernel=ConstantKernel() * Matern(nu=0.5) + WhiteKernel())``
     on ``y - mean_``. Fewer than 5 distinct stars give a :class:`FewStarsWarning` (a sill
     from so few values means little); maximum likelihood needs 10.
@@ -223,9 +231,8 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         _check_param(self.range, "range", 0, np.inf, lo_open=True)
         _check_param(self.nugget, "nugget", 0, 1)
         _check_param(self.noise_scale, "noise_scale", 0, np.inf, lo_open=True)
-        _check_param(self.anisotropy_scaling, "anisotropy_scaling", 0, np.inf, auto=False,
-                     lo_open=True)
-        _check_param(self.anisotropy_angle, "anisotropy_angle", -np.inf, np.inf, auto=False)
+        _check_param(self.anisotropy_scaling, "anisotropy_scaling", 0, np.inf, lo_open=True)
+        _check_param(self.anisotropy_angle, "anisotropy_angle", -np.inf, np.inf)
         if self.drift not in _DRIFT_DEGREE:
             raise ValueError(
                 f"{_NAME}: drift must be None, 'linear' or 'quadratic', got {self.drift!r}."
@@ -237,15 +244,17 @@ class KrigingRegressor(_NoiseAwareInterpolator):
                 f"{_NAME}: max_ml_samples must be an integer >= {_MIN_ML_STARS}, got "
                 f"{self.max_ml_samples!r}."
             )
+        aniso = (self.anisotropy_scaling, self.anisotropy_angle)
+        if aniso != (1.0, 0.0) and n_features != 2:
+            raise ValueError(f"{_NAME}: anisotropy needs 2 features (x, y), got {n_features}.")
+
+    def _set_anisotropy(self, scaling, angle):
+        self.anisotropy_scaling_, self.anisotropy_angle_ = float(scaling), float(angle)
         self._aniso = None
-        if self.anisotropy_scaling != 1.0 or self.anisotropy_angle % 360.0 != 0.0:
-            if n_features != 2:
-                raise ValueError(
-                    f"{_NAME}: anisotropy needs 2 features (x, y), got {n_features}."
-                )
-            t = np.deg2rad(self.anisotropy_angle)
+        if scaling != 1.0 or angle % 360.0 != 0.0:
+            t = np.deg2rad(angle)
             rot = np.array([[np.cos(t), np.sin(t)], [-np.sin(t), np.cos(t)]])
-            self._aniso = np.diag([1.0, self.anisotropy_scaling]) @ rot
+            self._aniso = np.diag([1.0, scaling]) @ rot
 
     # ------------------------------------------------------------------ fit
     def _fit(self, X, Y, noise):
@@ -269,8 +278,9 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         lo, hi = X.min(axis=0), X.max(axis=0)
         self._drift_center, half = (lo + hi) / 2.0, (hi - lo) / 2.0
         self._drift_half_width = np.where(half > 0, half, 1.0)
-        U, F = self._transform(X), self._drift_design(X)
-        self._fit_hyperparameters(U, Y, F, noise)
+        F = self._drift_design(X)
+        self._fit_hyperparameters(X, Y, F, noise)
+        U = self._transform(X)
         self.X_fit_, self.y_fit_, self._U_fit, self._F_fit = X, Y, U, F
         self.noise_var_ = None if noise is None else noise * self.noise_scale_
         self._set_groups()
@@ -288,27 +298,33 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             return
         self._fit_exact(U, Y, F)
 
-    def _fit_hyperparameters(self, U, Y, F, noise):
-        auto = [p == "auto" for p in (self.range, self.nugget)]
-        auto_noise = self.noise_scale == "auto" and noise is not None
+    def _fit_hyperparameters(self, X, Y, F, noise):
+        params = {"range_": self.range, "nugget": self.nugget, "noise_scale": self.noise_scale,
+                  "scaling": self.anisotropy_scaling, "angle": self.anisotropy_angle}
+        auto = [k for k, v in params.items() if isinstance(v, str)]
+        if noise is None and "noise_scale" in auto:
+            auto.remove("noise_scale")
         self.log_likelihood_ = None
-        if not (any(auto) or auto_noise):
+        if not auto:
+            self._set_anisotropy(self.anisotropy_scaling, self.anisotropy_angle)
             self.range_, self.nugget_ = float(self.range), float(self.nugget)
             self.sill_ = Y.var(axis=0)
             self.noise_scale_ = 1.0 if self.noise_scale == "auto" else float(self.noise_scale)
             return
-        n = U.shape[0]
+        n = X.shape[0]
         _check_n_samples(_NAME, n, _MIN_ML_STARS, "to fit hyperparameters by maximum "
                          "likelihood (distinct positions)")
         sub = np.arange(n)
         if n > self.max_ml_samples:
             rng = check_random_state(self.random_state)
             sub = np.sort(rng.choice(n, self.max_ml_samples, replace=False))
-        fit = fit_hyperparameters(
-            cdist(U[sub], U[sub]), Y[sub], F[sub], None if noise is None else noise[sub],
-            self.variogram, range_=self.range, nugget=self.nugget,
-            noise_scale=self.noise_scale,
-        )
+        geometry_free = "scaling" in auto or "angle" in auto
+        if not geometry_free:
+            self._set_anisotropy(self.anisotropy_scaling, self.anisotropy_angle)
+        P = X[sub] if geometry_free else self._transform(X[sub])
+        fit = fit_hyperparameters(P, Y[sub], F[sub], None if noise is None else noise[sub],
+                                  self.variogram, **params)
+        self._set_anisotropy(fit["scaling"], fit["angle"])
         self.range_, self.nugget_, self.sill_ = fit["range"], fit["nugget"], fit["sill"]
         self.noise_scale_, self.log_likelihood_ = fit["noise_scale"], fit["log_likelihood"]
 

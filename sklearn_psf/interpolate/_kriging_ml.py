@@ -11,9 +11,12 @@ with L-BFGS-B on the log-parameters, with analytic gradients.
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 from scipy.linalg import lapack
 from scipy.optimize import minimize
+from scipy.spatial.distance import cdist
 from threadpoolctl import threadpool_limits
 
 from ._variogram import _CORRELATIONS, _corr_dlog_range
@@ -40,51 +43,90 @@ def _factor_solve(K, B):
     return KiB, Ki, logdet
 
 
-class _Likelihood:
-    """Negative total log-likelihood and its gradient in the log-parameters."""
+_GEOMETRY = ("range", "scaling", "angle")
+_ORDER = ("range", "scaling", "angle", "nu", "kappa")
 
-    def __init__(self, D, Y, F, noise, variogram, free, fixed):
-        self.D, self.Y, self.F, self.noise = D, Y, F, noise
+
+class _Likelihood:
+    """Negative total log-likelihood and its gradient in the log-parameters.
+
+    ``P`` are the positions (already in the anisotropy frame unless ``scaling`` or
+    ``angle`` is free; then raw 2-D positions, rotated by ``-angle`` and the second
+    coordinate multiplied by ``scaling``, angle in radians, not a log-parameter).
+    """
+
+    def __init__(self, P, Y, F, noise, variogram, free, fixed):
+        self.Y, self.F, self.noise = Y, F, noise
         self.variogram, self.free, self.fixed = variogram, free, fixed
         self.n, self.T = Y.shape
+        self.aniso = "scaling" in free or "angle" in free
+        if self.aniso:
+            self.dx = P[:, None, 0] - P[None, :, 0]
+            self.dy = P[:, None, 1] - P[None, :, 1]
+        else:
+            self.D = cdist(P, P)
 
     def unpack(self, theta):
         values = dict(self.fixed)
-        i = 0
-        for name in ("range", "nu", "kappa"):
-            if name in self.free:
-                values[name] = np.exp(theta[i])
-                i += 1
-        values["p"] = np.exp(theta[i:])
+        names = [name for name in _ORDER if name in self.free]
+        for name, t in zip(names, theta):
+            values[name] = t if name == "angle" else np.exp(t)
+        values["p"] = np.exp(theta[len(names):])
         return values
+
+    def _geometry(self, v):
+        """Correlations R and d R / d(free geometric parameter), by name."""
+        a = v["range"]
+        if not self.aniso:
+            D = self.D
+        else:
+            c, s_ = np.cos(v["angle"]), np.sin(v["angle"])
+            u = c * self.dx + s_ * self.dy
+            w = -s_ * self.dx + c * self.dy
+            D = np.sqrt(u * u + (v["scaling"] * w) ** 2)
+        r = D / a
+        R = _CORRELATIONS[self.variogram](r.copy())
+        grads = {}
+        if any(name in self.free for name in _GEOMETRY):
+            dlog_a = _corr_dlog_range(self.variogram, r, R)  # = -rho'(r) r
+            if "range" in self.free:
+                grads["range"] = dlog_a
+            if self.aniso:
+                D2 = np.where(D > 0, D * D, np.inf)
+                sc = v["scaling"]
+                if "scaling" in self.free:  # dD/dlog s = (s w)^2 / D
+                    grads["scaling"] = -dlog_a * (sc * w) ** 2 / D2
+                if "angle" in self.free:  # dD/dangle = u w (1 - s^2) / D
+                    grads["angle"] = -dlog_a * u * w * (1.0 - sc * sc) / D2
+        return R, grads
 
     def __call__(self, theta):
         v = self.unpack(theta)
-        a, nu, kappa, p = v["range"], v["nu"], v["kappa"], v["p"]
+        nu, kappa, p = v["nu"], v["kappa"], v["p"]
         n, F, Y = self.n, self.F, self.Y
         q = F.shape[1]
-        r = self.D / a
-        R = _CORRELATIONS[self.variogram](r.copy())
-        dR = _corr_dlog_range(self.variogram, r, R) if "range" in self.free else None
+        R, dRs = self._geometry(v)
         # tr(K^-1 dR) from the lower triangle of K^-1 (Fortran order: Ki.T is C-contiguous)
-        dR_up = 2.0 * np.triu(dR, 1) if dR is not None else None
+        dR_ups = {name: 2.0 * np.triu(dR, 1) for name, dR in dRs.items()}
         M = R
         M[np.diag_indices(n)] += nu
         FY = np.column_stack([F, Y])
-        grad = {"range": 0.0, "nu": 0.0, "kappa": 0.0, "p": np.zeros(self.T)}
+        grad = dict.fromkeys(_ORDER, 0.0)
+        grad["p"] = np.zeros(self.T)
         nll = 0.0
         if self.noise is None:
             KiFY, Ki, logdetM = _factor_solve(M.copy(order="F"), FY)
             if Ki is None:
                 return 1e300, np.zeros_like(theta)
-            tr_dR_M = np.vdot(Ki.T, dR_up) if dR is not None else 0.0
+            tr_dR_M = {name: np.vdot(Ki.T, up) for name, up in dR_ups.items()}
             tr_M = np.trace(Ki)
         for t in range(self.T):
             y = Y[:, t]
             if self.noise is None:
                 KiF, Kiy = KiFY[:, :q] / p[t], KiFY[:, q + t] / p[t]
                 logdet = n * np.log(p[t]) + logdetM
-                tr_dR, tr_I, N = tr_dR_M / p[t], tr_M / p[t], None
+                tr_dR = {name: tr / p[t] for name, tr in tr_dR_M.items()}
+                tr_I, N = tr_M / p[t], None
             else:
                 N = kappa * self.noise[:, t]
                 K = np.multiply(M, p[t], order="F")
@@ -93,7 +135,7 @@ class _Likelihood:
                 if Ki is None:
                     return 1e300, np.zeros_like(theta)
                 KiF, Kiy = sol[:, :q], sol[:, q]
-                tr_dR = np.vdot(Ki.T, dR_up) if dR is not None else 0.0
+                tr_dR = {name: np.vdot(Ki.T, up) for name, up in dR_ups.items()}
                 diag_Ki = np.diag(Ki)
                 tr_I = diag_Ki.sum()
             beta = np.linalg.solve(F.T @ KiF, KiF.T @ y)
@@ -108,78 +150,86 @@ class _Likelihood:
                 grad["p"][t] = 0.5 * ((quad - na2) - (n - nd))
                 grad["kappa"] += 0.5 * (na2 - nd)
             grad["nu"] += 0.5 * p[t] * nu * (alpha @ alpha - tr_I)
-            if dR is not None:
-                grad["range"] += 0.5 * p[t] * (alpha @ dR @ alpha - tr_dR)
-        g = [grad[name] for name in ("range", "nu", "kappa") if name in self.free]
+            for name, dR in dRs.items():
+                grad[name] += 0.5 * p[t] * (alpha @ dR @ alpha - tr_dR[name])
+        g = [grad[name] for name in _ORDER if name in self.free]
         return nll, -np.concatenate([np.asarray(g, dtype=float), grad["p"]])
 
 
-def fit_hyperparameters(D, Y, F, noise, variogram, *, range_, nugget, noise_scale):
-    """Maximum-likelihood range, nugget, sills and noise scale.
+def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scale,
+                        scaling=1.0, angle=0.0):
+    """Maximum-likelihood range, nugget, sills, noise scale and anisotropy.
 
     Parameters
     ----------
-    D : ndarray (n, n)
-        Distances between the stars (after the anisotropy transform).
+    P : ndarray (n, d)
+        Star positions: in the anisotropy frame when ``scaling`` and ``angle`` are
+        numbers (they are then ignored), raw 2-D positions when either is "auto".
     Y : ndarray (n, T)
         Values at the stars.
     F : ndarray (n, p)
         Drift design matrix (a column of ones for ordinary Kriging).
     noise : ndarray (n, T) or None
         Measurement-noise variances.
-    range_, nugget, noise_scale : float or "auto"
-        Fixed values, or "auto" to fit them (``noise_scale`` only with ``noise``).
+    range_, nugget, noise_scale, scaling, angle : float or "auto"
+        Fixed values, or "auto" to fit them (``noise_scale`` only with ``noise``);
+        ``angle`` in degrees.
 
     Returns
     -------
-    dict with ``range``, ``nugget`` (fraction of the sill), ``sill`` (T,), ``noise_scale``
-    and ``log_likelihood`` (the maximum, in the units of ``Y``).
+    dict with ``range``, ``nugget`` (fraction of the sill), ``sill`` (T,), ``noise_scale``,
+    ``scaling``, ``angle`` (degrees) and ``log_likelihood`` (the maximum, in the units of
+    ``Y``).
     """
     n, T = Y.shape
     scale = Y.std(axis=0)
     scale[scale == 0] = 1.0
     Ys = Y / scale
     Ns = None if noise is None else noise / scale**2
+    settings = {
+        "range": (range_, float),
+        "scaling": (scaling, float),
+        "angle": (angle, np.deg2rad),
+        "nu": (nugget, lambda g: float(g) / max(1.0 - float(g), 1e-12)),
+        "kappa": (noise_scale, float),
+    }
     free, fixed = [], {}
-    if range_ == "auto":
-        free.append("range")
-    else:
-        fixed["range"] = float(range_)
-    if nugget == "auto":
-        free.append("nu")
-    else:
-        fixed["nu"] = float(nugget) / max(1.0 - float(nugget), 1e-12)
-    if Ns is not None and noise_scale == "auto":
-        free.append("kappa")
-    else:
-        fixed["kappa"] = 1.0 if noise_scale == "auto" else float(noise_scale)
-    fun = _Likelihood(D, Ys, F, Ns, variogram, free, fixed)
+    for name, (value, convert) in settings.items():
+        if isinstance(value, str) and (name != "kappa" or Ns is not None):
+            free.append(name)
+        else:
+            fixed[name] = 1.0 if isinstance(value, str) else convert(value)
+    fun = _Likelihood(P, Ys, F, Ns, variogram, free, fixed)
 
-    dmax = float(D.max()) if D.size else 1.0
-    dmax = dmax if dmax > 0 else 1.0
+    span = np.ptp(P, axis=0).max() if n > 1 else 1.0
+    span = span if span > 0 else 1.0
     mean_noise = 0.0 if Ns is None else Ns.mean(axis=0) * fixed.get("kappa", 1.0)
     p0 = np.log(np.clip(1.0 - mean_noise, 0.1, 1.0) / 1.1) * np.ones(T)
-    bounds = []
-    if "range" in free:
-        bounds.append((np.log(1e-3 * dmax), np.log(10.0 * dmax)))
-    if "nu" in free:
-        bounds.append(tuple(np.log(_NU_BOUNDS)))
-    if "kappa" in free:
-        bounds.append(tuple(np.log(_KAPPA_BOUNDS)))
-    bounds += [tuple(np.log(_P_BOUNDS))] * T
-
-    # a few starting ranges; the local optimisation starts from the best of them
-    head = [np.log(0.1)] if "nu" in free else []
-    head += [0.0] if "kappa" in free else []
-    starts = [
-        np.concatenate([[np.log(f * dmax)] if "range" in free else [], head, p0])
-        for f in ((0.05, 0.2, 0.8) if "range" in free else (1.0,))
-    ]
+    bounds = {
+        "range": (np.log(1e-3 * span), np.log(10.0 * span)),
+        "scaling": (np.log(0.1), np.log(10.0)),
+        "angle": (-np.pi, np.pi),
+        "nu": tuple(np.log(_NU_BOUNDS)),
+        "kappa": tuple(np.log(_KAPPA_BOUNDS)),
+    }
+    # a few starting points (ranges, anisotropy directions); the local optimisation
+    # starts from the best of them
+    grid = {
+        "range": [np.log(f * span) for f in (0.05, 0.2, 0.8)],
+        "scaling": [np.log(2.0)],
+        "angle": [0.0, np.pi / 3, 2 * np.pi / 3],
+        "nu": [np.log(0.1)],
+        "kappa": [0.0],
+    }
+    names = [name for name in _ORDER if name in free]
+    starts = [np.concatenate([combo, p0])
+              for combo in itertools.product(*(grid[name] for name in names))]
     # one BLAS thread: on these small matrices threads only add synchronisation (and
     # stall badly on a busy machine)
     with threadpool_limits(limits=1, user_api="blas"):
         x0 = min(starts, key=lambda s: fun(s)[0])
-        res = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=bounds,
+        res = minimize(fun, x0, jac=True, method="L-BFGS-B",
+                       bounds=[bounds[name] for name in names] + [tuple(np.log(_P_BOUNDS))] * T,
                        options={"maxiter": 200, "maxfun": 400, "ftol": 1e-10, "gtol": 1e-6})
     v = fun.unpack(res.x)
     nu = v["nu"]
@@ -188,6 +238,8 @@ def fit_hyperparameters(D, Y, F, noise, variogram, *, range_, nugget, noise_scal
         "nugget": float(nu / (1.0 + nu)),
         "sill": v["p"] * (1.0 + nu) * scale**2,
         "noise_scale": float(v["kappa"]),
+        "scaling": float(v["scaling"]),
+        "angle": float(np.rad2deg(v["angle"])),
         "log_likelihood": float(-res.fun - n * np.sum(np.log(scale))),
         "n_iter": int(res.nit),
     }
