@@ -37,7 +37,8 @@ Conventions
   truth stamp. ``subpixel=False`` puts every PSF on an integer pixel centre (x = column,
   y = row, 0-based), the paper's setting. PSFs lie at least half a stamp from the edges; no
   two stamps overlap (random positions closer than one stamp side along both x and y to an
-  already placed PSF are re-drawn).
+  already placed PSF are re-drawn; 8 pixels more when stars carry contaminants, so that a
+  neighbour's or a galaxy's light stays out of the other stars' stamps).
 - **S/N** = mean of the star's pixels / background rms (the paper's definition), "the star's
   pixels" being the pixels of its noiseless stamp at or above half of the stamp's peak (the
   FWHM core, :func:`core_mask`). The flux of a star is ``snr * noise_rms / mean(core pixels
@@ -59,8 +60,8 @@ Conventions
 - **Seeds.** ``random_state`` (int, SeedSequence or Generator) seeds one generator that
   spawns seven independent streams: random fields, star positions, galaxy-PSF positions,
   noise, sub-pixel offsets, contaminants, detector defects. The same seed gives an identical
-  field, the PSF pattern of a seed does not depend on ``snr``, and the contaminants and
-  defects do not move the stars. A study of N simulations uses
+  field, the PSF pattern of a seed does not depend on ``snr``, and the detector defects do
+  not move the stars (contaminants on stars widen the spacing, see *Positions*). A study of N simulations uses
   ``np.random.SeedSequence(seed).spawn(N)``, one child per simulation, as ``random_state``.
 
 Contaminants

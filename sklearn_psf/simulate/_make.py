@@ -32,6 +32,9 @@ __all__ = ["make_psf_field"]
 
 #: Default smallest scale of the PSF variations (arcsec): the random fields' grid cell.
 DEFAULT_SMALLEST_SCALE = 8.0
+#: Extra distance (pixels) between objects when stars carry contaminants: a neighbour (up to
+#: 8 pixels away) or a contaminating galaxy (stamps 16 pixels wider) reaches 8 pixels further.
+_CONTAMINANT_REACH = 8
 
 
 def _check_int(name, value, minimum):
@@ -362,24 +365,27 @@ def make_psf_field(
     rng = as_generator(random_state)
     field_rng, star_rng, gal_rng, noise_rng, sub_rng, cont_rng, defect_rng = rng.spawn(7)
 
-    # positions: fixed ones first, then random ones avoiding everything placed before
+    # positions: fixed ones first, then random ones avoiding everything placed before; with
+    # contaminants on stars, 8 more pixels between objects (a neighbour's or a galaxy's light
+    # stays out of the other stars' stamps: the clean stars stay clean)
+    gap = s + _CONTAMINANT_REACH if any(fractions.values()) else s
     grid = None
     if galaxy_layout == "grid" and n_galaxies:
-        grid = _grid_positions(n_galaxies, lo, hi_x, hi_y, s)
+        grid = _grid_positions(n_galaxies, lo, hi_x, hi_y, gap)
         if fixed_stars is not None:
             d, _ = cKDTree(fixed_stars).query(grid, p=np.inf)
-            clash = d < s
+            clash = d < gap
             if clash.any():
                 warnings.warn(f"{np.count_nonzero(clash)} grid galaxy-PSFs overlapping the given "
                               "star positions were removed.", UserWarning, stacklevel=2)
                 grid = grid[~clash]
     fixed = np.zeros((0, 2)) if grid is None else grid
     if fixed_stars is None:
-        star_pos = _draw_positions(n_stars, fixed, lo, hi_x, hi_y, s, star_rng, "stars")
+        star_pos = _draw_positions(n_stars, fixed, lo, hi_x, hi_y, gap, star_rng, "stars")
     else:
         star_pos = fixed_stars
     if grid is None:
-        gal_pos = _draw_positions(n_galaxies, star_pos, lo, hi_x, hi_y, s, gal_rng,
+        gal_pos = _draw_positions(n_galaxies, star_pos, lo, hi_x, hi_y, gap, gal_rng,
                                   "galaxy-PSFs")
     else:
         gal_pos = grid
