@@ -1,0 +1,146 @@
+"""Noise plumbing of PSFModel: routing per-star noise to interpolators, cross-predictions,
+and standardised residuals for the chi^2 outlier test."""
+
+from __future__ import annotations
+
+import inspect
+
+import numpy as np
+from scipy import stats
+from sklearn import get_config
+from sklearn.base import clone
+from sklearn.model_selection import KFold
+from sklearn.pipeline import Pipeline
+
+_MEDIAN_CHI2_1 = float(stats.chi2.ppf(0.5, 1))  # median of z^2 for a standard normal z
+
+
+def _final_step(estimator):
+    while isinstance(estimator, Pipeline):
+        estimator = estimator.steps[-1][1]
+    return estimator
+
+
+def _step_path(estimator):
+    """``"a__b__"`` prefix of the final step's parameters inside nested pipelines."""
+    prefix = ""
+    while isinstance(estimator, Pipeline):
+        name, estimator = estimator.steps[-1]
+        prefix += f"{name}__"
+    return prefix
+
+
+def accepts_noise(estimator) -> bool:
+    """Whether the (final step of the) interpolator's ``fit`` takes ``noise_var``."""
+    fit = getattr(_final_step(estimator), "fit", None)
+    return fit is not None and "noise_var" in inspect.signature(fit).parameters
+
+
+def fit_interpolator(interpolator, X, coef, noise_var):
+    """Fit (in place) with the coefficients' noise when the interpolator accepts it.
+
+    With scikit-learn's metadata routing enabled, ``noise_var`` is requested on the final
+    step and routed; otherwise it is passed as ``<step>__noise_var`` through pipelines.
+    """
+    if noise_var is None or not accepts_noise(interpolator):
+        return interpolator.fit(X, coef)
+    if get_config().get("enable_metadata_routing", False):
+        final = _final_step(interpolator)
+        if final is not interpolator:
+            final.set_fit_request(noise_var=True)
+        return interpolator.fit(X, coef, noise_var=noise_var)
+    return interpolator.fit(X, coef, **{f"{_step_path(interpolator)}noise_var": noise_var})
+
+
+def freeze_auto(template, fitted):
+    """A clone of ``template`` whose ``"auto"`` parameters hold the values fitted by ``fitted``.
+
+    A parameter ``p`` set to ``"auto"`` (e.g. Kriging's range) is replaced by the fitted
+    attribute ``p_`` of the same (sub-)estimator, so that refits on subsets (the
+    cross-predictions) reuse the hyperparameters instead of fitting them again.
+    """
+    frozen = clone(template)
+    params = template.get_params(deep=True)
+    fitted_params = fitted.get_params(deep=True)
+    updates = {}
+    for key, value in params.items():
+        if not (isinstance(value, str) and value == "auto"):
+            continue
+        *owner, name = key.split("__")
+        sub = fitted_params["__".join(owner)] if owner else fitted
+        if hasattr(sub, f"{name}_"):
+            updates[key] = getattr(sub, f"{name}_")
+    return frozen.set_params(**updates) if updates else frozen
+
+
+def cross_predict(interpolator, X, coef, noise_var, n_splits, random_state):
+    """Coefficients of each star predicted by the interpolator fitted without its fold."""
+    pred = np.empty_like(coef)
+    folds = KFold(n_splits=min(n_splits, len(X)), shuffle=True, random_state=random_state)
+    for train, test in folds.split(X):
+        est = clone(interpolator)
+        fit_interpolator(est, X[train], coef[train],
+                         None if noise_var is None else noise_var[train])
+        pred[test] = np.asarray(est.predict(X[test]), dtype=np.float64).reshape(len(test), -1)
+    return pred
+
+
+def _solve_floor(statistic, target):
+    """Smallest t >= 0 with ``statistic(t) <= target`` (statistic decreasing in t)."""
+    if statistic(0.0) <= target:
+        return 0.0
+    hi = 1e-12
+    while statistic(hi) > target:
+        hi *= 10.0
+        if hi > 1e12:
+            return hi
+    lo = hi / 10.0 if hi > 1e-12 else 0.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi) if lo == 0.0 else np.sqrt(lo * hi)
+        if statistic(mid) > target:
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+def coefficient_residuals(coef, predicted, noise_var):
+    """Standardised coefficient residuals and the per-component interpolation error added.
+
+    The interpolation error variance ``tau_k^2`` of component k is the smallest value that
+    brings the median of ``r^2 / (noise_var + tau_k^2)`` down to that of a chi^2 with one
+    degree of freedom (robust: up to half the stars may be outliers).
+    """
+    r = coef - predicted
+    var = np.zeros_like(r) if noise_var is None else noise_var
+    tau2 = np.array([
+        _solve_floor(lambda t, k=k: np.median(r[:, k] ** 2 / np.maximum(var[:, k] + t, 1e-300)),
+                     _MEDIAN_CHI2_1)
+        for k in range(r.shape[1])
+    ])
+    return r / np.sqrt(np.maximum(var + tau2, 1e-300)), tau2
+
+
+def pixel_residuals(stamps, model, weights):
+    """Standardised pixel residuals of stars against their own fit, NaN on masked pixels.
+
+    The variance of a pixel is ``1 / w + eps^2 model^2``: the relative model error ``eps``
+    (truncated basis, imperfect centring, the stars' own Poisson noise missing from
+    estimated weights) is the smallest value that brings the median reduced chi^2 of the
+    brighter half of the stars down to 1.
+    """
+    good = weights > 0
+    r2 = np.where(good, (stamps - model) ** 2, 0.0)
+    inv_w = np.where(good, 1.0 / np.where(good, weights, 1.0), np.inf)
+    m2 = model**2
+    dof = np.maximum(good.sum(axis=1), 1)
+    snr2 = np.where(good, weights * m2, 0.0).sum(axis=1)
+    bright = snr2 >= np.median(snr2)
+
+    def reduced(t):
+        return np.median((r2[bright] / (inv_w[bright] + t * m2[bright])).sum(axis=1)
+                         / dof[bright])
+
+    eps2 = _solve_floor(reduced, 1.0)
+    z = (stamps - model) / np.sqrt(inv_w + eps2 * m2)
+    return np.where(good, z, np.nan), eps2
