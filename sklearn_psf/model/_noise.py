@@ -7,12 +7,16 @@ import inspect
 
 import numpy as np
 from scipy import stats
+from scipy.spatial import cKDTree
 from sklearn import get_config
 from sklearn.base import clone
 from sklearn.model_selection import KFold
 from sklearn.pipeline import Pipeline
 
-_MEDIAN_CHI2_1 = float(stats.chi2.ppf(0.5, 1))  # median of z^2 for a standard normal z
+#: Quantile at which the model-error floors make residuals match pure noise: high enough
+#: that heavy-tailed interpolation errors do not reject clean stars, low enough that up to
+#: 20% of contaminated stars do not raise the floor.
+_FLOOR_QUANTILE = 0.8
 
 
 def _final_step(estimator):
@@ -104,20 +108,30 @@ def _solve_floor(statistic, target):
     return hi
 
 
-def coefficient_residuals(coef, predicted, noise_var):
-    """Standardised coefficient residuals and the per-component interpolation error added.
+def coefficient_residuals(X, coef, predicted, noise_var, n_neighbors=20):
+    """Standardised coefficient residuals against their cross-prediction.
 
-    The interpolation error variance ``tau_k^2`` of component k is the smallest value that
-    brings the median of ``r^2 / (noise_var + tau_k^2)`` down to that of a chi^2 with one
-    degree of freedom (robust: up to half the stars may be outliers).
+    The variance of a residual is the star's coefficient noise plus the interpolation error
+    variance, which depends on where the star is (edges, sparse regions): for each star and
+    component it is the larger of a global ``tau_k^2`` — the smallest value that brings the
+    80th percentile of ``r^2 / (noise_var + tau_k^2)`` down to that of a chi^2 with one degree
+    of freedom — and the same statistic over its ``n_neighbors`` nearest other stars (the
+    80th percentile of their noise-free squared residuals, scaled to a chi^2_1).
     """
     r = coef - predicted
     var = np.zeros_like(r) if noise_var is None else noise_var
+    target = float(stats.chi2.ppf(_FLOOR_QUANTILE, 1))
     tau2 = np.array([
-        _solve_floor(lambda t, k=k: np.median(r[:, k] ** 2 / np.maximum(var[:, k] + t, 1e-300)),
-                     _MEDIAN_CHI2_1)
+        _solve_floor(lambda t, k=k: np.quantile(r[:, k] ** 2 / np.maximum(var[:, k] + t, 1e-300),
+                                                _FLOOR_QUANTILE), target)
         for k in range(r.shape[1])
     ])
+    m = min(n_neighbors, len(X) - 1)
+    if m >= 5:
+        _, idx = cKDTree(X).query(X, k=m + 1)
+        excess = np.maximum(r**2 - var, 0.0)[idx[:, 1:]]  # (n, m, k), the star itself left out
+        local = np.quantile(excess, _FLOOR_QUANTILE, axis=1) / target
+        tau2 = np.maximum(tau2, local)
     return r / np.sqrt(np.maximum(var + tau2, 1e-300)), tau2
 
 
@@ -126,8 +140,8 @@ def pixel_residuals(stamps, model, weights):
 
     The variance of a pixel is ``1 / w + eps^2 model^2``: the relative model error ``eps``
     (truncated basis, imperfect centring, the stars' own Poisson noise missing from
-    estimated weights) is the smallest value that brings the median reduced chi^2 of the
-    brighter half of the stars down to 1.
+    estimated weights) is the smallest value that brings the 80th percentile of the
+    reduced chi^2 of the brighter half of the stars down to that of pure noise.
     """
     good = weights > 0
     r2 = np.where(good, (stamps - model) ** 2, 0.0)
@@ -138,9 +152,10 @@ def pixel_residuals(stamps, model, weights):
     bright = snr2 >= np.median(snr2)
 
     def reduced(t):
-        return np.median((r2[bright] / (inv_w[bright] + t * m2[bright])).sum(axis=1)
-                         / dof[bright])
+        return np.quantile((r2[bright] / (inv_w[bright] + t * m2[bright])).sum(axis=1)
+                           / dof[bright], _FLOOR_QUANTILE)
 
-    eps2 = _solve_floor(reduced, 1.0)
+    typical = float(np.median(dof[bright]))
+    eps2 = _solve_floor(reduced, float(stats.chi2.ppf(_FLOOR_QUANTILE, typical)) / typical)
     z = (stamps - model) / np.sqrt(inv_w + eps2 * m2)
     return np.where(good, z, np.nan), eps2

@@ -353,7 +353,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
         full = fit_interpolator(clone(interp), X[idx], coef[idx], noise)
         frozen = freeze_auto(interp, full)
         predicted = cross_predict(frozen, X[idx], coef[idx], noise, self.cv, self.random_state)
-        z_coef, _ = coefficient_residuals(coef[idx], predicted, noise)
+        z_coef, _ = coefficient_residuals(X[idx], coef[idx], predicted, noise)
         detector.fit(z_coef)
         ok = detector.predict(z_coef) == 1
         score[idx] = detector.score_samples(z_coef)
