@@ -12,6 +12,7 @@ model.
 
 from __future__ import annotations
 
+import inspect
 import warnings
 
 import numpy as np
@@ -39,6 +40,12 @@ def _as_model(candidate):
                     f"{type(candidate).__name__}.")
 
 
+def _accepted(model, fit_params):
+    """The fit parameters ``model.fit`` accepts (pixel weights only where supported)."""
+    accepted = inspect.signature(model.fit).parameters
+    return {k: v for k, v in fit_params.items() if k in accepted}
+
+
 def _rho1_bins(X, stamp_size):
     span = np.ptp(X, axis=0)
     max_sep = 0.5 * float(np.hypot(*span))
@@ -51,7 +58,7 @@ def _rms(a):
 
 
 def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=None, *,
-                     candidates=None, cv: int = 5, rho1_nbins: int = 6):
+                     candidates=None, cv: int = 5, rho1_nbins: int = 6, weights=None):
     """Fit a PSF model on most stars and validate it on reserved ones.
 
     1. A random fraction ``reserve`` of the stars (seeded by ``random_state``) is set aside;
@@ -91,6 +98,10 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
     rho1_nbins : int, default=6
         Logarithmic separation bins of rho1 (in pixels, from the stamp size to half the
         field's diagonal).
+    weights : array-like of the stamps' shape, optional
+        Pixel weights (inverse variance, 0 = masked), e.g. ``StarStamps.weights``; passed to
+        ``PSFModel.fit`` when it accepts ``weights`` (masked pixels should then already be 0
+        in ``stamps``, as the readers leave them).
 
     Returns
     -------
@@ -152,6 +163,15 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
     reserved = np.sort(order[:n_res])
     fit_rows = np.sort(order[n_res:])
     X_fit, y_fit = X[fit_rows], y[fit_rows]
+    fit_params = {}
+    if weights is not None:
+        w = np.asarray(weights, dtype=np.float64).reshape(n, -1)
+        if w.shape != y.shape:
+            raise ValueError(f"weights must have the stamps' shape {cube.shape}, got "
+                             f"{np.shape(weights)}.")
+        if (w < 0).any() or not np.isfinite(w).all():
+            raise ValueError("weights must be finite and >= 0 (0 = masked pixel).")
+        fit_params = {"weights": w[fit_rows]}
     min_sep, max_sep = _rho1_bins(X, s)
 
     summary = {}
@@ -164,8 +184,9 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", EmptyBinsWarning)
             for name, cand in candidates.items():
-                scores = cross_validate(_as_model(cand), X_fit, y_fit, cv=folds,
-                                        scoring=scoring, error_score=np.nan)
+                cand = _as_model(cand)
+                scores = cross_validate(cand, X_fit, y_fit, cv=folds, scoring=scoring,
+                                        error_score=np.nan, params=_accepted(cand, fit_params))
                 rows.append({"scheme": name,
                              "e_rms": float(-np.nanmean(scores["test_e_rms"])),
                              "e_rms_std": float(np.nanstd(scores["test_e_rms"])),
@@ -179,7 +200,7 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
         model = _as_model(candidates[best["scheme"]])
     else:
         model = PSFModel() if model is None else clone(model)
-    model.fit(X_fit, y_fit)
+    model.fit(X_fit, y_fit, **_accepted(model, fit_params))
 
     k = len(reserved)
     summary.update({"n_stars": n, "n_fit": len(fit_rows), "n_reserved": k,

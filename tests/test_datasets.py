@@ -1,6 +1,8 @@
 """Tests of sklearn_psf.datasets: the embedded default reference and the dataset makers."""
 
+import ast
 import os
+import pathlib
 import subprocess
 import sys
 
@@ -9,19 +11,24 @@ import pytest
 from scipy.spatial import cKDTree
 
 import sklearn_psf.simulate as simulate
-from sklearn_psf.datasets import (
-    PSFField,
-    default_reference_path,
-    load_default_reference,
-    make_psf_field,
-    realistic_snr,
-)
-from sklearn_psf.simulate import ReferenceBasis
+from sklearn_psf.datasets import ReferenceBasis, default_reference_path, load_default_reference
+from sklearn_psf.simulate import make_psf_field
 
 
-def test_reexports_are_the_simulate_objects():
-    assert make_psf_field is simulate.make_psf_field
-    assert PSFField is simulate.PSFField and realistic_snr is simulate.realistic_snr
+def test_datasets_never_imports_simulate():
+    """No import circle: datasets loads data only; simulate re-exports its ReferenceBasis.
+    (The regeneration script, never imported by the package, checks its output with
+    make_psf_field.)"""
+    folder = pathlib.Path(default_reference_path()).parents[1]
+    for path in folder.glob("*.py"):
+        if path.name == "_make_default_reference.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                assert "simulate" not in (node.module or ""), path.name
+            elif isinstance(node, ast.Import):
+                assert not any("simulate" in a.name for a in node.names), path.name
+    assert simulate.ReferenceBasis is ReferenceBasis
 
 
 def test_default_reference_file_and_content():
@@ -70,6 +77,25 @@ def test_reference_image_script_from_image_recovers_stars():
     assert d.max() < 0.3
     assert len(ref.positions) >= 35  # (saturated stars and galaxies are rejected)
     assert 1 <= ref.n_components <= 20
+
+
+def test_thirteen_component_reference():
+    """The paper-sized basis: same stars, 13 orthonormal components, the first 5 the default's."""
+    ref5, ref13 = load_default_reference(), load_default_reference(n_components=13)
+    assert ref13.n_components == 13 and ref13.stamp_size == 25
+    c = ref13.components.reshape(13, -1)
+    np.testing.assert_allclose(c @ c.T, np.eye(13), atol=1e-8)
+    np.testing.assert_allclose(np.abs(np.sum(c[:5] * ref5.components.reshape(5, -1), axis=1)),
+                               1.0, atol=1e-6)
+    np.testing.assert_allclose(ref13.mean, ref5.mean, atol=1e-12)
+    assert np.all(np.diff(ref13.explained_variance_ratio) <= 0)
+    assert ref13.explained_variance_ratio.sum() > ref5.explained_variance_ratio.sum()
+    with pytest.raises(ValueError, match="13"):
+        load_default_reference(n_components=7)
+    f = make_psf_field(ref13, n_stars=200, n_galaxies=0, image_shape=(1500, 2000),
+                       random_state=0)
+    e = np.hypot(f.stars["e1"], f.stars["e2"])
+    assert np.all(f.stars["moments_flag"] == 0) and 0.02 < e.mean() < 0.1
 
 
 def test_default_simulation_uses_default_reference():

@@ -1,10 +1,14 @@
 """Tests of sklearn_psf.simulate: random fields, reference basis, simulated PSF fields."""
 
+import warnings
+
 import numpy as np
 import pytest
 from astropy.stats import sigma_clipped_stats
 from scipy.spatial import cKDTree
 
+from sklearn_psf.measure import adaptive_moments
+from sklearn_psf.preprocessing import StampNormalizer, fourier_shift
 from sklearn_psf.simulate import (
     PSFField,
     RandomFieldSampler,
@@ -33,6 +37,17 @@ def _radial_slope(fields, kmin=0.01, kmax=0.2):
 @pytest.fixture(scope="module")
 def field():
     return make_psf_field(n_stars=200, n_galaxies=300, image_shape=SMALL, random_state=7)
+
+
+@pytest.fixture(scope="module")
+def dirty():
+    """A field as real data come: contaminants, masks, a bad column, saturation, Poisson."""
+    return make_psf_field(
+        n_stars=200, n_galaxies=50, image_shape=SMALL, random_state=11, snr=realistic_snr(
+            200, random_state=0), contaminants={"cosmic_ray": 0.1, "neighbour": 0.1,
+                                                "galaxy": 0.1, "binary": 0.1},
+        n_field_cosmic_rays=8, n_field_galaxies=8, masked_fraction=2e-3, bad_columns=2,
+        saturation=4000.0, gain=2.0)
 
 
 # ----------------------------------------------------------------------------- random fields
@@ -133,7 +148,8 @@ def test_true_stamps_normalised_and_in_basis(field):
 
 def test_measured_snr_matches_requested():
     snr = realistic_snr(150, random_state=1)
-    f = make_psf_field(n_stars=150, n_galaxies=100, image_shape=SMALL, snr=snr, random_state=2)
+    f = make_psf_field(n_stars=150, n_galaxies=100, image_shape=SMALL, snr=snr, random_state=2,
+                       subpixel=False)
     _, _, rms = sigma_clipped_stats(f.image[::2, ::2], sigma=3)
     assert abs(rms / f.noise_rms - 1) < 0.01
     s = f.stamp_size
@@ -149,22 +165,31 @@ def test_measured_snr_matches_requested():
 
 
 def test_image_is_psfs_plus_noise(field):
+    """Each star is its truth stamp shifted by its sub-pixel offset (independent check with
+    scipy.ndimage.fourier_shift), plus noise of the given rms."""
+    from scipy import ndimage
+
     s, h = field.stamp_size, field.stamp_size // 2
     res = []
     for row in field.stars:
-        x, y = int(row["x"]), int(row["y"])
+        x, y = int(np.floor(row["x"] + 0.5)), int(np.floor(row["y"] + 0.5))
         data = field.image[y - h:y + h + 1, x - h:x + h + 1].ravel()
-        res.append(data - row["flux"] * np.asarray(row["stamp"]))
+        spec = ndimage.fourier_shift(np.fft.fft2(np.asarray(row["stamp"]).reshape(s, s)),
+                                     (row["y"] - y, row["x"] - x))
+        res.append(data - row["flux"] * np.fft.ifft2(spec).real.ravel())
     assert abs(np.std(res) / field.noise_rms - 1) < 0.02
     assert abs(np.mean(res)) < 0.01 * field.noise_rms
     assert field.image.dtype == np.float32
 
 
-def test_positions_integer_inside_no_overlap(field):
+def test_positions_subpixel_inside_no_overlap(field):
     s, h = field.stamp_size, field.stamp_size // 2
-    pos = np.vstack([np.column_stack([t["x"], t["y"]]) for t in (field.stars, field.galaxies)])
-    assert len(pos) == 500
-    np.testing.assert_array_equal(pos, np.round(pos))
+    exact = np.vstack([np.column_stack([t["x"], t["y"]]) for t in (field.stars, field.galaxies)])
+    assert len(exact) == 500
+    frac = exact - np.floor(exact + 0.5)  # uniform in [-0.5, 0.5): mean 0, variance 1/12
+    assert np.all(np.abs(frac) <= 0.5) and abs(frac.mean()) < 0.03
+    assert abs(frac.var() - 1 / 12) < 0.01
+    pos = np.floor(exact + 0.5)
     ny, nx = field.image.shape
     assert pos[:, 0].min() >= h and pos[:, 0].max() <= nx - 1 - h
     assert pos[:, 1].min() >= h and pos[:, 1].max() <= ny - 1 - h
@@ -172,9 +197,20 @@ def test_positions_integer_inside_no_overlap(field):
     assert d[:, 1].min() >= s
 
 
+def test_integer_positions_option():
+    f = make_psf_field(n_stars=30, n_galaxies=20, image_shape=(600, 800), random_state=1,
+                       subpixel=False)
+    for t in (f.stars, f.galaxies):
+        np.testing.assert_array_equal(t["x"], np.round(t["x"]))
+        np.testing.assert_array_equal(t["y"], np.round(t["y"]))
+    # the same seed draws the same pixels with and without the sub-pixel offsets
+    g = make_psf_field(n_stars=30, n_galaxies=20, image_shape=(600, 800), random_state=1)
+    np.testing.assert_array_equal(np.floor(np.asarray(g.stars["x"]) + 0.5), f.stars["x"])
+
+
 def test_grid_layout():
     f = make_psf_field(n_stars=100, n_galaxies=400, galaxy_layout="grid", image_shape=SMALL,
-                       random_state=0)
+                       random_state=0, subpixel=False)
     xs, ys = np.unique(f.galaxies["x"]), np.unique(f.galaxies["y"])
     assert len(xs) * len(ys) == len(f.galaxies)
     assert abs(len(f.galaxies) - 400) <= 40
@@ -201,6 +237,9 @@ def test_given_star_positions_and_reference_positions():
     f = make_psf_field(ref, star_positions=pos, n_galaxies=5, image_shape=(600, 800),
                        random_state=0)
     np.testing.assert_array_equal(pos, pos0)
+    np.testing.assert_array_equal(np.column_stack([f.stars["x"], f.stars["y"]]), pos)
+    f = make_psf_field(ref, star_positions=pos, n_galaxies=5, image_shape=(600, 800),
+                       random_state=0, subpixel=False)
     np.testing.assert_array_equal(np.column_stack([f.stars["x"], f.stars["y"]]),
                                   np.floor(pos + 0.5))
     g = make_psf_field(ref, star_positions=ref.positions, n_galaxies=50,
@@ -220,9 +259,18 @@ def test_measure_stars_recovers_coefficients():
     np.testing.assert_allclose(stamps, np.asarray(m["stamp"]))
 
 
-def test_save_load_roundtrip(tmp_path, field):
+def test_save_load_roundtrip(tmp_path, field, dirty):
     path = tmp_path / "sim.fits"
-    field.save(path)
+    dirty.save(path)
+    back = PSFField.load(path)
+    np.testing.assert_array_equal(back.image, dirty.image)
+    np.testing.assert_array_equal(back.weight, dirty.weight)
+    for name in ("stars", "galaxies", "contaminants"):
+        t0, t1 = getattr(dirty, name), getattr(back, name)
+        for col in t0.colnames:
+            np.testing.assert_array_equal(np.asarray(t1[col]), np.asarray(t0[col]))
+    assert back.meta["cell"] == dirty.meta["cell"] and back.meta["gain"] == dirty.meta["gain"]
+    field.save(path, overwrite=True)
     back = PSFField.load(path)
     np.testing.assert_array_equal(back.image, field.image)
     for name in ("stars", "galaxies"):
@@ -242,6 +290,175 @@ def test_realistic_snr_distribution():
     assert s.min() >= 20 and s.max() <= 1000
     hist, edges = np.histogram(s, bins=np.arange(20, 1001, 20))
     assert 60 <= edges[np.argmax(hist)] <= 120
+
+
+# ----------------------------------------------------------------------------- sub-pixel truth
+def test_subpixel_stamps_recover_truth():
+    """Noise-free sub-pixel field: cut_stamps + StampNormalizer give back the truth stamps
+    (e1/e2 within 1e-4, PCA coefficients within 1e-4 of their spread)."""
+    f = make_psf_field(n_stars=80, n_galaxies=0, image_shape=(900, 1200), snr=1e8,
+                       random_state=4)
+    stamps, flags = f.star_stamps()
+    assert np.all(flags == 0)
+    mom = adaptive_moments(stamps)
+    assert np.max(np.abs(mom["e1"] - f.stars["e1"])) < 1e-4
+    assert np.max(np.abs(mom["e2"] - f.stars["e2"])) < 1e-4
+    coeffs = f.reference.as_transformer(normalize=False).transform(stamps)
+    err = np.abs(coeffs - np.asarray(f.stars["coeffs"])) / f.reference.coeff_std
+    assert err.max() < 1e-3
+    # a real sub-pixel offset was undone: the raw stamps are not centred
+    raw, _ = f.star_stamps(normalize=False)
+    off = np.abs(np.asarray(adaptive_moments(raw)["x0"]) - f.stamp_size // 2)
+    assert np.median(off) > 0.1
+
+
+# ----------------------------------------------------------------------------- weights and masks
+def test_weight_map_masks_saturation_and_poisson(dirty):
+    w, img = dirty.weight, dirty.image
+    assert w.shape == img.shape and w.dtype == np.float32
+    cols = np.flatnonzero((w == 0).all(axis=0))
+    assert len(cols) == 2 and np.all(img[:, cols] == 0.0)
+    sat = img == np.float32(4000.0)
+    assert sat.any() and np.all(w[sat] == 0)
+    assert np.all(img <= 4000.0)
+    frac = np.mean(w[:, np.setdiff1d(np.arange(img.shape[1]), cols)] == 0)
+    assert 1.5e-3 < frac < 3e-3
+    # away from sources the weight is the background's; on a star it is lower (Poisson)
+    assert np.median(w) == pytest.approx(1 / dirty.noise_rms**2, rel=1e-6)
+    # the weights are the inverse variance: chi = (data - model) sqrt(w) has unit spread
+    clean = np.flatnonzero(dirty.stars["contaminant"] == "")
+    s, h = dirty.stamp_size, dirty.stamp_size // 2
+    raw, wst, flags = dirty.star_stamps(return_weights=True)
+    truth = fourier_shift(np.asarray(dirty.stars["stamp"]).reshape(-1, s, s),
+                          dirty.stars["x"] - np.floor(dirty.stars["x"] + 0.5),
+                          dirty.stars["y"] - np.floor(dirty.stars["y"] + 0.5)).reshape(len(raw), -1)
+    model = truth * np.asarray(dirty.stars["flux"])[:, None]
+    chi = ((raw - model) * np.sqrt(wst))[clean]
+    good = wst[clean] > 0
+    core = model[clean] > 5 * dirty.noise_rms  # pixels where the Poisson term matters
+    assert abs(np.std(chi[good & core]) - 1) < 0.05
+    assert abs(np.std(chi[good & ~core]) - 1) < 0.05
+    assert np.std(((raw - model) / dirty.noise_rms)[clean][good & core]) > 1.2
+
+
+def test_star_stamps_weights_and_existing_return(dirty):
+    stamps, flags = dirty.star_stamps()  # the existing call
+    assert stamps.shape == (200, dirty.stamp_size**2) and flags.shape == (200,)
+    raw, w, flags2 = dirty.star_stamps(return_weights=True)
+    np.testing.assert_array_equal(flags, flags2)
+    assert np.all(w >= 0) and np.all(w[~np.isfinite(raw)] == 0)
+    assert (w == 0).any(axis=1).sum() >= 5  # masked pixels and columns hit some stars
+    with pytest.raises(ValueError, match="normalize=False"):
+        dirty.star_stamps(normalize=True, return_weights=True)
+    nan = make_psf_field(n_stars=10, n_galaxies=0, image_shape=(300, 400), random_state=0,
+                         bad_columns=3, mask_value=np.nan)
+    cols = np.flatnonzero((nan.weight == 0).all(axis=0))
+    assert np.all(np.isnan(nan.image[:, cols]))
+
+
+# ----------------------------------------------------------------------------- contaminants
+def test_contaminant_truth_and_counts(dirty):
+    kinds = np.asarray(dirty.stars["contaminant"])
+    for kind in ("cosmic_ray", "neighbour", "galaxy", "binary"):
+        assert np.count_nonzero(kinds == kind) == 20
+    assert np.count_nonzero(kinds == "") == 120
+    c = dirty.contaminants
+    on = c[c["star"] >= 0]
+    np.testing.assert_array_equal(np.sort(on["star"]), np.flatnonzero(kinds != ""))
+    assert np.all(on["snr"] >= 20.0)
+    assert np.all(dirty.stars["contaminant_snr"][kinds == ""] == 0)
+    nb = on[on["kind"] == "neighbour"]
+    d = np.hypot(nb["x"] - dirty.stars["x"][nb["star"]], nb["y"] - dirty.stars["y"][nb["star"]])
+    assert np.all((d >= 3) & (d <= 8 + 1e-9))
+    assert np.all(nb["flux"] <= dirty.stars["flux"][nb["star"]] + 1e-6)
+    b = on[on["kind"] == "binary"]
+    assert np.all((b["size"] >= 1) & (b["size"] <= 5))
+    # field contaminants lie away from every star's stamp
+    away = c[c["star"] < 0]
+    assert sorted(set(away["kind"])) == ["field_cosmic_ray", "field_galaxy"] and len(away) == 16
+    dd, _ = cKDTree(np.column_stack([dirty.stars["x"], dirty.stars["y"]])).query(
+        np.column_stack([away["x"], away["y"]]), p=np.inf)
+    assert dd.min() >= dirty.stamp_size - 1
+    # default: clean
+    clean = make_psf_field(n_stars=20, n_galaxies=0, image_shape=(400, 500), random_state=0)
+    assert set(clean.stars["contaminant"]) == {""} and len(clean.contaminants) == 0
+
+
+def test_galaxy_contaminants_are_extended(dirty):
+    sel = dirty.stars["contaminant"] == "galaxy"
+    stamps, flags = dirty.star_stamps()
+    ok = sel & (flags == 0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sig = np.asarray(adaptive_moments(stamps[ok])["sigma"])
+    assert np.median(sig / np.asarray(dirty.stars["sigma"][ok])) > 1.3
+
+
+@pytest.mark.parametrize("snr", [20.0, 1000.0])
+def test_contaminants_detectable_with_the_true_psf(snr):
+    """With the true PSF, a chi^2 cut keeping 98% of the clean stars catches >= 90% of the
+    contaminated ones, at the faint and the bright end: the contaminants are real, not
+    undetectable (a model-based detector's target)."""
+    f = make_psf_field(n_stars=240, n_galaxies=0, image_shape=SMALL, snr=snr, random_state=5,
+                       contaminants={"cosmic_ray": 0.1, "neighbour": 0.1, "galaxy": 0.1,
+                                     "binary": 0.1})
+    s = f.stamp_size
+    raw, w, flags = f.star_stamps(return_weights=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        norm = StampNormalizer().fit_transform(raw)
+    resid = (norm - np.asarray(f.stars["stamp"])) * raw.sum(axis=1, keepdims=True)
+    chi2 = np.sum(resid**2 * w, axis=1)
+    clean = np.asarray(f.stars["contaminant"]) == ""
+    cut = np.quantile(chi2[clean], 0.98)
+    assert np.mean(chi2[~clean] > cut) >= 0.9
+    assert np.median(chi2[clean]) == pytest.approx(s * s, rel=0.1)
+
+
+# ----------------------------------------------------------------------------- smallest scale
+def test_smallest_scale_and_deprecated_grid_size():
+    kw = dict(n_stars=20, n_galaxies=0, image_shape=(600, 800), random_state=0)
+    f = make_psf_field(**kw)
+    assert f.meta["smallest_scale"] == 8.0 and f.meta["cell"] == pytest.approx(40.0)
+    g = make_psf_field(smallest_scale=30.0, **kw)
+    assert g.meta["cell"] == pytest.approx(150.0)
+    # a larger scale gives a smoother PSF pattern: smaller differences between neighbours
+    with pytest.warns(DeprecationWarning, match="smallest_scale"):
+        old = make_psf_field(grid_size=64, **kw)
+    assert old.meta["cell"] == pytest.approx(799 / 63)
+    with pytest.raises(ValueError, match="smallest_scale"):
+        make_psf_field(smallest_scale=-1.0, **kw)
+
+
+def test_random_field_covariance_matches_many_seeds():
+    """RandomFieldSampler.covariance against the empirical covariance of 600 seeds."""
+    shape = (700, 1000)
+    pos = np.array([[500, 350], [520, 350], [560, 380], [700, 500], [5, 5], [990, 690],
+                    [100, 600], [500.5, 351.3]], dtype=float)
+    vals = np.array([RandomFieldSampler(shape, 1, grid_size=40, random_state=s)(pos)[:, 0]
+                     for s in range(600)])
+    emp = np.cov(vals.T)
+    model = RandomFieldSampler(shape, 0, grid_size=40).covariance(pos)
+    scale = np.sqrt(np.outer(np.diag(emp), np.diag(emp)))
+    assert np.max(np.abs(model - emp) / scale) < 0.15  # statistical error ~0.06
+    np.testing.assert_allclose(model, model.T, atol=1e-12)
+    assert np.all(np.linalg.eigvalsh(model) > -1e-8)
+    # cross-covariance between two sets = the block of the joint one
+    np.testing.assert_allclose(RandomFieldSampler(shape, 0, grid_size=40).covariance(
+        pos[:3], pos[3:]), model[:3, 3:], atol=1e-12)
+
+
+def test_weight_covariance_and_coefficient_noise():
+    f = make_psf_field(n_stars=300, n_galaxies=0, image_shape=SMALL, snr=100.0, random_state=8)
+    pos = np.column_stack([f.stars["x"], f.stars["y"]])[:4]
+    cov = f.weight_covariance(pos)
+    k = RandomFieldSampler(f.image.shape, 0, cell=f.meta["cell"]).covariance(pos)
+    np.testing.assert_allclose(cov, f.reference.coeff_std[:, None, None] ** 2 * k[None])
+    # the true coefficient noise against the measured coefficients' scatter about the truth
+    m = f.measure_stars()
+    err2 = (np.asarray(m["coeffs"]) - np.asarray(f.stars["coeffs"])) ** 2
+    ratio = err2.mean(axis=0) / f.coefficient_noise_var().mean(axis=0)
+    assert np.all((ratio > 0.8) & (ratio < 1.5)), ratio
 
 
 # ----------------------------------------------------------------------------- reference basis
@@ -336,6 +553,16 @@ def test_bad_inputs(tmp_path):
         make_psf_field(n_stars=1000, **kw)
     with pytest.raises(ValueError, match="galaxy_layout"):
         make_psf_field(n_stars=3, galaxy_layout="hexagonal", **kw)
+    with pytest.raises(ValueError, match="Unknown contaminant"):
+        make_psf_field(n_stars=3, contaminants={"satellite": 0.1}, **kw)
+    with pytest.raises(ValueError, match="add up"):
+        make_psf_field(n_stars=3, contaminants={"binary": 0.6, "galaxy": 0.6}, **kw)
+    with pytest.raises(TypeError, match="dict"):
+        make_psf_field(n_stars=3, contaminants=["binary"], **kw)
+    with pytest.raises(ValueError, match="masked_fraction"):
+        make_psf_field(n_stars=3, masked_fraction=1.5, **kw)
+    with pytest.raises(ValueError, match="gain"):
+        make_psf_field(n_stars=3, gain=0.0, **kw)
     snr = np.array([50.0, 60.0, 70.0])
     make_psf_field(n_stars=3, snr=snr, random_state=0, **kw)
     np.testing.assert_array_equal(snr, [50.0, 60.0, 70.0])

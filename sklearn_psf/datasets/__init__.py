@@ -1,16 +1,16 @@
-"""Embedded default data and dataset makers (``make_*`` / ``load_*``).
+"""Embedded default data: the reference bases of the simulations (``load_*``).
 
-The default reference basis is documented in
-:mod:`sklearn_psf.datasets._make_default_reference` (the script that regenerates it).
+:mod:`sklearn_psf.datasets` loads data only and never imports :mod:`sklearn_psf.simulate`
+(which builds fields from these bases). The embedded bases are documented in
+:mod:`sklearn_psf.datasets._make_default_reference` (the script that regenerates them).
 """
 
-from ..simulate import PSFField, make_psf_field, realistic_snr
 from ._base import default_reference_path, load_default_reference
+from ._reference import ReferenceBasis, read_fits_image
 
 __all__ = [
-    "PSFField",
+    "ReferenceBasis",
     "default_reference_path",
     "load_default_reference",
-    "make_psf_field",
-    "realistic_snr",
+    "read_fits_image",
 ]

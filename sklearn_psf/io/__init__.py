@@ -43,9 +43,10 @@ Notes for real data:
 - One model per CCD: PSF variations are not continuous across chip gaps.
 """
 
-from ._catalog import read_catalog
-from ._example import write_example_exposure
-from ._image import read_image
+from ._catalog import read_catalog, write_ldac
+from ._draw import draw_psf, extrapolation_flags
+from ._example import write_example_exposure, write_example_ldac
+from ._image import FITSHeaderWarning, read_image
 from ._model_io import (
     MODEL_FORMAT,
     MODEL_FORMAT_VERSION,
@@ -53,19 +54,30 @@ from ._model_io import (
     read_model_validation,
     save_model,
 )
+from ._select import SELECTION_REASONS, select_stars
 from ._stars import REJECTION_REASONS, StarStamps, extract_star_stamps, find_stars
+from ._vignettes import VIGNET_MASKED, extract_vignettes
 
 __all__ = [
+    "FITSHeaderWarning",
     "MODEL_FORMAT",
     "MODEL_FORMAT_VERSION",
     "REJECTION_REASONS",
+    "SELECTION_REASONS",
     "StarStamps",
+    "VIGNET_MASKED",
+    "draw_psf",
     "extract_star_stamps",
+    "extract_vignettes",
+    "extrapolation_flags",
     "find_stars",
     "load_model",
     "read_catalog",
     "read_image",
     "read_model_validation",
     "save_model",
+    "select_stars",
     "write_example_exposure",
+    "write_example_ldac",
+    "write_ldac",
 ]

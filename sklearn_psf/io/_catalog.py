@@ -3,16 +3,14 @@
 from __future__ import annotations
 
 import os
-import warnings
 
 import numpy as np
 from astropy.io import fits
 from astropy.table import Table
-from astropy.utils.exceptions import AstropyUserWarning
 
-from ._image import _FileError, _one_line
+from ._image import _FileError, _one_line, _tolerant_fits
 
-__all__ = ["read_catalog"]
+__all__ = ["read_catalog", "write_ldac"]
 
 # (x, y) column pairs tried in this order; True: the convention is 1-based (FITS/SExtractor).
 _POSITION_COLUMNS = (
@@ -25,7 +23,71 @@ _POSITION_COLUMNS = (
 _FLUX_COLUMNS = ("flux", "flux_auto", "flux_psf", "flux_aper")
 _SNR_COLUMNS = ("snr", "snr_win", "s/n")
 _FLAG_COLUMNS = ("flags", "flag")
-_TEXT_SUFFIXES = (".csv", ".txt", ".dat", ".ecsv", ".tsv")
+# further SExtractor measurements, copied under the lower-case names the star selector reads
+_MEASURED_COLUMNS = (("peak", ("peak", "flux_max")), ("flux_radius", ("flux_radius",)),
+                     ("class_star", ("class_star",)), ("spread_model", ("spread_model",)),
+                     ("background", ("background",)))
+_TEXT_SUFFIXES = (".csv", ".txt", ".dat", ".ecsv", ".tsv", ".cat")
+
+
+def _is_sextractor_ascii(path):
+    """SExtractor ASCII_HEAD catalogues start with '#   1 NUMBER ...' column lines."""
+    with open(path, "rb") as f:
+        head = f.read(80)
+    return head.lstrip().startswith(b"#") and b"SIMPLE" not in head[:10]
+
+
+def _ldac_header(hdul):
+    """The image header SExtractor stores in LDAC_IMHEAD, or None."""
+    if "LDAC_IMHEAD" not in hdul:
+        return None
+    data = hdul["LDAC_IMHEAD"].data
+    if data is None or len(data) == 0:
+        return None
+    text = data[0][0]
+    text = "".join(text) if not isinstance(text, (str, bytes)) else text
+    text = text.decode("ascii", "replace") if isinstance(text, bytes) else text
+    return fits.Header.fromstring(text)
+
+
+def write_ldac(path, objects: Table, header=None, overwrite: bool = False) -> None:
+    """Write a SExtractor FITS_LDAC catalogue (what PSFEx reads).
+
+    HDU 1 ``LDAC_IMHEAD`` holds the image header as one string of 80-character cards
+    (column ``Field Header Card``), HDU 2 ``LDAC_OBJECTS`` the objects.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    objects : astropy.table.Table
+        SExtractor columns, e.g. ``X_IMAGE``, ``Y_IMAGE`` (1-based), ``FLUX_RADIUS``,
+        ``VIGNET`` (n, v, v).
+    header : astropy.io.fits.Header, optional
+        Image header (``SATURATE``, WCS...); empty by default.
+    overwrite : bool, default=False
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from astropy.io import fits
+    >>> from astropy.table import Table
+    >>> from sklearn_psf.io import read_catalog, write_ldac
+    >>> path = os.path.join(tempfile.mkdtemp(), "cat.ldac")
+    >>> write_ldac(path, Table({"X_IMAGE": [11.0], "Y_IMAGE": [21.0],
+    ...                         "VIGNET": np.zeros((1, 5, 5), np.float32)}),
+    ...            header=fits.Header({"SATURATE": 5e4}))
+    >>> cat = read_catalog(path)
+    >>> cat["x"][0], cat.meta["image_header"]["SATURATE"]
+    (np.float64(10.0), 50000.0)
+    """
+    text = (header or fits.Header()).tostring(endcard=True, padding=False)
+    head = fits.BinTableHDU.from_columns(
+        [fits.Column(name="Field Header Card", format=f"{len(text)}A", array=np.array([text]))],
+        name="LDAC_IMHEAD")
+    objs = fits.table_to_hdu(Table(objects))
+    objs.name = "LDAC_OBJECTS"
+    fits.HDUList([fits.PrimaryHDU(), head, objs]).writeto(os.fspath(path), overwrite=overwrite)
 
 
 def _read_table(path, hdu):
@@ -34,11 +96,13 @@ def _read_table(path, hdu):
         raise ValueError(f"Catalogue file {path!r} does not exist.")
     lower = path.lower()
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("error", AstropyUserWarning)
-            if lower.endswith(_TEXT_SUFFIXES):
-                fmt = ("ascii.ecsv" if lower.endswith(".ecsv")
-                       else "ascii.csv" if lower.endswith(".csv") else "ascii")
+        with _tolerant_fits(path):
+            if lower.endswith(_TEXT_SUFFIXES) or _is_sextractor_ascii(path):
+                if _is_sextractor_ascii(path):
+                    fmt = "ascii.sextractor"
+                else:
+                    fmt = ("ascii.ecsv" if lower.endswith(".ecsv")
+                           else "ascii.csv" if lower.endswith(".csv") else "ascii")
                 return Table.read(path, format=fmt)
             with fits.open(path, memmap=False) as hdul:
                 if hdu is None:
@@ -49,19 +113,24 @@ def _read_table(path, hdu):
                         tables = [i for i, h in enumerate(hdul)
                                   if isinstance(h, (fits.BinTableHDU, fits.TableHDU))]
                         if not tables:
-                            raise ValueError(
-                                f"{path!r} holds no table HDU: pass a FITS table or a CSV "
-                                "file with x, y columns."
+                            raise _FileError(
+                                f"{path!r} holds no table HDU: pass a FITS table, a SExtractor "
+                                "catalogue or a CSV file with x, y columns."
                             )
                         hdu = tables[0]
-                return Table.read(hdul[hdu])
+                table = Table.read(hdul[hdu])
+                header = _ldac_header(hdul)
+                if header is not None:
+                    table.meta["image_header"] = header
+                return table
     except _FileError:
         raise
-    except (ValueError, OSError, TypeError, KeyError, IndexError, EOFError, fits.VerifyError,
-            AstropyUserWarning) as exc:
+    except (ValueError, OSError, TypeError, KeyError, IndexError, EOFError,
+            fits.VerifyError) as exc:
         raise ValueError(
             f"Could not read the catalogue {path!r} ({type(exc).__name__}: "
-            f"{_one_line(exc)}); pass a complete FITS table or a CSV file with x, y columns."
+            f"{_one_line(exc)}); pass a complete FITS table, a SExtractor catalogue or a CSV "
+            "file with x, y columns."
         ) from None
 
 
@@ -78,8 +147,15 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
 
     Optional columns are copied under standard names: ``flux`` (``FLUX``, ``FLUX_AUTO``,
     ``FLUX_PSF``, ``FLUX_APER``), ``snr`` (``SNR``, ``SNR_WIN``, else ``FLUX_AUTO /
-    FLUXERR_AUTO``) and ``flags`` (``FLAGS``, ``FLAG``; non-zero skips the star when stamps
-    are cut). Other columns are kept as they are.
+    FLUXERR_AUTO``), ``flags`` (``FLAGS``, ``FLAG``; non-zero skips the star when stamps
+    are cut), ``peak`` (``FLUX_MAX``), ``flux_radius``, ``class_star``, ``spread_model``,
+    ``background`` (read by :func:`select_stars`). Other columns, e.g. ``VIGNET``, are kept
+    as they are.
+
+    Files: FITS tables (a FITS_LDAC catalogue's ``LDAC_OBJECTS``, its image header from
+    ``LDAC_IMHEAD`` in ``meta["image_header"]``), SExtractor ASCII catalogues (``#   1
+    NUMBER`` header lines, any suffix), CSV/ECSV and whitespace-separated text with a header
+    line. A non-standard FITS header is read with a :class:`FITSHeaderWarning`.
 
     Parameters
     ----------
@@ -148,7 +224,8 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
     if x.ndim != 1:
         raise ValueError(f"Column {xname!r} must hold one number per row.")
     out = Table({"x": x - 1.0 if base else x, "y": y - 1.0 if base else y})
-    for std, names in (("flux", _FLUX_COLUMNS), ("snr", _SNR_COLUMNS), ("flags", _FLAG_COLUMNS)):
+    for std, names in (("flux", _FLUX_COLUMNS), ("snr", _SNR_COLUMNS), ("flags", _FLAG_COLUMNS),
+                       *_MEASURED_COLUMNS):
         for name in names:
             if name in lower:
                 out[std] = np.asarray(table[lower[name]])
@@ -162,4 +239,6 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
                 and name not in out.colnames:
             out[name] = table[name]
     out.meta.update({"x_column": xname, "y_column": yname, "one_based": base})
+    if "image_header" in table.meta:
+        out.meta["image_header"] = table.meta["image_header"]
     return out

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import warnings
 
@@ -9,10 +10,41 @@ import numpy as np
 from astropy.io import fits
 from astropy.utils.exceptions import AstropyUserWarning
 
-__all__ = ["read_image"]
+__all__ = ["read_image", "FITSHeaderWarning"]
 
 _READ_ERRORS = (OSError, TypeError, KeyError, IndexError, ValueError, EOFError,
-                fits.VerifyError, AstropyUserWarning)
+                fits.VerifyError)
+
+
+class FITSHeaderWarning(UserWarning):
+    """A FITS header breaks the standard (e.g. ESO's ``ESO-LOG`` cards); it was read as is."""
+
+
+@contextlib.contextmanager
+def _tolerant_fits(path):
+    """Read FITS under this: a truncated file raises, a non-standard header only warns once.
+
+    astropy reports both as warnings; header problems never stop the reading (real
+    instruments write non-standard keywords), truncation does.
+    """
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield
+    header_notes = []
+    for w in caught:
+        text = _one_line(w.message)
+        if issubclass(w.category, AstropyUserWarning):
+            if "truncated" in text:
+                raise _FileError(f"Could not read {path!r} as FITS: {text}; the file is "
+                                 "incomplete.")
+            if "zero-based indexing" not in text and "Verification reported" not in text:
+                header_notes.append(text)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if header_notes:
+        warnings.warn(f"{path!r} has a non-standard FITS header, read as it is "
+                      f"({len(header_notes)} note(s), first: {header_notes[0][:160]})",
+                      FITSHeaderWarning, stacklevel=3)
 
 
 def _one_line(exc) -> str:
@@ -88,6 +120,12 @@ def read_image(path, hdu=None, weight_hdu=None):
         For a missing, corrupt or truncated file, an unknown HDU, an HDU that is not a 2-D
         image, or a weight map of another shape.
 
+    Warns
+    -----
+    FITSHeaderWarning
+        When a header breaks the FITS standard (non-standard keywords, malformed values): the
+        file is read as it is.
+
     Examples
     --------
     >>> import os, tempfile
@@ -107,8 +145,7 @@ def read_image(path, hdu=None, weight_hdu=None):
         raise ValueError(f"FITS file {path!r} does not exist.")
     key, wkey = _hdu_key(hdu), _hdu_key(weight_hdu)
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("error", AstropyUserWarning)  # "may have been truncated"
+        with _tolerant_fits(path):
             # every header is read: a truncated file fails here, whichever HDU is asked for
             with fits.open(path, memmap=False, lazy_load_hdus=False) as hdul:
                 chosen = _select(hdul, key, path, "image")

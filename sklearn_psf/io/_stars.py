@@ -8,32 +8,16 @@ from __future__ import annotations
 
 import numpy as np
 from astropy.table import Table
-from scipy.spatial import cKDTree
 
 from ..preprocessing import cut_stamps
 from ..preprocessing._stamps import CUT_BAD_POSITION, CUT_OFF_EDGE
+from ._select import SELECTION_REASONS, select_stars
 
 __all__ = ["find_stars", "extract_star_stamps", "StarStamps", "REJECTION_REASONS"]
-
-#: Why :func:`find_stars` drops a detection, in the order the cuts are applied (a detection
-#: is counted under the first cut it fails).
-SELECTION_REASONS = ("sep_flags", "low_snr", "saturated", "near_edge", "crowded", "off_locus",
-                     "bad_stamp")
 
 #: Why :func:`extract_star_stamps` skips a catalogue star, in order of precedence.
 REJECTION_REASONS = ("bad_position", "off_image", "edge", "catalog_flag", "masked", "nan",
                      "saturated")
-
-
-def _shorth_mode(values, fraction=0.2):
-    """Mode estimate: median of the shortest window holding ``fraction`` of the values."""
-    v = np.sort(np.asarray(values, dtype=np.float64))
-    m = max(3, int(np.ceil(fraction * v.size)))
-    if v.size <= m:
-        return float(np.median(v))
-    spans = v[m - 1:] - v[: v.size - m + 1]
-    i = int(np.argmin(spans))
-    return float(np.median(v[i:i + m]))
 
 
 def _bad_pixel_mask(data, weight):
@@ -114,32 +98,20 @@ def _find_stars(data, *, weight=None, stamp_size=25, detect_thresh=5.0, min_snr=
     aflux, aerr, aflag = sep.sum_circle(sub, xw, yw, half, err=rms, subpix=5, mask=mask)
     snr = np.where(aerr > 0, aflux / np.maximum(aerr, 1e-300), 0.0)
 
-    keep = np.ones(n_det, dtype=bool)
-
-    def cut(name, ok):
-        nonlocal keep
-        counts[name] += int(np.count_nonzero(keep & ~ok))
-        keep &= ok
-
-    cut("sep_flags", (objs["flag"] == 0) & (rflag == 0) & (wflag == 0) & (aflag == 0)
-        & np.isfinite(r_half) & (r_half > 0))
-    cut("low_snr", snr >= min_snr)
-    if saturation is not None:
-        cut("saturated", objs["peak"] + back[np.clip(np.round(y).astype(int), 0, ny - 1),
-                                             np.clip(np.round(x).astype(int), 0, nx - 1)]
-            < 0.9 * float(saturation))
-    margin = half + 2
-    cut("near_edge", (xw >= margin) & (xw <= nx - 1 - margin) & (yw >= margin)
-        & (yw <= ny - 1 - margin))
-    if n_det > 1:
-        tree = cKDTree(np.column_stack([x, y]))
-        d, _ = tree.query(np.column_stack([x, y]), k=2, p=np.inf)
-        cut("crowded", d[:, 1] >= isolation)
-    if np.count_nonzero(keep) >= 3:
-        locus = _shorth_mode(r_half[keep], 0.5)
-        cut("off_locus", np.abs(r_half / locus - 1.0) <= locus_width)
-    else:
-        locus = np.nan
+    sep_ok = ((objs["flag"] == 0) & (rflag == 0) & (wflag == 0) & (aflag == 0)
+              & np.isfinite(r_half) & (r_half > 0))
+    iy = np.clip(np.round(y).astype(int), 0, ny - 1)
+    ix = np.clip(np.round(x).astype(int), 0, nx - 1)
+    measured = Table({"x": xw, "y": yw, "flags": (~sep_ok).astype(np.int64), "snr": snr,
+                      "flux": aflux, "peak": objs["peak"], "background": back[iy, ix],
+                      "flux_radius": r_half})
+    # the crowding cut uses the detection positions (windowed ones may be NaN)
+    measured["x"][~np.isfinite(xw)] = x[~np.isfinite(xw)]
+    measured["y"][~np.isfinite(yw)] = y[~np.isfinite(yw)]
+    keep, cuts = select_stars(measured, min_snr=min_snr, saturation=saturation, stamp_size=s,
+                              image_shape=(ny, nx), isolation=isolation, locus_width=locus_width)
+    locus = cuts.pop("locus_radius")
+    counts.update(cuts)
     idx = np.flatnonzero(keep)
     if idx.size:
         _, flags = cut_stamps(sub, np.column_stack([xw[idx], yw[idx]]), s)
@@ -172,14 +144,14 @@ def find_stars(image, *, weight=None, stamp_size: int = 25, detect_thresh: float
     2. for each detection: half-light radius (``sep.flux_radius``), windowed centroid
        (``sep.winpos``), aperture S/N within the stamp radius (``sep.sum_circle``);
     3. cuts, in this order (a detection is counted under the first it fails, see
-       ``meta["rejected"]``): ``sep_flags`` (blended, truncated or failed measurement),
+       ``meta["rejected"]``): ``flags`` (blended, truncated or failed measurement),
        ``low_snr`` (S/N < ``min_snr``), ``saturated`` (peak + background >= 0.9 x
        ``saturation``), ``near_edge`` (closer than half a stamp + 2 pixels to an edge),
        ``crowded`` (another detection closer than ``isolation`` pixels along x and y: their
        stamps would overlap), ``off_locus`` (half-light radius more than ``locus_width``
-       (relative) from the stellar locus, the mode of the radii of the remaining sources:
-       galaxies are larger, cosmic rays smaller), ``bad_stamp`` (a stamp around the star
-       would hold a NaN or masked pixel).
+       (relative) from the stellar locus: galaxies are larger, cosmic rays smaller), as
+       :func:`select_stars` applies them, then ``bad_stamp`` (a stamp around the star would
+       hold a NaN or masked pixel).
 
     Parameters
     ----------
@@ -248,13 +220,17 @@ class StarStamps:
         used stars, else one of :data:`REJECTION_REASONS`).
     counts : dict
         ``{"input": n, "used": m, <reason>: count, ...}`` for every reason.
+    weights : ndarray of shape (m, s*s) or None
+        Pixel weights: inverse variance in the stamps' units, 0 for masked pixels; None when
+        no weight map was given.
     """
 
-    def __init__(self, positions, stamps, catalog, counts):
+    def __init__(self, positions, stamps, catalog, counts, weights=None):
         self.positions = positions
         self.stamps = stamps
         self.catalog = catalog
         self.counts = counts
+        self.weights = weights
 
     def __repr__(self):
         skipped = ", ".join(f"{k}={v}" for k, v in self.counts.items()
@@ -354,10 +330,13 @@ def extract_star_stamps(image, catalog, stamp_size: int = 25, *, weight=None,
         data = raw
     stamps, flags = cut_stamps(data, pos, s)
     raws, _ = cut_stamps(raw, pos, s)
+    wcube = None
     if weight is not None:
         bad_cube, _ = cut_stamps(bad.astype(np.float64) if bad is not None
                                  else np.zeros((ny, nx)), pos, s)
         bad_cube = np.nan_to_num(bad_cube, nan=0.0) > 0
+        wcube, _ = cut_stamps(np.asarray(weight, dtype=np.float64), pos, s)
+        wcube[bad_cube | ~np.isfinite(wcube)] = 0.0
     else:
         bad_cube = np.zeros(stamps.shape, dtype=bool)
     finite = np.isfinite(pos).all(axis=1)
@@ -409,4 +388,5 @@ def extract_star_stamps(image, catalog, stamp_size: int = 25, *, weight=None,
         raise ValueError(f"None of the {n} catalogue stars is usable ({skipped}).")
     cat["used"] = used
     cat["reason"] = np.asarray(reason, dtype=str)
-    return StarStamps(pos[used], stamps[used].reshape(-1, s * s), cat, counts)
+    return StarStamps(pos[used], stamps[used].reshape(-1, s * s), cat, counts,
+                      None if wcube is None else wcube[used].reshape(-1, s * s))

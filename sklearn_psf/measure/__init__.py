@@ -3,6 +3,7 @@
 from ._moments import (
     FLAG_BAD_PIXELS,
     FLAG_DIVERGED,
+    FLAG_MASKED,
     FLAG_MAX_ITER,
     FLAG_NO_FLUX,
     FLAG_OK,

@@ -22,11 +22,12 @@ __all__ = [
     "FLAG_NO_FLUX",
     "FLAG_DIVERGED",
     "FLAG_MAX_ITER",
+    "FLAG_MASKED",
 ]
 
 #: The measurement converged.
 FLAG_OK = 0
-#: The stamp holds NaN or infinite pixels (nothing is measured).
+#: An unmasked pixel of the stamp is infinite (nothing is measured).
 FLAG_BAD_PIXELS = 1
 #: The stamp holds no positive flux (all zero, or the weighted flux became non-positive).
 FLAG_NO_FLUX = 2
@@ -35,11 +36,17 @@ FLAG_NO_FLUX = 2
 FLAG_DIVERGED = 4
 #: The iteration did not converge within ``max_iter`` steps.
 FLAG_MAX_ITER = 8
+#: Masked pixels: every pixel of the stamp is masked (nothing is measured), or the iteration
+#: converged but more than ``max_masked_fraction`` of the star's core weight ``exp(-2 rho^2)``
+#: falls on masked pixels.
+FLAG_MASKED = 16
 
 try:  # the compiled kernel is used when numba is installed (much faster, same results)
     from ._moments_numba import iterate_numba as _iterate_numba
+    from ._moments_numba import mask_pixels_numba as _mask_pixels_numba
+    from ._moments_numba import masked_core_fraction_numba as _masked_fraction_numba
 except ImportError:  # pragma: no cover - depends on the environment
-    _iterate_numba = None
+    _iterate_numba = _masked_fraction_numba = _mask_pixels_numba = None
 
 #: Use the compiled kernel when available (tests switch it off to check the numpy path).
 _USE_NUMBA = _iterate_numba is not None
@@ -55,15 +62,72 @@ def _check_positive(name, value):
     return value
 
 
+def _masked_pixels(cube, weights):
+    """Return ``(stamps with masked pixels set to 0, boolean mask or None when none is masked)``.
+
+    A pixel is masked where its weight is 0 or its value is NaN; ``cube`` is not modified.
+    """
+    if weights is None:
+        masked = np.isnan(cube)
+    else:
+        w = as_stamps(weights, name="weights")
+        if w.shape != cube.shape:
+            raise ValueError(
+                f"weights must have the shape of the stamps ({cube.shape[0]} stamps of "
+                f"{cube.shape[1]}x{cube.shape[2]} pixels), got {w.shape[0]} stamps of "
+                f"{w.shape[1]}x{w.shape[2]} pixels."
+            )
+        if _USE_NUMBA:  # one pass instead of five; None when a weight is invalid
+            result = _mask_pixels_numba(cube, w)
+            valid = result is not None
+        else:  # two reductions instead of a per-pixel test (a NaN fails both comparisons)
+            valid = w.min(initial=0.0) >= 0 and w.max(initial=0.0) < np.inf
+        if not valid:
+            rows = np.flatnonzero(~(np.isfinite(w) & (w >= 0)).all(axis=(1, 2)))
+            raise ValueError(
+                f"weights hold negative, NaN or infinite values in rows {rows[:10].tolist()}"
+                f"{' ...' if rows.size > 10 else ''}: pass inverse variances >= 0, with 0 for "
+                "masked pixels."
+            )
+        if _USE_NUMBA:
+            return result
+        masked = np.isnan(cube) | (w == 0)
+    if not masked.any():
+        return cube, None
+    return np.where(masked, 0.0, cube), masked
+
+
+def _masked_core_fraction(masked, idx, x0, y0, mxx, mxy, myy, max_rho2):
+    """Fraction of the core weight ``exp(-2 rho^2)`` (where ``4 rho^2 < max_rho2``) on masked
+    pixels, for stamps ``idx``."""
+    s = masked.shape[1]
+    coords = np.arange(s, dtype=np.float64)
+    out = np.empty(idx.size)
+    chunk = max(1, _CHUNK_PIXELS // (s * s))
+    for start in range(0, idx.size, chunk):
+        j = idx[start:start + chunk]
+        det = (mxx[j] * myy[j] - mxy[j] ** 2)[:, None, None]
+        dx = coords[None, None, :] - x0[j, None, None]
+        dy = coords[None, :, None] - y0[j, None, None]
+        rho2 = 4.0 * (myy[j, None, None] * dx * dx - 2.0 * mxy[j, None, None] * dx * dy
+                      + mxx[j, None, None] * dy * dy) / det
+        w = np.where(rho2 < max_rho2, np.exp(-0.5 * rho2), 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out[start:start + j.size] = (w * masked[j]).sum(axis=(1, 2)) / w.sum(axis=(1, 2))
+    return out
+
+
 def adaptive_moments(
     stamps,
     *,
+    weights=None,
     guess_sigma: float = 5.0,
     guess_centroid=None,
     precision: float = 1e-6,
     max_iter: int = 400,
     max_moment: float = 8000.0,
     max_shift: float = 15.0,
+    max_masked_fraction: float = 0.5,
 ) -> Table:
     """Adaptive Gaussian-weighted moments of a batch of stamps.
 
@@ -83,10 +147,28 @@ def adaptive_moments(
     updated multiplicatively from pixel to pixel (a few ``exp`` per iteration instead of one
     per pixel): several times faster, same results to ~1e-8.
 
+    Masked pixels (weight 0, or a NaN value) are left out of every sum, which is what HSM does
+    with its bad-pixel mask (``FindAdaptiveMom(image, badpix=...)`` multiplies the image by the
+    mask): results agree with ``FindAdaptiveMom(image, badpix=mask)`` to ~1e-8. Positive weights
+    do not re-weight the sums: as in HSM, only whether a weight is zero matters (adaptive
+    moments weight pixels by the Gaussian only; an inverse-variance weight would change what is
+    measured, e.g. pull the moments of a bright star towards its low-variance wings). The value
+    of a masked pixel cannot bias the moments, but a mask over the core leaves too little of
+    the star (and the adaptive weight grows around the hole): a converged stamp is flagged
+    ``FLAG_MASKED`` when more than ``max_masked_fraction`` of its core weight, the Gaussian of
+    half the adaptive width ``exp(-2 rho^2)`` at the centroid summed over the stamp's pixels,
+    falls on masked pixels; so is a stamp whose pixels are all masked. With the default 0.5, a
+    masked 3x3 core is flagged on Gaussian stars of sigma up to ~1.8 px, 5x5 up to ~3 px; a
+    masked column through the centre of a star of sigma >= 1.2 px is not. Pass
+    ``max_masked_fraction=1`` to get HSM's moments whatever the mask.
+
     Parameters
     ----------
     stamps : array-like of shape (n, s, s) or (n, s*s)
-        Square stamps, background-subtracted. Not modified.
+        Square stamps, background-subtracted. Not modified. NaN pixels are masked.
+    weights : array-like of the shape of ``stamps`` (either layout), optional
+        Inverse variance of each pixel, 0 for a masked pixel; must be finite and >= 0. Only
+        the mask (weight 0) is used, see above. Default: no pixel masked except NaN ones.
     guess_sigma : float, default=5.0
         Initial width (pixels) of the round weight.
     guess_centroid : array-like of shape (2,) or (n, 2), optional
@@ -100,6 +182,9 @@ def adaptive_moments(
         Largest allowed |M_ij| (pixels^2) before a stamp is flagged ``FLAG_DIVERGED``.
     max_shift : float, default=15.0
         Largest allowed move of the centroid from its initial guess (pixels).
+    max_masked_fraction : float, default=0.5
+        Largest fraction, in (0, 1], of the core weight ``exp(-2 rho^2)`` that may fall on
+        masked pixels before a stamp is flagged ``FLAG_MASKED``.
 
     Returns
     -------
@@ -116,13 +201,15 @@ def adaptive_moments(
         - ``amplitude``: flux of the best-fitting Gaussian (GalSim's ``moments_amp``);
         - ``n_iter``: number of iterations;
         - ``flag``: 0 when the measurement converged, otherwise a bit mask of ``FLAG_*``
-          values. Flagged rows hold NaN in every float column: check ``flag`` (no exception is
-          raised for bad stamps in a batch).
+          values (``FLAG_BAD_PIXELS`` 1, ``FLAG_NO_FLUX`` 2, ``FLAG_DIVERGED`` 4,
+          ``FLAG_MAX_ITER`` 8, ``FLAG_MASKED`` 16). Flagged rows hold NaN in every float
+          column: check ``flag`` (no exception is raised for bad stamps in a batch).
 
     Raises
     ------
     ValueError
-        When stamps are not square or a parameter is out of range.
+        When stamps are not square, ``weights`` do not have the stamps' shape or hold
+        negative or non-finite values, or a parameter is out of range.
 
     Examples
     --------
@@ -135,6 +222,22 @@ def adaptive_moments(
     >>> t = adaptive_moments(img[None])
     >>> print(round(t["e1"][0], 4), round(t["e2"][0], 4), t["flag"][0])
     0.1429 0.2857 0
+
+    A bad column (weight 0, or NaN pixels) is left out of the sums whatever its values; a
+    mask over the core is flagged:
+
+    >>> w = np.ones_like(img)
+    >>> w[:, 14] = 0.0
+    >>> img_bad = img.copy()
+    >>> img_bad[:, 14] = 1e30                              # e.g. a saturated column
+    >>> t = adaptive_moments(img_bad[None], weights=w[None])
+    >>> img_bad[:, 14] = np.nan
+    >>> t_nan = adaptive_moments(img_bad[None])
+    >>> print(t["flag"][0], t_nan["flag"][0], t["e1"][0] == t_nan["e1"][0])
+    0 0 True
+    >>> w[9:16, 9:16] = 0.0
+    >>> print(adaptive_moments(img[None], weights=w[None])["flag"][0])
+    16
     """
     cube = as_stamps(stamps)
     n, s, _ = cube.shape
@@ -145,6 +248,10 @@ def adaptive_moments(
     if int(max_iter) != max_iter or max_iter < 1:
         raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}.")
     max_iter = int(max_iter)
+    max_masked_fraction = _check_positive("max_masked_fraction", max_masked_fraction)
+    if max_masked_fraction > 1:
+        raise ValueError(f"max_masked_fraction must be in (0, 1], got {max_masked_fraction!r}.")
+    cube, masked = _masked_pixels(cube, weights)
 
     x0 = np.full(n, (s - 1) / 2.0)
     y0 = np.full(n, (s - 1) / 2.0)
@@ -167,12 +274,14 @@ def adaptive_moments(
     n_iter = np.zeros(n, dtype=np.int64)
     flag = np.zeros(n, dtype=np.int64)
 
+    if masked is not None:
+        flag[masked.all(axis=(1, 2))] = FLAG_MASKED
     if not _USE_NUMBA:  # the compiled kernel makes these checks stamp by stamp
         finite = np.isfinite(cube).all(axis=(1, 2))
-        flag[~finite] |= FLAG_BAD_PIXELS
+        flag[~finite & (flag == 0)] |= FLAG_BAD_PIXELS
         nonzero = np.zeros(n, dtype=bool)
         nonzero[finite] = (cube[finite] != 0).any(axis=(1, 2))
-        flag[finite & ~nonzero] |= FLAG_NO_FLUX
+        flag[finite & ~nonzero & (flag == 0)] |= FLAG_NO_FLUX
 
     # Pixels whose weight is below precision / 10 are ignored (as HSM does).
     max_rho2 = -2.0 * np.log(precision / 10.0)
@@ -192,6 +301,11 @@ def adaptive_moments(
                      precision, max_iter, max_moment, max_shift)
         for key, val in sub.items():
             state[key][idx] = val
+    if masked is not None:  # converged stamps with masked pixels: how much of the star is left
+        idx = np.flatnonzero((flag == 0) & masked.any(axis=(1, 2)))
+        fraction = (_masked_fraction_numba if _USE_NUMBA else _masked_core_fraction)(
+            masked, idx, x0, y0, mxx, mxy, myy, max_rho2)
+        flag[idx[~(fraction <= max_masked_fraction)]] |= FLAG_MASKED
 
     good = flag == 0
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -202,3 +202,67 @@ def iterate_numba(cube, todo, state, max_rho2, precision, max_iter, max_moment, 
         state["n_iter"], state["flag"], float(max_rho2), float(precision), int(max_iter),
         float(max_moment), float(max_shift),
     )
+
+
+@njit(cache=True, nogil=True)
+def _masked_fraction_loop(masked, idx, x0, y0, mxx, mxy, myy, max_rho2, out):  # pragma: no cover
+    s = masked.shape[1]
+    for t in range(idx.shape[0]):
+        n = idx[t]
+        det = mxx[n] * myy[n] - mxy[n] * mxy[n]
+        ixx, ixy, iyy = myy[n] / det, -mxy[n] / det, mxx[n] / det
+        half_h = 0.5 * math.sqrt(max_rho2 * myy[n])  # 4 rho^2 < max_rho2
+        half_w = 0.5 * math.sqrt(max_rho2 * mxx[n])
+        total = 0.0
+        lost = 0.0
+        for i in range(max(0, int(math.ceil(y0[n] - half_h))),
+                       min(s - 1, int(math.floor(y0[n] + half_h))) + 1):
+            dy = i - y0[n]
+            for j in range(max(0, int(math.ceil(x0[n] - half_w))),
+                           min(s - 1, int(math.floor(x0[n] + half_w))) + 1):
+                dx = j - x0[n]
+                rho2 = 4.0 * (ixx * dx * dx + 2.0 * ixy * dx * dy + iyy * dy * dy)
+                if rho2 < max_rho2:
+                    w = math.exp(-0.5 * rho2)
+                    total += w
+                    if masked[n, i, j]:
+                        lost += w
+        out[t] = lost / total if total > 0.0 else math.nan
+
+
+def masked_core_fraction_numba(masked, idx, x0, y0, mxx, mxy, myy, max_rho2):
+    """Fraction of the core weight ``exp(-2 rho^2)`` (where ``4 rho^2 < max_rho2``) on masked
+    pixels, for stamps ``idx`` (as ``_moments._masked_core_fraction``)."""
+    out = np.empty(idx.shape[0])
+    _masked_fraction_loop(masked, np.ascontiguousarray(idx, np.int64), x0, y0, mxx, mxy, myy,
+                          float(max_rho2), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _mask_loop(cube, weights, clean, masked):  # pragma: no cover - compiled
+    n_masked = 0
+    valid = True
+    for k in range(cube.shape[0]):
+        for i in range(cube.shape[1]):
+            for j in range(cube.shape[2]):  # branch-free: vectorised by the compiler
+                v = cube[k, i, j]
+                w = weights[k, i, j]
+                valid &= (w >= 0.0) & (w < math.inf)  # False for NaN
+                m = (w == 0.0) | (v != v)
+                masked[k, i, j] = m
+                clean[k, i, j] = 0.0 if m else v
+                n_masked += m
+    return n_masked if valid else -1
+
+
+def mask_pixels_numba(cube, weights):
+    """As ``_moments._masked_pixels`` with weights, in one pass: ``(clean, masked)``, ``(cube,
+    None)`` when no pixel is masked, ``None`` when a weight is negative or not finite."""
+    cube = np.ascontiguousarray(cube, dtype=np.float64)
+    clean = np.empty_like(cube)
+    masked = np.empty(cube.shape, dtype=np.bool_)
+    n_masked = _mask_loop(cube, np.ascontiguousarray(weights, dtype=np.float64), clean, masked)
+    if n_masked < 0:
+        return None
+    return (clean, masked) if n_masked else (cube, None)

@@ -1,6 +1,7 @@
 """Diagnostics of PSF models: ellipticity correlation functions, scorers, lensing systematics."""
 
 from ._correlation import CorrelationResult, EmptyBinsWarning, ellipticity_correlation, rho1
+from ._rho import RHO_NAMES, rho_statistics
 from ._scorers import (
     CoefficientRMSScorer,
     EllipticityRMSScorer,
@@ -46,12 +47,14 @@ __all__ = [
     "DEFAULT_COSMOLOGY",
     "ELL_RANGE",
     "EmptyBinsWarning",
+    "RHO_NAMES",
     "RequirementCurves",
     "SURVEYS",
     "ellipticity_correlation",
     "hankel_xi_to_cl",
     "requirement_curves",
     "rho1",
+    "rho_statistics",
     "shear_bias_bound",
     "shear_cl",
     "sigma_sys2",

@@ -103,6 +103,7 @@ def ellipticity_correlation(
     e2_2=None,
     x_units: str | None = None,
     sep_units: str | None = None,
+    sky: bool = False,
     bin_slop: float | None = None,
     num_threads: int | None = None,
 ) -> CorrelationResult:
@@ -128,6 +129,10 @@ def ellipticity_correlation(
     x_units, sep_units : str, optional
         Angular units of ``X`` and of the separations ("arcsec", "arcmin", "deg", "rad"), passed
         to TreeCorr; give both or neither. With neither, separations are in the units of ``X``.
+    sky : bool, default=False
+        ``X`` (and ``X2``) hold (RA, Dec) in ``x_units`` (default "deg"): TreeCorr's spherical
+        catalogues, separations are great-circle angles in ``sep_units`` (default "arcmin").
+        The ellipticities must then be in the sky frame (e1 along RA).
     bin_slop : float, optional
         TreeCorr's binning accuracy (0 = exact pair binning, slow for large n). None uses
         TreeCorr's default, which is fast and accurate to a fraction of the bin width.
@@ -167,25 +172,34 @@ def ellipticity_correlation(
     second = [v is not None for v in (X2, e1_2, e2_2)]
     if any(second) and not all(second):
         raise ValueError("For a cross-correlation give all of X2, e1_2 and e2_2 (or none).")
+    if sky:
+        x_units, sep_units = x_units or "deg", sep_units or "arcmin"
     if (x_units is None) != (sep_units is None):
         raise ValueError(
             "Give both x_units and sep_units (angular positions) or neither (separations in the "
             "units of X)."
         )
     units = {} if x_units is None else {"x_units": x_units, "y_units": x_units}
+
+    def catalog(P, g1, g2):
+        if sky:
+            return treecorr.Catalog(ra=P[:, 0], dec=P[:, 1], ra_units=x_units,
+                                    dec_units=x_units, g1=g1, g2=g2)
+        return treecorr.Catalog(x=P[:, 0], y=P[:, 1], g1=g1, g2=g2, **units)
+
     config = {"min_sep": min_sep, "max_sep": max_sep, "nbins": nbins}
     if sep_units is not None:
         config["sep_units"] = sep_units
     if bin_slop is not None:
         config["bin_slop"] = float(bin_slop)
 
-    cat1 = treecorr.Catalog(x=X[:, 0], y=X[:, 1], g1=e1, g2=e2, **units)
+    cat1 = catalog(X, e1, e2)
     gg = treecorr.GGCorrelation(**config)
     if all(second):
         X2 = _check_positions(X2, "X2")
         e1_2 = _check_component(e1_2, X2.shape[0], "e1_2")
         e2_2 = _check_component(e2_2, X2.shape[0], "e2_2")
-        cat2 = treecorr.Catalog(x=X2[:, 0], y=X2[:, 1], g1=e1_2, g2=e2_2, **units)
+        cat2 = catalog(X2, e1_2, e2_2)
         gg.process(cat1, cat2, num_threads=num_threads)
     else:
         gg.process(cat1, num_threads=num_threads)
@@ -228,6 +242,7 @@ def rho1(
     nbins: int,
     x_units: str | None = None,
     sep_units: str | None = None,
+    sky: bool = False,
     bin_slop: float | None = None,
     num_threads: int | None = None,
 ) -> CorrelationResult:
@@ -243,12 +258,16 @@ def rho1(
         Positions where both ellipticities are measured (galaxy-PSFs, not the fitted stars).
     e1_true, e2_true, e1_model, e2_model : array-like of shape (n,)
         Measured and modelled ellipticity components.
-    min_sep, max_sep, nbins, x_units, sep_units, bin_slop, num_threads
+    min_sep, max_sep, nbins, x_units, sep_units, sky, bin_slop, num_threads
         As in :func:`ellipticity_correlation`.
 
     Returns
     -------
     result : CorrelationResult
+
+    See Also
+    --------
+    rho_statistics : rho1 to rho5.
 
     Examples
     --------
@@ -274,6 +293,7 @@ def rho1(
         nbins=nbins,
         x_units=x_units,
         sep_units=sep_units,
+        sky=sky,
         bin_slop=bin_slop,
         num_threads=num_threads,
     )

@@ -128,6 +128,15 @@ class _ResidualScorer:
         )
         return X[mask], de1, de2
 
+    def _residual_correlation(self, estimator, X, y, scale=1.0):
+        """D1 of the residuals in bins of the separation of ``X * scale`` (empty bins NaN)."""
+        Xk, de1, de2 = self._residuals(estimator, X, y)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", category=EmptyBinsWarning)
+            return ellipticity_correlation(Xk * scale, de1, de2, min_sep=self.min_sep,
+                                           max_sep=self.max_sep, nbins=self.nbins,
+                                           bin_slop=self.bin_slop, num_threads=self.num_threads)
+
     def __repr__(self):
         params = ", ".join(f"{k}={v!r}" for k, v in vars(self).items())
         return f"{type(self).__name__}({params})"
@@ -159,13 +168,8 @@ class Rho1Scorer(_ResidualScorer):
         self.num_threads = num_threads
 
     def __call__(self, estimator, X, y) -> float:
-        Xk, de1, de2 = self._residuals(estimator, X, y)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", category=EmptyBinsWarning)  # NaN bins dropped
-            res = ellipticity_correlation(Xk, de1, de2, min_sep=self.min_sep,
-                                          max_sep=self.max_sep, nbins=self.nbins,
-                                          bin_slop=self.bin_slop, num_threads=self.num_threads)
-        return -_reduce(res.xi, self.statistic)
+        res = self._residual_correlation(estimator, X, y)
+        return -_reduce(res.xi, self.statistic)  # NaN (empty) bins dropped
 
 
 class EllipticityRMSScorer(_ResidualScorer):
@@ -223,13 +227,7 @@ class SigmaSysScorer(_ResidualScorer):
         self.num_threads = num_threads
 
     def __call__(self, estimator, X, y) -> float:
-        Xk, de1, de2 = self._residuals(estimator, X, y)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", category=EmptyBinsWarning)
-            res = ellipticity_correlation(Xk * self.arcmin_per_unit, de1, de2,
-                                          min_sep=self.min_sep, max_sep=self.max_sep,
-                                          nbins=self.nbins, bin_slop=self.bin_slop,
-                                          num_threads=self.num_threads)
+        res = self._residual_correlation(estimator, X, y, scale=self.arcmin_per_unit)
         good = np.isfinite(res.xi)
         if good.sum() < 2:
             raise ValueError(

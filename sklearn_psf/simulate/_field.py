@@ -1,26 +1,23 @@
 """Mock PSF field images (Berge et al. 2012, section 3).
 
-The conventions (PSF model, positions, S/N, seeds) are documented in
+The conventions (PSF model, positions, S/N, contaminants, weights, seeds) are documented in
 :mod:`sklearn_psf.simulate`.
 """
 
 from __future__ import annotations
 
-import numbers
 import os
-import warnings
 
 import numpy as np
 from astropy.io import fits
 from astropy.table import Table
-from scipy.spatial import cKDTree
 
+from ..datasets._reference import ReferenceBasis, _version
 from ..measure import adaptive_moments
 from ..preprocessing import StampNormalizer, cut_stamps
 from ._random_field import RandomFieldSampler, as_generator
-from ._reference import ReferenceBasis, _version
 
-__all__ = ["PSFField", "make_psf_field", "realistic_snr", "core_mask"]
+__all__ = ["PSFField", "realistic_snr", "core_mask"]
 
 _FIELD_FORMAT = "SKPSF-FIELD"
 
@@ -86,70 +83,16 @@ def core_mask(stamps, fraction: float = 0.5) -> np.ndarray:
     return s >= fraction * s.max(axis=1, keepdims=True)
 
 
-def _check_int(name, value, minimum):
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise TypeError(f"{name} must be an integer, got {value!r}.")
-    if value < minimum:
-        raise ValueError(f"{name} must be >= {minimum}, got {value}.")
-    return int(value)
-
-
-def _grid_positions(n, lo, hi_x, hi_y, stamp):
-    """About n integer points on a regular grid inside [lo, hi_x] x [lo, hi_y]."""
-    wx, wy = hi_x - lo + 1, hi_y - lo + 1
-    ncol = max(1, int(round(np.sqrt(n * wx / wy))))
-    nrow = max(1, int(round(n / ncol)))
-    xs = np.floor(lo + (np.arange(ncol) + 0.5) * wx / ncol)
-    ys = np.floor(lo + (np.arange(nrow) + 0.5) * wy / nrow)
-    if (ncol > 1 and np.min(np.diff(xs)) < stamp) or (nrow > 1 and np.min(np.diff(ys)) < stamp):
-        raise ValueError(
-            f"A grid of {n} galaxy-PSFs is too dense for the image: neighbouring stamps of side "
-            f"{stamp} would overlap. Use fewer galaxy-PSFs or a larger image."
-        )
-    gx, gy = np.meshgrid(xs, ys)
-    return np.column_stack([gx.ravel(), gy.ravel()])
-
-
-def _draw_positions(n, fixed, lo, hi_x, hi_y, stamp, rng, what):
-    """n random integer positions, no stamp overlapping ``fixed`` or each other."""
-    placed = [np.asarray(fixed, dtype=np.float64).reshape(-1, 2)]
-    need = n
-    for _ in range(200):
-        if need == 0:
-            break
-        m = int(need * 1.3) + 16
-        cand = np.column_stack([rng.integers(lo, hi_x + 1, m), rng.integers(lo, hi_y + 1, m)])
-        cand = cand.astype(np.float64)
-        existing = np.concatenate(placed)
-        if len(existing):
-            d, _ = cKDTree(existing).query(cand, p=np.inf)
-            cand = cand[d >= stamp]
-        if len(cand) > 1:
-            pairs = cKDTree(cand).query_pairs(stamp - 0.5, p=np.inf, output_type="ndarray")
-            if len(pairs):
-                keep = np.ones(len(cand), dtype=bool)
-                keep[pairs.max(axis=1)] = False
-                cand = cand[keep]
-        cand = cand[:need]
-        placed.append(cand)
-        need -= len(cand)
-    if need:
-        raise ValueError(
-            f"Could not place {n} non-overlapping {what} of stamp side {stamp} on the image: "
-            "use fewer objects, smaller stamps or a larger image."
-        )
-    return np.concatenate(placed[1:]) if n else np.zeros((0, 2))
-
-
 class PSFField:
-    """A simulated PSF field: image, truth tables and the basis it was built from.
+    """A simulated PSF field: image, weight map, truth tables and the basis it was built from.
 
     Made by :func:`make_psf_field`; saved and read with :meth:`save` / :meth:`load`.
 
     Attributes
     ----------
     image : ndarray of shape (ny, nx), float32
-        Stars (and galaxy-PSFs) plus Gaussian background noise; zero background level.
+        Stars (and galaxy-PSFs, contaminants) plus noise; zero background level. Masked
+        pixels hold ``mask_value`` (0 by default), saturated ones the saturation level.
     noise_rms : float
         Background rms of the image.
     pixel_scale : float
@@ -157,15 +100,26 @@ class PSFField:
     reference : ReferenceBasis
         The basis of the simulated PSFs (force it on the model, as in the paper).
     stars, galaxies : astropy.table.Table
-        Truth: ``x``, ``y`` (integer pixel centres), ``stamp`` (normalised noiseless stamp,
-        shape (s*s,) per row), ``coeffs`` (its coefficients in the basis), ``e1``, ``e2``,
-        ``sigma`` (adaptive moments of the true stamp), ``moments_flag``, ``snr`` and
-        ``flux`` as rendered (0 for galaxy-PSFs not rendered).
+        Truth: ``x``, ``y`` (exact positions, float; sub-pixel by default), ``stamp``
+        (normalised, centred noiseless stamp, shape (s*s,) per row), ``coeffs`` (its
+        coefficients in the basis), ``e1``, ``e2``, ``sigma`` (adaptive moments of the true
+        stamp), ``moments_flag``, ``snr`` and ``flux`` as rendered (0 for galaxy-PSFs not
+        rendered). ``stars`` also has ``contaminant`` (str, "" for a clean star, else
+        "cosmic_ray", "neighbour", "galaxy" or "binary") and ``contaminant_snr`` (square
+        root of the chi^2 the contaminant adds to the star's stamp; 0 when clean).
+    contaminants : astropy.table.Table
+        One row per injected contaminant: ``kind`` (the four kinds above, "field_galaxy",
+        "field_cosmic_ray"), ``star`` (row in ``stars``, -1 away from stars), ``x``, ``y``
+        (neighbour/companion/track/galaxy position), ``flux``, ``size`` (half-light radius
+        of a galaxy, separation of a neighbour or companion, length of a track, pixels),
+        ``snr`` (as ``contaminant_snr``; NaN away from stars).
     meta : dict
-        ``seed`` (int or None), ``slope``, ``grid_size``, ``galaxy_layout``, ``version``.
+        ``seed`` (int or None), ``slope``, ``smallest_scale`` (arcsec), ``cell`` (pixels),
+        ``galaxy_layout``, ``subpixel``, ``gain``, ``saturation``, ``version``.
     """
 
-    def __init__(self, image, noise_rms, pixel_scale, reference, stars, galaxies, meta=None):
+    def __init__(self, image, noise_rms, pixel_scale, reference, stars, galaxies, meta=None,
+                 *, weight=None, contaminants=None):
         self.image = image
         self.noise_rms = float(noise_rms)
         self.pixel_scale = float(pixel_scale)
@@ -173,11 +127,25 @@ class PSFField:
         self.stars = stars
         self.galaxies = galaxies
         self.meta = dict(meta or {})
+        self._weight = weight
+        self.contaminants = contaminants if contaminants is not None else Table(
+            {"kind": np.zeros(0, dtype="U16"), "star": np.zeros(0, dtype=np.int64)})
 
     @property
     def stamp_size(self) -> int:
         """Side of the stamps."""
         return self.reference.stamp_size
+
+    @property
+    def weight(self) -> np.ndarray:
+        """Weight map (ny, nx), float32: inverse variance of each pixel, 0 = masked/saturated.
+
+        ``1 / noise_rms^2`` everywhere for a field without masks, saturation or ``gain``
+        (built on each access: keep a reference rather than asking twice for a large image).
+        """
+        if self._weight is not None:
+            return self._weight
+        return np.full(self.image.shape, 1.0 / self.noise_rms**2, dtype=np.float32)
 
     def __repr__(self) -> str:
         ny, nx = self.image.shape
@@ -185,38 +153,149 @@ class PSFField:
                 f"n_galaxies={len(self.galaxies)}, stamp_size={self.stamp_size}, "
                 f"noise_rms={self.noise_rms:.4g})")
 
-    def star_stamps(self, normalize: bool = True):
+    def _positions(self):
+        return np.column_stack([self.stars["x"], self.stars["y"]]).astype(np.float64)
+
+    def star_stamps(self, normalize: bool | None = None, *, return_weights: bool = False):
         """Stamps of the stars cut from the image (as for real data), not from the truth.
+
+        Stamps are cut centred on the nearest pixel of each star (``cut_stamps``), with the
+        weight map, so that a masked pixel in a star's core flags it (``CUT_MASKED``).
 
         Parameters
         ----------
-        normalize : bool, default=True
-            Normalise with ``StampNormalizer`` (unit flux, centred). Stamps flagged by
-            ``cut_stamps`` are left as cut (they are not normalised).
+        normalize : bool, optional
+            Normalise with ``StampNormalizer`` (unit flux, adaptive centroid moved to the
+            stamp centre). Stamps flagged by ``cut_stamps`` are left as cut. Default True,
+            or False with ``return_weights`` (raw stamps go with their weights).
+        return_weights : bool, default=False
+            Also return the weight stamps.
 
         Returns
         -------
         stamps : ndarray of shape (n_stars, s*s)
+        weights : ndarray of shape (n_stars, s*s)
+            Only with ``return_weights``: inverse variance of each raw pixel, 0 = masked
+            (and for NaN pixels).
         flags : ndarray of shape (n_stars,)
             ``cut_stamps`` flags (0 = clean).
+
+        Raises
+        ------
+        ValueError
+            For ``normalize=True`` with ``return_weights=True`` (weights are those of the
+            raw stamps).
+
+        Examples
+        --------
+        >>> from sklearn_psf.simulate import make_psf_field
+        >>> field = make_psf_field(n_stars=10, n_galaxies=0, image_shape=(300, 400),
+        ...                        masked_fraction=0.01, random_state=0)
+        >>> stamps, weights, flags = field.star_stamps(return_weights=True)
+        >>> stamps.shape == weights.shape, bool((weights == 0).any())
+        (True, True)
         """
+        if normalize is None:
+            normalize = not return_weights
+        if normalize and return_weights:
+            raise ValueError("The weights are those of the raw stamps: call star_stamps("
+                             "normalize=False, return_weights=True).")
         s = self.stamp_size
-        pos = np.column_stack([self.stars["x"], self.stars["y"]])
-        stamps, flags = cut_stamps(self.image, pos, s)
+        pos = self._positions()
+        stamps, flags = cut_stamps(self.image, pos, s, weight=self._weight)
         flat = stamps.reshape(len(pos), s * s)
         good = flags == 0
         if normalize and good.any():
             flat[good] = StampNormalizer(flux=True, center=True).fit_transform(flat[good])
-        return flat, flags
+        if not return_weights:
+            return flat, flags
+        if self._weight is None:
+            w = np.full(flat.shape, 1.0 / self.noise_rms**2)
+        else:
+            w = cut_stamps(self._weight, pos, s)[0].reshape(flat.shape)
+        w[~np.isfinite(flat) | ~np.isfinite(w)] = 0.0
+        return flat, w, flags
+
+    def coefficient_noise_var(self) -> np.ndarray:
+        """True noise variance of each star's coefficients, from its pixel noise.
+
+        Linear propagation of the pixel variances (``1 / weight``, background and, with
+        ``gain``, the source's Poisson noise) through the flux normalisation and the
+        projection on the basis: ``sum_p (c_ip - c_i . T)^2 var_p / F^2`` for component
+        c_i, truth stamp T and flux F. The noise of the centring (the centroid measured on
+        the noisy stamp) is not included: it adds ~10-30% at the default S/N (tested).
+        Masked pixels are left out.
+
+        Returns
+        -------
+        var : ndarray of shape (n_stars, n_components)
+
+        Examples
+        --------
+        >>> from sklearn_psf.simulate import make_psf_field
+        >>> field = make_psf_field(n_stars=5, n_galaxies=0, image_shape=(300, 400),
+        ...                        snr=[50.0, 100.0, 100.0, 200.0, 400.0], random_state=0)
+        >>> v = field.coefficient_noise_var()
+        >>> v.shape, bool(v[0, 0] > v[1, 0] > v[3, 0] > v[4, 0])
+        ((5, 5), True)
+        """
+        k = self.reference.n_components
+        comps = self.reference.components.reshape(k, -1)
+        truth = np.asarray(self.stars["stamp"], dtype=np.float64)
+        _, w, _ = self.star_stamps(normalize=False, return_weights=True)
+        var = np.where(w > 0, 1.0 / np.where(w > 0, w, 1.0), 0.0)
+        proj = truth @ comps.T  # (n, k): c_i . T
+        flux = np.asarray(self.stars["flux"], dtype=np.float64)
+        out = np.empty((len(truth), k))
+        for i in range(k):
+            out[:, i] = np.sum((comps[i][None, :] - proj[:, i:i + 1]) ** 2 * var, axis=1)
+        return out / flux[:, None] ** 2
+
+    def weight_covariance(self, positions_a, positions_b=None) -> np.ndarray:
+        """True covariance of the PSF weights (PCA coefficients) between positions.
+
+        Weight i at position r is ``coeff_mean_i + coeff_std_i * g_i(r)`` with independent
+        random fields g_i of covariance :meth:`RandomFieldSampler.covariance` (the
+        simulation's power spectrum, grid and interpolation); the weights of different
+        components are uncorrelated. The true coefficients of ``stars``/``galaxies`` are
+        those weights up to the normalisation and centring of the synthesised stamp (a
+        small non-linear change), so this is the covariance a best linear unbiased predictor
+        of the coefficients needs (with :meth:`coefficient_noise_var` for the noise).
+
+        Parameters
+        ----------
+        positions_a : array-like of shape (n_a, 2)
+            (x, y) pixel positions.
+        positions_b : array-like of shape (n_b, 2), optional
+            Default ``positions_a``.
+
+        Returns
+        -------
+        cov : ndarray of shape (n_components, n_a, n_b)
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from sklearn_psf.simulate import make_psf_field
+        >>> field = make_psf_field(n_stars=5, n_galaxies=0, image_shape=(600, 800),
+        ...                        random_state=0)
+        >>> c = field.weight_covariance(np.array([[100.0, 100.0], [400.0, 300.0]]))
+        >>> c.shape
+        (5, 2, 2)
+        """
+        sampler = RandomFieldSampler(self.image.shape, 0, self.meta.get("slope", 11 / 4),
+                                     cell=self.meta["cell"])
+        k = sampler.covariance(positions_a, positions_b)
+        return self.reference.coeff_std[:, None, None] ** 2 * k[None]
 
     def measure_stars(self) -> Table:
         """Measure the stars on the image with the real-data pipeline.
 
         Stamps are cut at the star positions, normalised, projected on the reference basis
         (``reference.as_transformer``) and measured with adaptive moments. The S/N is measured
-        the paper's way from the data alone: mean of the raw stamp's pixels at or above half
-        its peak, over the background rms estimated from the image (1.4826 x median absolute
-        deviation).
+        the paper's way from the data alone: mean of the pixels at or above half the peak of
+        the normalised (centred) stamp scaled by the raw stamp's sum, over the background rms
+        estimated from the image (1.4826 x median absolute deviation).
 
         Returns
         -------
@@ -235,8 +314,8 @@ class PSFField:
         (20, True)
         """
         s = self.stamp_size
-        pos = np.column_stack([self.stars["x"], self.stars["y"]]).astype(np.float64)
-        raw, flags = cut_stamps(self.image, pos, s)
+        pos = self._positions()
+        raw, flags = cut_stamps(self.image, pos, s, weight=self._weight)
         raw = raw.reshape(len(pos), s * s)
         n, k = len(pos), self.reference.n_components
         stamps = np.full((n, s * s), np.nan)
@@ -254,8 +333,11 @@ class PSFField:
             mom = adaptive_moments(norm)
             e1[good], e2[good], sig[good] = mom["e1"], mom["e2"], mom["sigma"]
             mflag[good] = mom["flag"]
-            core = core_mask(raw[good])
-            snr[good] = (raw[good] * core).sum(axis=1) / core.sum(axis=1) / rms
+            # on the centred stamp at the star's flux: the definition's pixels, whatever the
+            # sub-pixel offset
+            centred = norm * raw[good].sum(axis=1, keepdims=True)
+            core = core_mask(centred)
+            snr[good] = (centred * core).sum(axis=1) / core.sum(axis=1) / rms
         return Table({"x": pos[:, 0], "y": pos[:, 1], "stamp": stamps, "coeffs": coeffs,
                       "e1": e1, "e2": e2, "sigma": sig, "snr": snr, "cut_flag": flags,
                       "moments_flag": mflag})
@@ -265,7 +347,10 @@ class PSFField:
         """Write the field to FITS: image (primary), STARS, GALAXIES tables, REF_* basis.
 
         Header keywords of the primary HDU: PIXSCALE, NOISERMS, SEED (-1 if the field was not
-        made from an int seed), SLOPE, GRIDSIZE, LAYOUT, STAMPSZ, SKPSFVER.
+        made from an int seed), SLOPE, SMLSCALE (smallest scale, arcsec), CELL (pixels),
+        SUBPIXEL, GAIN and SATURATE (when set), LAYOUT, STAMPSZ, SKPSFVER. Extensions: STARS,
+        GALAXIES, CONTAMINANTS, WEIGHT (only when the field has masks, saturation or gain),
+        REF_* (the basis).
 
         Parameters
         ----------
@@ -281,15 +366,25 @@ class PSFField:
         seed = self.meta.get("seed")
         h["SEED"] = (-1 if seed is None else int(seed), "random_state (int) of the simulation")
         h["SLOPE"] = (float(self.meta.get("slope", np.nan)), "power spectrum slope")
-        h["GRIDSIZE"] = (int(self.meta.get("grid_size", -1)), "random field grid cells")
+        h["SMLSCALE"] = (float(self.meta.get("smallest_scale", np.nan)),
+                         "smallest scale of the PSF variations (arcsec)")
+        h["CELL"] = (float(self.meta.get("cell", np.nan)), "random field grid cell (pixels)")
+        h["SUBPIXEL"] = (bool(self.meta.get("subpixel", False)), "sub-pixel positions")
+        for key, name in (("GAIN", "gain"), ("SATURATE", "saturation")):
+            if self.meta.get(name) is not None:
+                h[key] = float(self.meta[name])
         h["LAYOUT"] = (str(self.meta.get("galaxy_layout", "")), "galaxy-PSF layout")
         h["STAMPSZ"] = (self.stamp_size, "stamp side in pixels")
         stars = fits.table_to_hdu(self.stars)
         stars.name = "STARS"
         gals = fits.table_to_hdu(self.galaxies)
         gals.name = "GALAXIES"
-        fits.HDUList([primary, stars, gals, *self.reference.to_hdus("REF_")]).writeto(
-            os.fspath(path), overwrite=overwrite)
+        contam = fits.table_to_hdu(self.contaminants)
+        contam.name = "CONTAMINANTS"
+        extra = [] if self._weight is None else [fits.ImageHDU(self._weight, name="WEIGHT")]
+        fits.HDUList([primary, stars, gals, contam, *extra,
+                      *self.reference.to_hdus("REF_")]).writeto(os.fspath(path),
+                                                                overwrite=overwrite)
 
     @classmethod
     def load(cls, path) -> "PSFField":
@@ -316,10 +411,19 @@ class PSFField:
                 gals = Table.read(hdul["GALAXIES"])
                 ref = ReferenceBasis.from_hdulist(hdul, prefix="REF_")
                 seed = int(h["SEED"])
+                cell = h.get("CELL")
+                if cell is None:  # files of version <= 0.x: the grid size
+                    cell = (max(image.shape) - 1) / (int(h["GRIDSIZE"]) - 1)
                 meta = {"seed": None if seed < 0 else seed, "slope": h["SLOPE"],
-                        "grid_size": h["GRIDSIZE"], "galaxy_layout": h["LAYOUT"],
+                        "smallest_scale": float(cell) * h["PIXSCALE"], "cell": float(cell),
+                        "subpixel": bool(h.get("SUBPIXEL", False)), "gain": h.get("GAIN"),
+                        "saturation": h.get("SATURATE"), "galaxy_layout": h["LAYOUT"],
                         "version": h["SKPSFVER"]}
-                return cls(image, h["NOISERMS"], h["PIXSCALE"], ref, stars, gals, meta)
+                weight = (np.array(hdul["WEIGHT"].data, dtype=np.float32)
+                          if "WEIGHT" in hdul else None)
+                contam = Table.read(hdul["CONTAMINANTS"]) if "CONTAMINANTS" in hdul else None
+                return cls(image, h["NOISERMS"], h["PIXSCALE"], ref, stars, gals, meta,
+                           weight=weight, contaminants=contam)
         except ValueError:
             raise
         except (OSError, TypeError, KeyError, IndexError, fits.VerifyError) as exc:
@@ -336,233 +440,3 @@ def _robust_rms(image) -> float:
     return float(1.4826 * np.median(np.abs(sample - np.median(sample))))
 
 
-def _truth(reference, positions, sampler, normalizer, basis):
-    n = len(positions)
-    s2 = reference.stamp_size ** 2
-    if n == 0:
-        k = reference.n_components
-        return np.zeros((0, s2)), np.zeros((0, k)), Table(
-            {"e1": np.zeros(0), "e2": np.zeros(0), "sigma": np.zeros(0),
-             "flag": np.zeros(0, dtype=np.int64)})
-    weights = reference.coeff_mean + reference.coeff_std * sampler(positions)
-    stamps = normalizer.transform(reference.synthesize(weights))
-    coeffs = basis.transform(stamps)
-    return stamps, coeffs, adaptive_moments(stamps)
-
-
-def _table(positions, stamps, coeffs, mom, snr, flux):
-    return Table({
-        "x": positions[:, 0], "y": positions[:, 1], "stamp": stamps, "coeffs": coeffs,
-        "e1": np.asarray(mom["e1"], dtype=np.float64), "e2": np.asarray(mom["e2"], dtype=np.float64),
-        "sigma": np.asarray(mom["sigma"], dtype=np.float64),
-        "moments_flag": np.asarray(mom["flag"], dtype=np.int64),
-        "snr": np.asarray(snr, dtype=np.float64), "flux": np.asarray(flux, dtype=np.float64),
-    })
-
-
-def _render(image, positions, stamps, flux):
-    if len(positions) == 0:
-        return
-    s = int(round(np.sqrt(stamps.shape[1])))
-    h = s // 2
-    off = np.arange(-h, h + 1)
-    rows = positions[:, 1].astype(np.intp)[:, None, None] + off[None, :, None]
-    cols = positions[:, 0].astype(np.intp)[:, None, None] + off[None, None, :]
-    values = (stamps * flux[:, None]).reshape(-1, s, s).astype(np.float32)
-    np.add.at(image, (rows, cols), values)
-
-
-def make_psf_field(
-    reference: ReferenceBasis | None = None,
-    n_stars: int = 1000,
-    n_galaxies: int = 2000,
-    galaxy_layout: str = "random",
-    snr=100.0,
-    image_shape=(7769, 10032),
-    pixel_scale: float | None = None,
-    stamp_size: int | None = None,
-    star_positions=None,
-    slope: float = 11 / 4,
-    random_state=None,
-    *,
-    galaxy_snr: float | None = 1000.0,
-    noise_rms: float | None = None,
-    grid_size: int = 256,
-) -> PSFField:
-    """Simulate a PSF field image with stars and galaxy-PSFs (Berge et al. 2012, sect. 3).
-
-    See the module documentation (:mod:`sklearn_psf.simulate`) for the conventions: PSF model,
-    integer-pixel positions without overlap, S/N definition, seeds.
-
-    Parameters
-    ----------
-    reference : ReferenceBasis, optional
-        Basis of the PSFs; default :func:`sklearn_psf.datasets.load_default_reference`.
-    n_stars : int, default=1000
-        Number of stars at random positions (ignored when ``star_positions`` is given).
-    n_galaxies : int, default=2000
-        Number of galaxy-PSFs (about that number for the grid layout).
-    galaxy_layout : {"random", "grid"}, default="random"
-    snr : float or array-like of shape (n_stars,), default=100
-        S/N of every star (> 0); see :func:`realistic_snr` for the paper's distribution.
-    image_shape : tuple (ny, nx), default=(7769, 10032)
-        The paper's Subaru image: 10,032 x 7,769 pixels.
-    pixel_scale : float, optional
-        Arcsec per pixel; default the reference's (0.2 for the default reference).
-    stamp_size : int, optional
-        Odd stamp side; default the reference's. Larger values zero-pad the basis.
-    star_positions : array-like of shape (n, 2), optional
-        (x, y) star positions, e.g. ``reference.positions``; rounded to the nearest pixel;
-        every stamp must lie inside the image.
-    slope : float, default=11/4
-        Power-spectrum slope of the weights' random fields.
-    random_state : None, int, SeedSequence or Generator
-        Seed (see the module documentation).
-    galaxy_snr : float or None, default=1000
-        S/N of the galaxy-PSFs drawn in the image; None leaves them out of the image.
-    noise_rms : float, optional
-        Background rms; default the reference image's, else 1.
-    grid_size : int, default=256
-        Random-field grid cells along the longer side of the image.
-
-    Returns
-    -------
-    PSFField
-
-    Raises
-    ------
-    ValueError
-        For n_stars < 1, snr <= 0 or of the wrong length, stars off the image, stamps larger
-        than the image, or more objects than fit without overlap.
-
-    Examples
-    --------
-    >>> from sklearn_psf.simulate import make_psf_field
-    >>> field = make_psf_field(n_stars=50, n_galaxies=40, image_shape=(1000, 1200),
-    ...                        random_state=42)
-    >>> field.image.shape, field.image.dtype, len(field.stars), len(field.galaxies)
-    ((1000, 1200), dtype('float32'), 50, 40)
-    >>> field.stars["stamp"].shape == (50, field.stamp_size ** 2)
-    True
-    """
-    if reference is None:
-        from ..datasets import load_default_reference
-
-        reference = load_default_reference()
-    if not isinstance(reference, ReferenceBasis):
-        raise TypeError(f"reference must be a ReferenceBasis, got {type(reference).__name__}.")
-    if stamp_size is not None and int(stamp_size) != reference.stamp_size:
-        reference = reference.padded(stamp_size)
-    s = reference.stamp_size
-    h = s // 2
-    try:
-        ny, nx = (int(v) for v in image_shape)
-    except (TypeError, ValueError):
-        raise ValueError(f"image_shape must be (ny, nx), got {image_shape!r}.") from None
-    if ny < s or nx < s:
-        raise ValueError(
-            f"The stamp side {s} is larger than the image {image_shape}: use a larger image."
-        )
-    if galaxy_layout not in ("random", "grid"):
-        raise ValueError(f"galaxy_layout must be 'random' or 'grid', got {galaxy_layout!r}.")
-    n_galaxies = _check_int("n_galaxies", n_galaxies, 0)
-    lo, hi_x, hi_y = h, nx - 1 - h, ny - 1 - h
-
-    fixed_stars = None
-    if star_positions is not None:
-        sp = np.array(star_positions, dtype=np.float64, copy=True)
-        if sp.ndim != 2 or sp.shape[1] != 2:
-            raise ValueError(f"star_positions must have shape (n, 2), got {sp.shape}.")
-        if not np.all(np.isfinite(sp)):
-            raise ValueError("star_positions hold NaN or infinite values.")
-        sp = np.floor(sp + 0.5)
-        off = (sp[:, 0] < lo) | (sp[:, 0] > hi_x) | (sp[:, 1] < lo) | (sp[:, 1] > hi_y)
-        if off.any():
-            raise ValueError(
-                f"{np.count_nonzero(off)} of the star_positions are off the image or closer than "
-                f"half a stamp ({h} pixels) to its edge (image shape {(ny, nx)}, x = column): "
-                "drop them or use a larger image."
-            )
-        if len(sp) > 1:
-            close = cKDTree(sp).query_pairs(s - 0.5, p=np.inf, output_type="ndarray")
-            if len(close):
-                warnings.warn(
-                    f"{len(close)} pairs of the given star_positions are closer than a stamp "
-                    f"({s} pixels): their stamps overlap in the image.", UserWarning,
-                    stacklevel=2)
-        fixed_stars = sp
-        n_stars = len(sp)
-    n_stars = _check_int("n_stars", n_stars, 1)
-
-    snr_arr = np.array(snr, dtype=np.float64, copy=True)
-    if snr_arr.ndim == 0:
-        snr_arr = np.full(n_stars, float(snr_arr))
-    if snr_arr.shape != (n_stars,):
-        raise ValueError(f"snr must be a number or an array of {n_stars} values, got shape "
-                         f"{snr_arr.shape}.")
-    if not np.all(np.isfinite(snr_arr) & (snr_arr > 0)):
-        raise ValueError("snr must be positive and finite (S/N = mean of the star's pixels / "
-                         "background rms).")
-    if galaxy_snr is not None and not (np.isfinite(galaxy_snr) and galaxy_snr > 0):
-        raise ValueError(f"galaxy_snr must be positive or None, got {galaxy_snr}.")
-    if noise_rms is None:
-        noise_rms = reference.noise_rms if reference.noise_rms else 1.0
-    noise_rms = float(noise_rms)
-    if not (np.isfinite(noise_rms) and noise_rms > 0):
-        raise ValueError(f"noise_rms must be positive, got {noise_rms}.")
-    pixel_scale = reference.pixel_scale if pixel_scale is None else float(pixel_scale)
-
-    seed = int(random_state) if isinstance(random_state, numbers.Integral) else None
-    rng = as_generator(random_state)
-    field_rng, star_rng, gal_rng, noise_rng = rng.spawn(4)
-
-    # positions: fixed ones first, then random ones avoiding everything placed before
-    grid = None
-    if galaxy_layout == "grid" and n_galaxies:
-        grid = _grid_positions(n_galaxies, lo, hi_x, hi_y, s)
-        if fixed_stars is not None:
-            d, _ = cKDTree(fixed_stars).query(grid, p=np.inf)
-            clash = d < s
-            if clash.any():
-                warnings.warn(f"{np.count_nonzero(clash)} grid galaxy-PSFs overlapping the given "
-                              "star positions were removed.", UserWarning, stacklevel=2)
-                grid = grid[~clash]
-    fixed = np.zeros((0, 2)) if grid is None else grid
-    if fixed_stars is None:
-        star_pos = _draw_positions(n_stars, fixed, lo, hi_x, hi_y, s, star_rng, "stars")
-    else:
-        star_pos = fixed_stars
-    if grid is None:
-        gal_pos = _draw_positions(n_galaxies, star_pos, lo, hi_x, hi_y, s, gal_rng,
-                                  "galaxy-PSFs")
-    else:
-        gal_pos = grid
-
-    sampler = RandomFieldSampler((ny, nx), reference.n_components, slope, grid_size, field_rng)
-    normalizer = StampNormalizer(flux=True, center=True).fit(reference.mean.reshape(1, -1))
-    basis = reference.as_transformer(normalize=False)
-    star_stamps, star_coeffs, star_mom = _truth(reference, star_pos, sampler, normalizer, basis)
-    gal_stamps, gal_coeffs, gal_mom = _truth(reference, gal_pos, sampler, normalizer, basis)
-
-    def flux_for(stamps, target):
-        core = core_mask(stamps)
-        return target * noise_rms / ((stamps * core).sum(axis=1) / core.sum(axis=1))
-
-    star_flux = flux_for(star_stamps, snr_arr)
-    if galaxy_snr is None:
-        gal_snr, gal_flux = np.zeros(len(gal_pos)), np.zeros(len(gal_pos))
-    else:
-        gal_snr = np.full(len(gal_pos), float(galaxy_snr))
-        gal_flux = flux_for(gal_stamps, gal_snr) if len(gal_pos) else np.zeros(0)
-
-    image = noise_rng.standard_normal((ny, nx), dtype=np.float32)
-    image *= np.float32(noise_rms)
-    _render(image, star_pos, star_stamps, star_flux)
-    if galaxy_snr is not None:
-        _render(image, gal_pos, gal_stamps, gal_flux)
-
-    stars = _table(star_pos, star_stamps, star_coeffs, star_mom, snr_arr, star_flux)
-    galaxies = _table(gal_pos, gal_stamps, gal_coeffs, gal_mom, gal_snr, gal_flux)
-    meta = {"seed": seed, "slope": float(slope), "grid_size": int(grid_size),
-            "galaxy_layout": galaxy_layout, "version": _version()}
-    return PSFField(image, noise_rms, pixel_scale, reference, stars, galaxies, meta)

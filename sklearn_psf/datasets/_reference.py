@@ -1,5 +1,9 @@
 """The reference basis of the simulations: PCA of the stars of a (real) reference image.
 
+It lives in :mod:`sklearn_psf.datasets` (the data) and is re-exported by
+:mod:`sklearn_psf.simulate` (which builds fields from it); ``datasets`` never imports
+``simulate``.
+
 Berge et al. (2012), section 3: stars are extracted from a reference image with SExtractor, their
 normalised stamps are decomposed by PCA keeping 90% of the variance, and the principal
 components are the basis from which mock PSFs are built; the spread of each component's
@@ -189,7 +193,8 @@ class ReferenceBasis:
     # ------------------------------------------------------------------ building
     @classmethod
     def from_stamps(cls, stamps, *, variance: float = 0.9, positions=None, image_shape=None,
-                    pixel_scale: float = 0.2, noise_rms=None, normalize: bool = True):
+                    pixel_scale: float = 0.2, noise_rms=None, normalize: bool = True,
+                    n_components: int | None = None):
         """PCA basis of star stamps.
 
         Parameters
@@ -203,6 +208,8 @@ class ReferenceBasis:
         normalize : bool, default=True
             Normalise the stamps with ``StampNormalizer(flux=True, center=True)`` first (pass
             False only for stamps that are already normalised).
+        n_components : int, optional
+            Keep exactly this many components instead of a fraction of the variance.
 
         Returns
         -------
@@ -211,7 +218,7 @@ class ReferenceBasis:
         Examples
         --------
         >>> import numpy as np
-        >>> from sklearn_psf.simulate import ReferenceBasis
+        >>> from sklearn_psf.datasets import ReferenceBasis
         >>> y, x = np.mgrid[0:15, 0:15] - 7.0
         >>> rng = np.random.default_rng(0)
         >>> q = rng.normal(0.0, 0.1, (30, 1, 1))
@@ -233,8 +240,13 @@ class ReferenceBasis:
         flat = cube.reshape(n, s * s)
         if normalize:
             flat = StampNormalizer(flux=True, center=True).fit_transform(flat)
-        pca = PCA(n_components=float(variance) if float(variance) < 1 else None,
-                  svd_solver="full")
+        keep = float(variance) if float(variance) < 1 else None
+        if n_components is not None:
+            keep = int(n_components)
+            if keep != n_components or not 1 <= keep <= min(n, s * s):
+                raise ValueError(f"n_components must be an integer in [1, {min(n, s * s)}] "
+                                 f"(stars, pixels), got {n_components!r}.")
+        pca = PCA(n_components=keep, svd_solver="full")
         coeffs = pca.fit_transform(flat)
         return cls(
             components=pca.components_,
@@ -252,7 +264,8 @@ class ReferenceBasis:
     def from_image(cls, image, *, stamp_size: int = 25, variance: float = 0.9,
                    pixel_scale=None, hdu=None, detect_thresh: float = 5.0,
                    min_snr: float = 50.0, saturation=None, isolation=None,
-                   locus_width: float = 0.1, min_stars: int = 5):
+                   locus_width: float = 0.1, min_stars: int = 5,
+                   n_components: int | None = None):
         """Extract stars from an image with ``sep`` and build their PCA basis.
 
         Steps (the same for a real image and a simulated one; 1 to 3 are the package's star
@@ -296,6 +309,8 @@ class ReferenceBasis:
             Relative half-width of the stellar locus in half-light radius.
         min_stars : int, default=5
             Fewer selected stars raise a ValueError.
+        n_components : int, optional
+            Keep exactly this many components (see :meth:`from_stamps`).
 
         Returns
         -------
@@ -362,6 +377,7 @@ class ReferenceBasis:
         ref = cls.from_stamps(
             stamps, variance=variance, positions=positions,
             image_shape=(ny, nx), pixel_scale=pixel_scale, noise_rms=rms,
+            n_components=n_components,
         )
         ref.catalog = Table(
             {name: np.asarray(stars[name]) for name in
