@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from .._validation import as_stamps
@@ -63,7 +65,8 @@ def estimate_pixel_weights(stamps, *, border: int = 2, pooled: bool = True):
     ring = np.ones((s, s), dtype=bool)
     ring[border:s - border, border:s - border] = False
     edge = cube[:, ring]
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN stamps: handled below
         med = np.nanmedian(edge, axis=1, keepdims=True)
         sigma = _MAD_TO_SIGMA * np.nanmedian(np.abs(edge - med), axis=1)
         peak = np.nanmax(np.abs(cube.reshape(n, -1)), axis=1)

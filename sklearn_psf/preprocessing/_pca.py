@@ -26,6 +26,7 @@ FIT_NO_CENTROID = 1
 FIT_NO_FLUX = 2
 
 _CHUNK = 256  # stars per batch of shifted basis images
+_REFINE_STEPS = 3  # Gauss-Newton steps on the offsets of stars with masked pixels
 
 
 class StampFitWarning(UserWarning):
@@ -239,25 +240,53 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
 
     # -- the weighted least-squares fit of stamps on the basis ------------------------------
     def _fit_stamps(self, d, w, offsets, mean, comps, s):
-        """Per-star flux, coefficients and their covariance; the model stamps."""
+        """Per-star flux, coefficients, their covariance, the model stamps and the offsets.
+
+        Stars with masked pixels get their offsets refined by Gauss-Newton steps on the same
+        weighted least-squares problem: adaptive moments of a stamp with a hole are biased
+        towards the side that is left, a fit of the basis is not.
+        """
         n, p = d.shape
         basis = np.vstack([mean[None, :], comps]).reshape(-1, s, s)
         basis_fft = np.fft.rfft2(basis)
+        ky = 2j * np.pi * np.fft.fftfreq(s)[None, None, :, None]
+        kx = 2j * np.pi * np.fft.rfftfreq(s)[None, None, None, :]
         m = basis.shape[0]
+        offsets = offsets.copy()
         a = np.full((n, m), np.nan)
         cov = np.full((n, m, m), np.nan)
         model = np.zeros((n, p))
+        masked = (w == 0).any(axis=1)
         for start in range(0, n, _CHUNK):
             sl = slice(start, min(start + _CHUNK, n))
-            A = _shifted(basis_fft, _phase(s, offsets[sl, 0], offsets[sl, 1]))  # (b, m, p)
-            Aw = A * w[sl, None, :]
-            normal = np.einsum("bip,bjp->bij", Aw, A)
-            rhs = np.einsum("bip,bp->bi", Aw, d[sl])
-            inv = np.linalg.pinv(normal, hermitian=True)
-            a[sl] = np.einsum("bij,bj->bi", inv, rhs)
-            cov[sl] = inv
-            model[sl] = np.einsum("bi,bip->bp", a[sl], A)
-        return a, cov, model
+            refine = masked[sl]
+            for step in range(1 + _REFINE_STEPS * bool(refine.any())):
+                phase = _phase(s, offsets[sl, 0], offsets[sl, 1])
+                A = _shifted(basis_fft, phase)  # (b, m, p)
+                if step > 0:
+                    # d(model)/d(offset): minus the spatial derivative of the shifted model
+                    mfft = np.einsum("bi,iyx->byx", a[sl], basis_fft)[:, None] * phase[:, None]
+                    grad = -np.fft.irfft2(np.concatenate([mfft * kx, mfft * ky], axis=1),
+                                          s=(s, s)).reshape(-1, 2, p)
+                    G = np.concatenate([A, grad], axis=1)
+                    Gw = G * w[sl, None, :]
+                    resid = d[sl] - model[sl]
+                    sol = np.einsum("bij,bj->bi",
+                                    np.linalg.pinv(np.einsum("bip,bjp->bij", Gw, G),
+                                                   hermitian=True),
+                                    np.einsum("bip,bp->bi", Gw, resid))
+                    move = np.clip(sol[:, m:], -0.5, 0.5) * refine[:, None]
+                    offsets[sl] += move
+                    phase = _phase(s, offsets[sl, 0], offsets[sl, 1])
+                    A = _shifted(basis_fft, phase)
+                Aw = A * w[sl, None, :]
+                normal = np.einsum("bip,bjp->bij", Aw, A)
+                rhs = np.einsum("bip,bp->bi", Aw, d[sl])
+                inv = np.linalg.pinv(normal, hermitian=True)
+                a[sl] = np.einsum("bij,bj->bi", inv, rhs)
+                cov[sl] = inv
+                model[sl] = np.einsum("bi,bip->bp", a[sl], A)
+        return a, cov, model, offsets
 
     @staticmethod
     def _coefficients(a, cov):
@@ -353,7 +382,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
             n_eff = float(u.sum() ** 2 / (u**2).sum())
             k, edge = self._choose(lam, total, noise, n_eff, p)
             comps = axes[:k]
-            a, cov, model = self._fit_stamps(d, w, offsets, mean, comps, s)
+            a, cov, model, offsets = self._fit_stamps(d, w, offsets, mean, comps, s)
             flux_new, _, _, good = self._coefficients(a, cov)
             usable = ok & good
             if usable.sum() < 2:
@@ -388,7 +417,8 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         check_is_fitted(self)
         d, w, s = self._stamps_and_weights(X, weights, reset=False)
         offsets, ok = self._centroids(d, w, s)
-        a, cov, model = self._fit_stamps(d, w, offsets, self.mean_, self.components_, s)
+        a, cov, model, offsets = self._fit_stamps(d, w, offsets, self.mean_,
+                                                  self.components_, s)
         flux, coef, var, good = self._coefficients(a, cov)
         flag = np.where(ok, FIT_OK, FIT_NO_CENTROID)
         flag[~good] = FIT_NO_FLUX
