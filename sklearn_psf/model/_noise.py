@@ -108,7 +108,7 @@ def _solve_floor(statistic, target):
     return hi
 
 
-def coefficient_residuals(X, coef, predicted, noise_var, n_neighbors=20):
+def coefficient_residuals(X, coef, predicted, noise_var, reference=None, n_neighbors=20):
     """Standardised coefficient residuals against their cross-prediction.
 
     The variance of a residual is the star's coefficient noise plus the interpolation error
@@ -116,26 +116,38 @@ def coefficient_residuals(X, coef, predicted, noise_var, n_neighbors=20):
     component it is the larger of a global ``tau_k^2`` — the smallest value that brings the
     80th percentile of ``r^2 / (noise_var + tau_k^2)`` down to that of a chi^2 with one degree
     of freedom — and the same statistic over its ``n_neighbors`` nearest other stars (the
-    80th percentile of their noise-free squared residuals, scaled to a chi^2_1).
+    80th percentile of their noise-free squared residuals, scaled to a chi^2_1). Floors come
+    from the ``reference`` stars (boolean mask; default all).
     """
     r = coef - predicted
     var = np.zeros_like(r) if noise_var is None else noise_var
+    ref = np.ones(len(r), dtype=bool) if reference is None else np.asarray(reference, bool)
+    rr, vr = r[ref], var[ref]
     target = float(stats.chi2.ppf(_FLOOR_QUANTILE, 1))
     tau2 = np.array([
-        _solve_floor(lambda t, k=k: np.quantile(r[:, k] ** 2 / np.maximum(var[:, k] + t, 1e-300),
+        _solve_floor(lambda t, k=k: np.quantile(rr[:, k] ** 2 / np.maximum(vr[:, k] + t, 1e-300),
                                                 _FLOOR_QUANTILE), target)
         for k in range(r.shape[1])
     ])
-    m = min(n_neighbors, len(X) - 1)
+    m = min(n_neighbors, int(ref.sum()) - 1)
     if m >= 5:
-        _, idx = cKDTree(X).query(X, k=m + 1)
-        excess = np.maximum(r**2 - var, 0.0)[idx[:, 1:]]  # (n, m, k), the star itself left out
+        _, idx = cKDTree(X[ref]).query(X, k=m + 1)
+        # each star's m nearest reference stars other than itself
+        own = np.flatnonzero(ref)[idx] == np.arange(len(X))[:, None]
+        idx = _drop_self(idx, own, m)
+        excess = np.maximum(rr**2 - vr, 0.0)[idx]  # (n, m, k)
         local = np.quantile(excess, _FLOOR_QUANTILE, axis=1) / target
         tau2 = np.maximum(tau2, local)
     return r / np.sqrt(np.maximum(var + tau2, 1e-300)), tau2
 
 
-def pixel_residuals(stamps, model, weights):
+def _drop_self(idx, own, m):
+    """The first m neighbour indices of each row, leaving out the row's own star."""
+    order = np.argsort(own, axis=1, kind="stable")  # own (True) last
+    return np.take_along_axis(idx, order, axis=1)[:, :m]
+
+
+def pixel_residuals(stamps, model, weights, reference=None):
     """Standardised pixel residuals of stars against their own fit, NaN on masked pixels.
 
     The variance of a pixel is ``1 / w + eps^2 model^2``: the relative model error ``eps``
@@ -149,7 +161,8 @@ def pixel_residuals(stamps, model, weights):
     m2 = model**2
     dof = np.maximum(good.sum(axis=1), 1)
     snr2 = np.where(good, weights * m2, 0.0).sum(axis=1)
-    bright = snr2 >= np.median(snr2)
+    ref = np.ones(len(stamps), dtype=bool) if reference is None else np.asarray(reference, bool)
+    bright = ref & (snr2 >= np.median(snr2[ref]))
 
     def reduced(t):
         return np.quantile((r2[bright] / (inv_w[bright] + t * m2[bright])).sum(axis=1)

@@ -16,7 +16,7 @@ from ..preprocessing import (
     IQROutlierDetector,
     StampNormalizer,
 )
-from ..preprocessing._noise import _rows_text
+from .._validation import rows_text
 from ._defaults import (
     make_default_basis,
     make_default_interpolator,
@@ -265,8 +265,8 @@ class PSFModel(RegressorMixin, BaseEstimator):
             if usable.sum() < k + 2:
                 raise ValueError(f"{int(usable.sum())} usable stars are too few for a basis of "
                                  f"{k} components: need at least {k + 2}.")
-            inliers, score = self._reject(detector, X, y, coef, var, usable, interp,
-                                          stamp_fit)
+            inliers, score = self._reject(detector, X, y, coef, var, usable & keep, usable,
+                                          interp, stamp_fit)
             if round_ == 1 or not noise_aware or (inliers == keep).all():
                 break
             keep = inliers  # fit the basis again without the rejected stars
@@ -275,7 +275,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
             warnings.warn(
                 f"{int((~usable).sum())} stars could not be fitted on the basis (no centroid "
                 f"or no positive flux) and were left out: rows "
-                f"{_rows_text(np.flatnonzero(~usable))}.", UnusableStarsWarning, stacklevel=2)
+                f"{rows_text(np.flatnonzero(~usable))}.", UnusableStarsWarning, stacklevel=2)
         kept = int(mask.sum())
         if kept < 2:
             raise ValueError(
@@ -307,7 +307,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
         bad = np.isnan(y).any(axis=1)
         if bad.any():
             raise ValueError(
-                f"Stamps with NaN (masked) pixels at rows {_rows_text(np.flatnonzero(bad))}: "
+                f"Stamps with NaN (masked) pixels at rows {rows_text(np.flatnonzero(bad))}: "
                 f"this model's basis ({type(basis).__name__}) cannot mask pixels; use a "
                 "noise-aware basis such as StampPCA (the default) or drop those stars."
             )
@@ -315,7 +315,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
         if nonpos.any():
             raise ValueError(
                 f"Stamps with non-positive total flux at rows "
-                f"{_rows_text(np.flatnonzero(nonpos))}: they are not star stamps."
+                f"{rows_text(np.flatnonzero(nonpos))}: they are not star stamps."
             )
 
     @staticmethod
@@ -335,8 +335,13 @@ class PSFModel(RegressorMixin, BaseEstimator):
         coef = coef.reshape(len(y), -1)
         return coef, None, np.zeros(len(y), dtype=np.int64), None
 
-    def _reject(self, detector, X, y, coef, var, usable, interp, stamp_fit):
-        """Inlier mask over all stars and the detector's score (NaN where unusable)."""
+    def _reject(self, detector, X, y, coef, var, trusted, usable, interp, stamp_fit):
+        """Inlier mask over all stars and the detector's score (NaN where unusable).
+
+        The chi^2 test's references (cross-predictions, model-error floors) come from the
+        ``trusted`` stars only (the inliers of the previous round); every usable star is
+        judged against them.
+        """
         n = len(X)
         if detector is None:
             return np.ones(n, dtype=bool), None
@@ -349,17 +354,22 @@ class PSFModel(RegressorMixin, BaseEstimator):
             if hasattr(detector, "score_samples"):
                 score[idx] = detector.score_samples(coef[idx])
             return inliers, score
-        noise = None if var is None else var[idx]
-        full = fit_interpolator(clone(interp), X[idx], coef[idx], noise)
-        frozen = freeze_auto(interp, full)
-        predicted = cross_predict(frozen, X[idx], coef[idx], noise, self.cv, self.random_state)
-        z_coef, _ = coefficient_residuals(X[idx], coef[idx], predicted, noise)
+        ref = trusted[idx]
+        train = idx[ref]
+        noise = None if var is None else var[train]
+        full = fit_interpolator(clone(interp), X[train], coef[train], noise)
+        predicted = np.asarray(full.predict(X[idx]), dtype=np.float64).reshape(len(idx), -1)
+        predicted[ref] = cross_predict(freeze_auto(interp, full), X[train], coef[train], noise,
+                                       self.cv, self.random_state)
+        z_coef, _ = coefficient_residuals(X[idx], coef[idx], predicted,
+                                          None if var is None else var[idx], reference=ref)
         detector.fit(z_coef)
         ok = detector.predict(z_coef) == 1
         score[idx] = detector.score_samples(z_coef)
         if stamp_fit is not None:
             z_pix, _ = pixel_residuals(np.where(np.isnan(y[idx]), 0.0, y[idx]),
-                                       stamp_fit.model[idx], stamp_fit.weights[idx])
+                                       stamp_fit.model[idx], stamp_fit.weights[idx],
+                                       reference=ref)
             pix = clone(detector).fit(z_pix)
             ok &= pix.predict(z_pix) == 1
             score[idx] = np.minimum(score[idx], pix.score_samples(z_pix))

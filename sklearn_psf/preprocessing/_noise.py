@@ -6,19 +6,12 @@ import warnings
 
 import numpy as np
 
-from .._validation import as_stamps
+from .._validation import as_stamps, rows_text
 
 __all__ = ["estimate_pixel_weights", "check_pixel_weights"]
 
 _MAD_TO_SIGMA = 1.4826
 
-
-def _rows_text(rows, limit=10):
-    rows = [int(r) for r in rows]
-    text = ", ".join(map(str, rows[:limit]))
-    if len(rows) > limit:
-        text += f", ... ({len(rows)} rows)"
-    return text
 
 
 def estimate_pixel_weights(stamps, *, border: int = 2, pooled: bool = True):
@@ -112,7 +105,7 @@ def check_pixel_weights(weights, n_stamps: int, n_pixels: int, stamps=None):
     if bad.any():
         raise ValueError(
             f"weights hold negative, NaN or infinite values at rows "
-            f"{_rows_text(np.flatnonzero(bad))}: pass inverse variances >= 0, with 0 for "
+            f"{rows_text(np.flatnonzero(bad))}: pass inverse variances >= 0, with 0 for "
             "masked pixels."
         )
     if stamps is not None:

@@ -13,7 +13,8 @@ from sklearn.utils.validation import check_is_fitted, validate_data
 
 from ..measure import adaptive_moments
 from ._normalize import fourier_shift
-from ._noise import _rows_text, check_pixel_weights, estimate_pixel_weights
+from .._validation import rows_text
+from ._noise import check_pixel_weights, estimate_pixel_weights
 
 __all__ = ["StampPCA", "StampFit", "StampFitWarning", "FIT_OK", "FIT_NO_CENTROID",
            "FIT_NO_FLUX"]
@@ -200,13 +201,18 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
     def _stamps_and_weights(self, X, weights, reset):
         X = validate_data(self, X, dtype=np.float64, reset=reset, ensure_all_finite="allow-nan")
         n, p = X.shape
+        if reset and n < 2:
+            raise ValueError(f"StampPCA needs at least 2 stamps, got n_samples = {n}.")
+        if p < 9:
+            raise ValueError(f"StampPCA needs stamps of at least 3x3 pixels, got n_features = "
+                             f"{p}.")
         s = int(round(np.sqrt(p)))
         if s * s != p:
             raise ValueError(f"Stamps have {p} pixels, not a square number: pass flattened "
                              "square stamps of shape (n, s*s).")
         if np.isinf(X).any():
             rows = np.flatnonzero(np.isinf(X).any(axis=1))
-            raise ValueError(f"Stamps with infinite pixels at rows {_rows_text(rows)}: mask "
+            raise ValueError(f"Stamps with infinite pixels at rows {rows_text(rows)}: mask "
                              "them (NaN or weight 0).")
         if weights is None:
             w = estimate_pixel_weights(X)
@@ -215,7 +221,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         empty = ~(w > 0).any(axis=1)
         if empty.any():
             raise ValueError(f"Stamps with every pixel masked at rows "
-                             f"{_rows_text(np.flatnonzero(empty))}.")
+                             f"{rows_text(np.flatnonzero(empty))}.")
         d = np.where(w > 0, X, 0.0)
         return d, w, s
 
@@ -341,8 +347,6 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         self._check_params()
         d, w, s = self._stamps_and_weights(X, weights, reset=True)
         n, p = d.shape
-        if n < 2:
-            raise ValueError(f"StampPCA needs at least 2 stamps, got n_samples = {n}.")
         offsets, ok = self._centroids(d, w, s)
         flux = (d * (w > 0)).sum(axis=1)
         usable = ok & (flux > 0)
@@ -488,7 +492,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         fit = self.project(X, weights)
         bad = fit.flag == FIT_NO_FLUX
         if bad.any():
-            warnings.warn(f"Stamps at rows {_rows_text(np.flatnonzero(bad))} have no positive "
+            warnings.warn(f"Stamps at rows {rows_text(np.flatnonzero(bad))} have no positive "
                           "flux on the basis: their coefficients are NaN.", StampFitWarning,
                           stacklevel=2)
         return fit.coefficients
