@@ -54,7 +54,9 @@ def _add_fit_parsers(sub):
         "SPREAD_MODEL/CLASS_STAR, size-magnitude locus), cut their stamps with the weight map "
         "(or take the catalogue's VIGNETs: no image needed), reserve a fraction for "
         "validation, fit a PSF model, save it as a FITS model file and write diagnostic "
-        "figures next to it (MODEL_stamps.png, MODEL_whiskers.png, MODEL_rho1.png).",
+        "figures next to it (MODEL_stamps.png: reserved stars, model, residuals; "
+        "MODEL_whiskers.png: e of stars/model/residuals; MODEL_rho.png: rho1-rho5; "
+        "MODEL_maps.png: model e and size across the chip).",
     )
     fit.add_argument("image", nargs="?",
                      help="FITS image (.fits, .fits.fz); optional with a catalogue holding "
@@ -115,7 +117,7 @@ def _add_fit_parsers(sub):
 
 def _figure_paths(output):
     stem = output[:-5] if output.lower().endswith(".fits") else output
-    return {name: f"{stem}_{name}.png" for name in ("stamps", "whiskers", "rho1")}
+    return {name: f"{stem}_{name}.png" for name in ("stamps", "whiskers", "rho", "maps")}
 
 
 def _check_output_file(path):
@@ -190,7 +192,7 @@ def _select(args, catalog, saturation, image_shape, lines):
     # positions off the image or at its edge are counted when the stamps are cut
     keep, counts = select_stars(catalog, min_snr=args.min_snr, saturation=saturation,
                                 stamp_size=args.stamp_size or 25)
-    rejected = {k: v for k, v in counts.items() if k != "locus_radius" and v}
+    rejected = {k: v for k, v in counts.items() if not k.startswith("locus") and v}
     lines.append(f"selected as stars: {int(keep.sum())}" + (" (rejected: " + ", ".join(
         f"{k} {v}" for k, v in rejected.items()) + ")" if rejected else ""))
     if keep.sum() < 5:
@@ -277,7 +279,13 @@ def _fit_one(args):
         written = [args.output]
         if not args.no_plots and len(residuals):
             bar.set_description("figures")
-            written += _fit_figures(residuals, summary, args.output)
+            if image is not None:
+                shape = image.shape
+            elif "NAXIS2" in header and "NAXIS1" in header:
+                shape = (int(header["NAXIS2"]), int(header["NAXIS1"]))
+            else:  # catalogue without image header: the stars' extent
+                shape = tuple(int(v) + 1 for v in cut.positions.max(axis=0)[::-1])
+            written += _fit_figures(residuals, summary, args.output, model, shape)
         bar.update()
     if "cv" in summary:
         lines.append("cross-validation (e rms): " + ", ".join(
@@ -298,20 +306,22 @@ def _fit_one(args):
     return 0
 
 
-def _fit_figures(residuals, summary, output):
+def _fit_figures(residuals, summary, output, model, shape):
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .validation import plot_rho1, plot_stamp_residuals, plot_whiskers
+    from .validation import plot_psf_maps, plot_rho_statistics, plot_stamp_residuals, \
+        plot_whiskers
 
     paths = _figure_paths(output)
     written = []
     makers = {"stamps": lambda: plot_stamp_residuals(residuals),
-              "whiskers": lambda: plot_whiskers(residuals)}
+              "whiskers": lambda: plot_whiskers(residuals),
+              "maps": lambda: plot_psf_maps(model, shape)}
     if summary.get("rho1"):
-        makers["rho1"] = lambda: plot_rho1(summary)
+        makers["rho"] = lambda: plot_rho_statistics(summary)
     for name, make in makers.items():
         fig = make()
         fig.savefig(paths[name], dpi=100)

@@ -3,11 +3,12 @@
 :func:`fit_and_validate` keeps a random (seeded) fraction of the stars out of the fit,
 predicts the PSF at their positions and compares the shapes (adaptive-moment e1, e2, size)
 of the observed, normalised reserved stars with the model's, summarises the residuals (mean,
-rms) and measures rho1 (Rowe 2010's D1, :func:`sklearn_psf.metrics.rho1`) on them.
+rms) and measures rho1 to rho5 (Jarvis et al. 2016, :func:`sklearn_psf.metrics.rho_statistics`)
+on them.
 Optionally the interpolation scheme is chosen first by K-fold cross-validation on the fitted
 stars with the correlation scorers. The figures (:func:`plot_stamp_residuals`,
-:func:`plot_whiskers`, :func:`plot_rho1`) are what ``sklearn-psf fit`` writes next to the
-model.
+:func:`plot_whiskers`, :func:`plot_rho_statistics`, :func:`plot_psf_maps`) are what
+``sklearn-psf fit`` writes next to the model.
 """
 
 from __future__ import annotations
@@ -23,12 +24,13 @@ from sklearn.utils import check_random_state
 
 from ._validation import as_stamps
 from .measure import adaptive_moments
-from .metrics import make_ellipticity_rms_scorer, make_rho1_scorer, rho1
+from .metrics import RHO_NAMES, make_ellipticity_rms_scorer, make_rho1_scorer, rho_statistics
 from .metrics._correlation import EmptyBinsWarning
 from .model import PSFModel
 from .preprocessing import StampNormalizer
 
-__all__ = ["fit_and_validate", "plot_stamp_residuals", "plot_whiskers", "plot_rho1"]
+__all__ = ["fit_and_validate", "plot_stamp_residuals", "plot_whiskers", "plot_rho1",
+           "plot_rho_statistics", "plot_psf_maps"]
 
 
 def _as_model(candidate):
@@ -117,8 +119,9 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
         ``n_stars``, ``n_fit``, ``n_reserved``, ``n_measured``, ``n_inliers``,
         ``n_outliers``, ``de1_mean``, ``de1_rms``, ``de2_mean``, ``de2_rms``, ``e_rms``
         (sqrt <de1^2 + de2^2>), ``dsigma_mean``, ``dsigma_rms``, ``sigma_mean`` (pixels),
-        ``rho1`` (dict of ``theta`` [pixels], ``xi``, ``sigma_xi``, ``npairs``, or None with
-        fewer than 10 measured stars), ``rho1_mean_abs`` and, with candidates, ``cv`` (list
+        ``rho1`` to ``rho5`` (Jarvis et al. 2016, :func:`~sklearn_psf.metrics.rho_statistics`
+        with T = 2 sigma^2; each a dict of ``theta`` [pixels], ``xi``, ``sigma_xi``,
+        ``npairs``, or None with fewer than 10 measured stars), ``rho1_mean_abs`` and, with candidates, ``cv`` (list
         of per-scheme mean/std scores) and ``scheme`` (the chosen one).
 
     Raises
@@ -245,17 +248,22 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
         else np.nan,
         "rho1": None, "rho1_mean_abs": np.nan,
     })
+    summary.update(dict.fromkeys(RHO_NAMES[1:]))
     if ok.sum() >= 10:
+        t = table[ok]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", EmptyBinsWarning)
-            r = rho1(X[reserved][ok], table["e1_star"][ok], table["e2_star"][ok],
-                     table["e1_model"][ok], table["e2_model"][ok], min_sep=min_sep,
-                     max_sep=max_sep, nbins=rho1_nbins, num_threads=1)
-        summary["rho1"] = {"theta": np.asarray(r.theta_nominal, dtype=float).tolist(),
-                           "xi": np.asarray(r.xi, dtype=float).tolist(),
-                           "sigma_xi": np.asarray(r.sigma_xi, dtype=float).tolist(),
-                           "npairs": np.asarray(r.npairs, dtype=float).tolist()}
-        xi = np.asarray(r.xi, dtype=float)
+            rho = rho_statistics(X[reserved][ok], t["e1_star"], t["e2_star"],
+                                 2 * np.asarray(t["sigma_star"]) ** 2, t["e1_model"],
+                                 t["e2_model"], 2 * np.asarray(t["sigma_model"]) ** 2,
+                                 min_sep=min_sep, max_sep=max_sep, nbins=rho1_nbins,
+                                 num_threads=1)
+        for name, r in rho.items():
+            summary[name] = {"theta": np.asarray(r.theta_nominal, dtype=float).tolist(),
+                             "xi": np.asarray(r.xi, dtype=float).tolist(),
+                             "sigma_xi": np.asarray(r.sigma_xi, dtype=float).tolist(),
+                             "npairs": np.asarray(r.npairs, dtype=float).tolist()}
+        xi = np.asarray(rho["rho1"].xi, dtype=float)
         if np.isfinite(xi).any():
             summary["rho1_mean_abs"] = float(np.nanmean(np.abs(xi)))
     return model, table, summary
@@ -424,4 +432,117 @@ def plot_rho1(summary):
     ax.set_ylabel(r"$|\rho_1(\theta)|$")
     ax.set_title("rho1 of the reserved stars (star - model)")
     ax.legend(fontsize=8)
+    return fig
+
+
+def plot_rho_statistics(summary):
+    """rho1 to rho5 of the reserved stars against separation, as PIFF plots them.
+
+    Left: rho1, rho3, rho4 (the residual terms); right: rho2, rho5. Negative values are
+    drawn as open symbols at their absolute value.
+
+    Parameters
+    ----------
+    summary : dict
+        From :func:`fit_and_validate` (its ``rho1`` ... ``rho5`` entries).
+
+    Returns
+    -------
+    fig : matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> from sklearn_psf.validation import plot_rho_statistics
+    >>> r = {"theta": [10.0, 100.0], "xi": [1e-5, -2e-6], "sigma_xi": [1e-6, 1e-6]}
+    >>> len(plot_rho_statistics({f"rho{k}": r for k in range(1, 6)}).axes)
+    2
+    """
+    import matplotlib.pyplot as plt
+
+    if not summary.get("rho1"):
+        raise ValueError("The summary has no rho statistics (fewer than 10 measured reserved "
+                         "stars).")
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4), layout="constrained")
+    panels = ((axes[0], ("rho1", "rho3", "rho4")), (axes[1], ("rho2", "rho5")))
+    for ax, names in panels:
+        for k, name in enumerate(names):
+            r = summary.get(name)
+            if not r:
+                continue
+            theta, xi = np.asarray(r["theta"], float), np.asarray(r["xi"], float)
+            err = np.asarray(r["sigma_xi"], float)
+            theta = theta * (1 + 0.03 * (k - 1))  # side by side
+            pos = xi > 0
+            color = f"C{int(name[-1]) - 1}"
+            ax.errorbar(theta[pos], xi[pos], yerr=err[pos], fmt="o", color=color,
+                        label=rf"$\rho_{name[-1]}$")
+            ax.errorbar(theta[~pos], -xi[~pos], yerr=err[~pos], fmt="o", mfc="none",
+                        color=color)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel(r"separation $\theta$ [pixel]")
+        ax.set_ylabel(r"$|\rho(\theta)|$ (open: negative)")
+        ax.legend(fontsize=8)
+    fig.suptitle("rho statistics of the reserved stars (Jarvis et al. 2016)")
+    return fig
+
+
+def plot_psf_maps(model, shape, n_grid: int = 20):
+    """The model's PSF across the chip: ellipticity whiskers and size (sigma) on a grid.
+
+    Parameters
+    ----------
+    model : fitted PSFModel
+    shape : tuple (ny, nx)
+        Image shape in pixels; the grid spans it.
+    n_grid : int, default=20
+        Grid points along the longer side.
+
+    Returns
+    -------
+    fig : matplotlib.figure.Figure
+        Left: whiskers of e (length |e|, angle of the major axis); right: sigma [pixels], with
+        the fitted stars as dots.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from sklearn_psf.validation import plot_psf_maps
+    >>> class Round:                            # any model with predict and X_fit_
+    ...     X_fit_ = np.array([[10.0, 10.0], [90.0, 50.0]])
+    ...     def predict(self, X):
+    ...         yy, xx = np.mgrid[-5:6, -5:6]
+    ...         g = np.exp(-(xx**2 + 0.8 * yy**2) / 6.0).ravel()
+    ...         return np.tile(g / g.sum(), (len(X), 1))
+    >>> len(plot_psf_maps(Round(), (60, 100), n_grid=6).axes)
+    3
+    """
+    import matplotlib.pyplot as plt
+
+    ny, nx = (int(v) for v in shape)
+    step = max(ny, nx) / int(n_grid)
+    xs = np.arange(step / 2, nx, step)
+    ys = np.arange(step / 2, ny, step)
+    gx, gy = np.meshgrid(xs, ys)
+    mom = adaptive_moments(model.predict(np.column_stack([gx.ravel(), gy.ravel()])))
+    e1 = np.asarray(mom["e1"], float).reshape(gx.shape)
+    e2 = np.asarray(mom["e2"], float).reshape(gx.shape)
+    sigma = np.asarray(mom["sigma"], float).reshape(gx.shape)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), layout="constrained")
+    emax = float(np.nanmax(np.hypot(e1, e2))) or 1e-3
+    _whisker(axes[0], gx.ravel(), gy.ravel(), e1.ravel(), e2.ravel(), 0.9 * step / emax, "k",
+             "model")
+    axes[0].set_title(f"model ellipticity (longest whisker: |e| = {emax:.3f})")
+    im = axes[1].imshow(sigma, origin="lower", extent=(0, nx, 0, ny), cmap="viridis",
+                        aspect="equal")
+    fig.colorbar(im, ax=axes[1], label=r"$\sigma$ [pixel]")
+    stars = np.asarray(getattr(model, "X_fit_", np.zeros((0, 2))))
+    axes[1].plot(stars[:, 0], stars[:, 1], ".", color="w", ms=2, label="fitted stars")
+    axes[1].set_title("model size (adaptive-moment sigma)")
+    for ax in axes:
+        ax.set_xlim(0, nx)
+        ax.set_ylim(0, ny)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [pixel]")
+    axes[0].set_ylabel("y [pixel]")
     return fig

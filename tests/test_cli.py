@@ -15,7 +15,7 @@ SMALL = ["--quick", "--n-simulations", "1", "--study-simulations", "1", "--n-sta
 def test_compare_writes_tables_report_and_figures(tmp_path, capsys):
     out = tmp_path / "out"
     code = main(["compare", *SMALL, "--schemes", "polynomial,delaunay,kriging",
-                 "--studies", "maps,snr", "-o", str(out)])
+                 "--studies", "maps,snr,scale", "-o", str(out)])
     assert code == 0
     names = set(os.listdir(out))
     assert {"report.md", "scores.csv", "scores.fits", "galaxies.fits", "fig_cor.png",
@@ -24,6 +24,10 @@ def test_compare_writes_tables_report_and_figures(tmp_path, capsys):
     assert "CFHTLS" in report and "kriging" in report
     for png in (n for n in names if n.endswith(".png")):
         assert png in report
+    assert "underpowered: 1 simulation" in report and "(oracle)" in report
+    scores = (out / "scores.csv").read_text()
+    for label in ('scale=4"', 'scale=16"', "oracle", "e_rms_ratio"):
+        assert label in scores
     stdout = capsys.readouterr().out
     assert "kriging" in stdout and "report.md" in stdout
 
@@ -31,6 +35,7 @@ def test_compare_writes_tables_report_and_figures(tmp_path, capsys):
 @pytest.mark.parametrize("args, message", [
     (["--schemes", "kriging,splines"], "unknown scheme 'splines'"),
     (["--studies", "weather"], "unknown study 'weather'"),
+    (["--reference", "nowhere.fits"], "--reference 'nowhere.fits' is neither"),
 ])
 def test_bad_choices_one_line_error(tmp_path, capsys, args, message):
     code = main(["compare", *SMALL, *args, "-o", str(tmp_path)])
@@ -82,3 +87,12 @@ def test_unreachable_scheduler_is_a_one_line_error(tmp_path, capsys):
                  "-o", str(tmp_path)])
     err = capsys.readouterr().err
     assert code == 2 and "Dask scheduler" in err and len(err.strip().splitlines()) == 1
+
+
+def test_help_imports_neither_the_study_nor_matplotlib():
+    code = ("import sys; from sklearn_psf.cli import build_parser; build_parser(); "
+            "print(sorted(m for m in sys.modules if m.startswith(('sklearn_psf.study', "
+            "'matplotlib', 'tqdm'))))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "[]"

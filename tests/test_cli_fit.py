@@ -34,7 +34,7 @@ def test_fit_then_predict(tmp_path, exposure, capsys):
     assert "selected as stars" in out and "rejected:" in out
     assert "saturated 1" in out  # the clipped star is found and rejected
     assert "reserved stars" in out and "e rms" in out and "rho1" in out
-    for name in ("stamps", "whiskers", "rho1"):
+    for name in ("stamps", "whiskers", "rho", "maps"):
         assert (tmp_path / f"psf_{name}.png").stat().st_size > 1000
     model = load_model(model_path)
     residuals, summary = read_model_validation(model_path)
@@ -146,3 +146,145 @@ def test_some_positions_outside_are_skipped_and_counted(tmp_path, exposure, caps
     assert code == 0, err
     assert "stars used: 117 of 122 (skipped: off_image 1, edge 1, masked 2, saturated 1)" in out
     assert load_model(tmp_path / "m.fits").X_fit_.shape == (117, 2)
+
+
+# ------------------------------------------------------------------------------------------
+# catalogue input (issue: real inputs as astronomers hold them)
+# ------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def ldac(tmp_path_factory):
+    from sklearn_psf.io import write_example_ldac
+
+    return write_example_ldac(tmp_path_factory.mktemp("ldac"), n_stars=200, n_galaxies=200,
+                              image_shape=(2400, 2400), random_state=5)
+
+
+def test_fit_on_ldac_vignettes_alone_then_predict(tmp_path, ldac, capsys):
+    """No image: the galaxies of the catalogue are rejected, the model matches the truth."""
+    old = os.umask(0o022)
+    try:
+        code, out, err = _run(["fit", "--stars", ldac["catalog"], "-o", tmp_path / "m.fits",
+                               "--min-snr", "20"], capsys)
+    finally:
+        os.umask(old)
+    assert code == 0, err
+    assert "off_locus" in out and "selected as stars" in out
+    n_clean = int(((ldac["kind"] == "star") & (ldac["defect"] == "")).sum())
+    model = load_model(tmp_path / "m.fits")
+    fitted = model.X_fit_
+    truth = ldac["truth"]
+    is_star = np.isin(fitted[:, 0] + 1j * fitted[:, 1], truth["x"] + 1j * truth["y"])
+    assert is_star.mean() > 0.95           # fitted objects are stars, not galaxies
+    assert len(fitted) >= 0.9 * 0.8 * n_clean  # 80% fitted, 20% reserved
+    for name in ("stamps", "whiskers", "rho", "maps"):
+        path = tmp_path / f"m_{name}.png"
+        assert path.stat().st_size > 1000
+        assert path.stat().st_mode & 0o777 == 0o644   # readable by collaborators
+    assert (tmp_path / "m.fits").stat().st_mode & 0o777 == 0o644
+    _, summary = read_model_validation(tmp_path / "m.fits")
+    assert all(summary[f"rho{k}"] is not None for k in range(1, 6))
+
+    # predict at the true star positions given as RA-less SExtractor ASCII, sub-pixel centred
+    cat = tmp_path / "pos.cat"
+    fitted_truth = truth[np.isin(truth["x"] + 1j * truth["y"], fitted[:, 0] + 1j * fitted[:, 1])]
+    truth = fitted_truth[:30]   # at fitted stars: inside the hull, no extrapolation
+    rows = "".join(f"{i + 1:6d} {x + 1:12.4f} {y + 1:12.4f}\n"
+                   for i, (x, y) in enumerate(zip(truth["x"], truth["y"])))
+    cat.write_text("#   1 NUMBER    Running object number\n"
+                   "#   2 X_IMAGE   Object position along x   [pixel]\n"
+                   "#   3 Y_IMAGE   Object position along y   [pixel]\n" + rows
+                   + f"{31:6d} {9000.0:12.4f} {9000.0:12.4f}\n")
+    code, out, err = _run(["predict", tmp_path / "m.fits", "--positions", cat, "--centered",
+                           "-o", tmp_path / "p.fits"], capsys)
+    assert code == 0, err
+    table = Table.read(tmp_path / "p.fits")
+    assert table["extrapolated"].tolist() == [False] * 30 + [True]
+    assert "1 extrapolated" in out
+    de = np.hypot(table["e1"][:30] - truth["e1"], table["e2"][:30] - truth["e2"])
+    assert np.sqrt(np.mean(de**2)) < 0.02
+
+
+def test_predict_x_col_oversampling_and_errors(tmp_path, exposure, capsys):
+    model_path = tmp_path / "m.fits"
+    code, _, err = _run(["fit", exposure["image"], "--hdu", "SCI", "--stars",
+                         exposure["stars"], "-o", model_path, "--no-plots", "--reserve", "0",
+                         "--interpolator", "polynomial"], capsys)
+    assert code == 0, err
+    Table({"XC": [300.5, 700.0], "YC": [400.0, 650.25]}).write(tmp_path / "g.csv",
+                                                                format="ascii.csv")
+    code, _, err = _run(["predict", model_path, "--positions", tmp_path / "g.csv", "--x-col",
+                         "XC", "--y-col", "YC", "--oversampling", "3", "--centered", "-o",
+                         tmp_path / "p.fits"], capsys)
+    assert code == 0, err
+    table = Table.read(tmp_path / "p.fits")
+    s = load_model(model_path).stamp_size_
+    assert table["psf"].shape == (2, 3 * s, 3 * s)
+    plain = load_model(model_path).predict([[300.5, 400.0]])
+    sigma_plain = adaptive_moments(plain)["sigma"][0]
+    assert_allclose(table["sigma"][0], sigma_plain, rtol=0.02)   # in image pixels
+    # fails before any work, naming the user's path
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    try:
+        cases = [
+            (["fit", exposure["image"], "-o", locked / "m.fits"],
+             r"cannot write the output file .*locked/m\.fits"),
+            (["predict", model_path, "--positions", tmp_path / "g.csv", "-o",
+              locked / "p.fits"], r"cannot write the output file .*locked/p\.fits"),
+            (["fit", "-o", tmp_path / "x.fits"], r"give a FITS image, or a catalogue"),
+            (["fit", exposure["image"], "--stars", exposure["stars"], "--x-col", "X_IMAGE",
+              "-o", tmp_path / "x.fits"], r"give both --x-col and --y-col"),
+            (["fit", exposure["image"], "--stars", exposure["stars"], "--x-col", "XX",
+              "--y-col", "YY", "-o", tmp_path / "x.fits"], r"no column 'XX'"),
+            (["fit", "--stars", exposure["stars"], "-o", tmp_path / "x.fits"],
+             r"no VIGNET column"),
+        ]
+        if os.geteuid() == 0:   # root writes anywhere: only the other cases apply
+            cases = cases[2:]
+        for args, pattern in cases:
+            code, _, err = _run(args, capsys)
+            _one_line_error(code, err, pattern)
+    finally:
+        locked.chmod(0o700)
+
+
+def test_multi_extension_one_model_per_ccd(tmp_path, exposure, capsys):
+    with fits.open(exposure["image"]) as hdul:
+        sci = hdul["SCI"]
+        data, header = sci.data, sci.header
+        ccds = [fits.ImageHDU(data, header=header, name="CCD1"),
+                fits.ImageHDU(data[:, ::-1], header=header, name="CCD2")]
+    fits.HDUList([fits.PrimaryHDU(), *ccds]).writeto(tmp_path / "mef.fits")
+    code, out, err = _run(["fit", tmp_path / "mef.fits", "--hdu", "all", "-o",
+                           tmp_path / "psf.fits", "--no-plots", "--interpolator",
+                           "polynomial"], capsys)
+    assert code == 0, err
+    m1, m2 = load_model(tmp_path / "psf_CCD1.fits"), load_model(tmp_path / "psf_CCD2.fits")
+    nx = data.shape[1]
+    # CCD2 is CCD1 mirrored in x: its PSFs are the mirror images (e2 changes sign)
+    X = np.array([[400.0, 500.0], [900.0, 300.0]])
+    a = adaptive_moments(m1.predict(X))
+    b = adaptive_moments(m2.predict(np.column_stack([nx - 1 - X[:, 0], X[:, 1]])))
+    assert_allclose(b["e1"], a["e1"], atol=0.01)
+    assert_allclose(b["e2"], -np.asarray(a["e2"]), atol=0.01)
+    code, _, err = _run(["fit", tmp_path / "mef.fits", "--hdu", "all", "--weight-hdu", "1",
+                         "-o", tmp_path / "psf.fits"], capsys)
+    _one_line_error(code, err, r"--hdu all cannot take one --weight-hdu")
+
+
+def test_non_standard_header_image_is_read(tmp_path, exposure, capsys):
+    """An ESO-like keyword: a warning, the fit runs."""
+    with fits.open(exposure["image"]) as hdul:
+        data, header = hdul["SCI"].data, hdul["SCI"].header.copy()
+    fits.PrimaryHDU(data, header=header).writeto(tmp_path / "eso.fits")
+    raw = bytearray((tmp_path / "eso.fits").read_bytes())
+    end = raw.find(b"END" + b" " * 77)
+    raw[end:end + 160] = (b"ESO-LOG 1 = 'non-standard keyword'".ljust(80)
+                          + b"END".ljust(80))
+    (tmp_path / "eso.fits").write_bytes(bytes(raw))
+    with pytest.warns(UserWarning, match="non-standard FITS header"):
+        code, out, err = _run(["fit", tmp_path / "eso.fits", "--stars", exposure["stars"],
+                               "-o", tmp_path / "m.fits", "--no-plots", "--reserve", "0",
+                               "--interpolator", "polynomial"], capsys)
+    assert code == 0, err

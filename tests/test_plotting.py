@@ -13,8 +13,8 @@ from matplotlib.collections import PolyCollection, QuadMesh
 from matplotlib.colors import LogNorm
 from matplotlib.quiver import Quiver
 
-from sklearn_psf import plotting
-from sklearn_psf.plotting import MissingDataError
+from sklearn_psf.study import plotting
+from sklearn_psf.study.plotting import MissingDataError
 
 SCHEMES = ["polynomial", "delaunay", "kriging"]
 
@@ -54,12 +54,13 @@ def make_galaxies(schemes=SCHEMES, configs=("default",), n_sim=2, nx=5, ny=4, n_
 
 
 def make_result(schemes=SCHEMES, configs=("default",), n_sim=3, nbins=6, seed=1,
-                requirements=True, wiener=False):
+                requirements=True, oracle=False):
     """A StudyResult-like object with correlation functions (some negative values)."""
     rng = np.random.default_rng(seed)
     theta = np.geomspace(0.5, 20, nbins)
     rows = []
-    for config, scheme, sim in itertools.product(configs, schemes, range(n_sim)):
+    all_schemes = [*schemes, "oracle"] if oracle else schemes
+    for config, scheme, sim in itertools.product(configs, all_schemes, range(n_sim)):
         for kind, amp in (("input", 1e-3), ("model", 9e-4), ("residual", 1e-5)):
             xi = amp * np.exp(-theta / 5) * rng.uniform(0.5, 1.5, nbins)
             if kind == "residual":
@@ -75,10 +76,6 @@ def make_result(schemes=SCHEMES, configs=("default",), n_sim=3, nbins=6, seed=1,
     result.correlations, result.theta = correlations, theta
     result.requirements = {lvl: lvl * 10 * theta**-0.8 for lvl in (1e-5, 1e-6, 1e-7)} \
         if requirements else None
-    result.wiener = None
-    if wiener:
-        result.wiener = {"theta": theta, "input_lo": 5e-4 + 0 * theta, "input_hi": 2e-3 + 0 * theta,
-                         "residual_lo": 1e-7 + 0 * theta, "residual_hi": 1e-6 + 0 * theta}
     return result
 
 
@@ -254,8 +251,8 @@ def test_correlation_without_requirements_and_missing_scheme():
         plotting.plot_correlation_functions(result, ["kriging", "shepard"])
 
 
-def test_snr_study_lines_and_wiener_bands():
-    result = make_result(configs=("default", "snr=700", "snr=100"), wiener=True)
+def test_snr_study_lines_and_oracle_bands():
+    result = make_result(configs=("default", "snr=700", "snr=100"), oracle=True)
     fig = plotting.plot_snr_study(result, "kriging")
     ax = fig.axes[0]
     lines = {l.get_gid(): l for l in ax.get_lines()}
@@ -267,7 +264,16 @@ def test_snr_study_lines_and_wiener_bands():
                                    np.abs(np.asarray(corr["xi"][sel]).mean(axis=0)))
     assert "snr:snr=700:input" not in lines and "snr:default:residual" not in lines
     bands = [c.get_gid() for c in ax.collections if isinstance(c, PolyCollection)]
-    assert "wiener:input" in bands and "wiener:residual" in bands
+    assert "oracle:snr=100:band" in bands and "oracle:snr=700:band" in bands
+    sel = ((np.asarray(corr["config"]) == "snr=700") & (np.asarray(corr["scheme"]) == "oracle")
+           & (np.asarray(corr["kind"]) == "residual"))
+    np.testing.assert_allclose(lines["oracle:snr=700"].get_ydata(),
+                               np.abs(np.asarray(corr["xi"][sel]).mean(axis=0)))
+    # every line is inside the y limits; bands containing zero run off the bottom
+    low, high = ax.get_ylim()
+    shown = np.concatenate([np.asarray(l.get_ydata(), float) for l in ax.get_lines()])
+    shown = shown[np.isfinite(shown) & (shown > 0)]
+    assert low < shown.min() and shown.max() < high
     with pytest.raises(MissingDataError, match="snr"):
         plotting.plot_snr_study(make_result(), "kriging")
 
@@ -373,7 +379,7 @@ def test_no_pyplot_state_and_consistent_colours():
 
 
 def test_outlier_study_bars_are_the_medians():
-    from sklearn_psf.plotting import plot_outlier_study
+    from sklearn_psf.study.plotting import plot_outlier_study
 
     rng = np.random.default_rng(1)
     rows = []

@@ -13,8 +13,8 @@ import pytest
 from astropy.io import fits
 from astropy.table import Table, vstack
 
-from sklearn_psf import report
-from sklearn_psf.report import check_findings, summarize, survey_verdicts, write_report
+from sklearn_psf.study.report._summary import _fmt
+from sklearn_psf.study.report import check_findings, summarize, survey_verdicts, write_report
 
 SCHEMES = ["polynomial", "delaunay", "kriging"]
 
@@ -75,7 +75,7 @@ def make_result(scores, galaxies=None, correlations=None, **extra):
     attrs = dict(scores=scores, galaxies=galaxies, correlations=correlations,
                  theta=np.geomspace(0.5, 20, 5),
                  config={"pixel_scale": 0.2, "image_shape": (300, 400)},
-                 requirements=None, surveys=None, wiener=None)
+                 requirements=None, surveys=None)
     attrs.update(extra)
     return SimpleNamespace(**attrs)
 
@@ -150,7 +150,7 @@ def test_survey_verdicts_use_the_result_survey_table(tmp_path):
     write_report(result, tmp_path, figures=False)
     text = (tmp_path / "report.md").read_text()
     med = np.median(np.asarray(scores["sigma_sys2"])[np.asarray(scores["scheme"]) == "kriging"])
-    assert f"does not meet ({report._fmt(med)} >= 5.00e-07)" in text
+    assert f"does not meet ({_fmt(med)} >= 5.00e-07)" in text
     assert "CFHTLS" not in text.split("## Survey requirements")[1].split("## The paper")[0]
 
 
@@ -170,7 +170,10 @@ def test_findings_are_computed_not_hard_coded():
             ("n_stars=4000", "delaunay"): (0.006, 6e-7, 6e-6),
             ("n_stars=4000", "polynomial"): (0.029, 5e-6, 1e-4)}
     findings = check_findings(make_result(make_scores(good)))
-    assert {f["verdict"] for f in findings if "local" not in f["finding"].lower()} == {"agrees"}
+    new = ("RBF", "Shepard", "A zero nugget")  # their schemes are absent here: not tested
+    assert {f["verdict"] for f in findings if "local" not in f["finding"].lower()
+            and not f["finding"].startswith(new)} == {"agrees"}
+    assert {find(findings, p)["verdict"] for p in new} == {"not tested"}
 
     # swap kriging and polynomial everywhere: every comparison must flip
     bad = dict(good)
@@ -186,7 +189,7 @@ def test_findings_are_computed_not_hard_coded():
     evidence = find(findings, "The exponential variogram")["evidence"]
     scores = make_scores(bad)
     sel = np.asarray(scores["scheme"]) == "kriging-spherical"
-    assert f"spherical {report._fmt(np.median(np.asarray(scores['e_rms'])[sel]))}" in evidence
+    assert f"spherical {_fmt(np.median(np.asarray(scores['e_rms'])[sel]))}" in evidence
 
 
 def test_stage_iv_finding_and_missing_data_not_tested():
@@ -259,7 +262,7 @@ def test_write_report_files_figures_and_markdown(tmp_path, capsys):
     # summary table and ranking from the numbers
     s = summarize(scores)
     row = s[(s["config"] == "default") & (s["scheme"] == "kriging")][0]
-    assert report._fmt(row["e_rms_median"]) in text
+    assert _fmt(row["e_rms_median"]) in text
     ranking = text.split("### Ranking by e_rms")[1].split("##")[0]
     assert ranking.index("kriging") < ranking.index("polynomial")
 
@@ -329,3 +332,49 @@ def test_variogram_finding_uses_paired_differences(spherical_offset, expected):
     scores["e_rms"][sph] = np.asarray(kr["e_rms"]) + spherical_offset + noise
     finding = find(check_findings(make_result(scores)), "The exponential variogram")
     assert finding["verdict"] == expected
+
+
+@pytest.mark.parametrize("rbf, shepard, nugget, expected", [
+    (0.35, 0.031, 0.0, "agrees"),
+    (0.011, 0.012, 0.1, "disagrees"),
+])
+def test_unchecked_findings_get_rows(rbf, shepard, nugget, expected):
+    scores = make_scores({("default", "kriging"): (0.010, 1e-6, 1e-5),
+                          ("default", "polynomial"): (0.030, 5e-6, 1e-4),
+                          ("default", "delaunay"): (0.012, 1.5e-6, 2e-5),
+                          ("default", "shepard"): (shepard, 1e-6, 1e-5),
+                          ("default", "rbf"): (rbf, 1e-6, 1e-5)}, n_sim=12)
+    tuning = Table({"scheme": ["kriging"], "best_params": [f"range=0.5, nugget={nugget}"],
+                    "best_score": [-1e-5], "default_score": [-2e-5]})
+    findings = check_findings(make_result(scores, tuning=tuning))
+    for prefix in ("RBF", "Shepard", "A zero nugget"):
+        assert find(findings, prefix)["verdict"] == expected, prefix
+        assert find(findings, prefix)["power"] == ""  # 12 simulations: enough
+    if expected == "disagrees":
+        assert "local" in find(findings, "Shepard")["evidence"]
+
+
+def test_few_simulations_are_flagged_and_yardsticks_reported(tmp_path):
+    schemes = ("polynomial", "kriging", "oracle")
+    scores = make_scores({("default", s): (e, 1e-6, 1e-5) for s, e in
+                          zip(schemes, (0.03, 0.0105, 0.01))}, n_sim=3)
+    floor = np.asarray(scores["e_rms"][scores["scheme"] == "oracle"])
+    scores["e_rms_ratio"] = [r["e_rms"] / floor[r["simulation"]] for r in scores]
+    correlations = make_correlations(schemes, n_sim=3)
+    correlations["xi"][correlations["scheme"] == "oracle"] *= 0.5
+    result = make_result(scores, correlations=correlations)
+    findings = check_findings(result)
+    assert find(findings, "Kriging's residual correlation")["power"].startswith(" (underpowered: 3")
+    assert find(findings, "Kriging has smaller")["power"] == ""  # not tested: no delaunay
+    write_report(result, tmp_path, figures=False)
+    text = (tmp_path / "report.md").read_text()
+    assert "underpowered: 3 simulations" in text
+    assert "| e_rms | dimensionless |" in text and "| theta | arcmin |" in text
+    assert "## Against the optimum on the same fields (oracle)" in text
+    ratio = np.median(np.asarray(scores["e_rms_ratio"][scores["scheme"] == "polynomial"]))
+    assert f"| polynomial | {_fmt(ratio)} [" in text
+    # D1 of every scheme is twice the oracle's in every one of the 5 bins
+    row = next(line for line in text.splitlines() if line.startswith(f"| polynomial | {_fmt(ratio)}"))
+    assert row.endswith("| 2 | 2 | 2 | 2 | 2 |")
+    assert "ell_max=5000" in text and "ell_max=50000" in text
+    assert "bins below the line" in text

@@ -4,10 +4,10 @@ Each regressor maps star positions ``X`` (n_samples, n_features) to values ``y``
 (n_samples,) or (n_samples, n_targets), e.g. PCA coefficients of the stars.
 """
 
-from ._base import DuplicateStarsWarning, RankDeficientWarning
+from ._base import DuplicateStarsWarning, FewStarsWarning, RankDeficientWarning
 from ._delaunay import DelaunayRegressor
-from ._kriging import (
-    KrigingRegressor,
+from ._kriging import KrigingRegressor
+from ._variogram import (
     exponential_variogram,
     gaussian_variogram,
     spherical_variogram,
@@ -21,6 +21,7 @@ __all__ = [
     "ChebyshevRegressor",
     "DelaunayRegressor",
     "DuplicateStarsWarning",
+    "FewStarsWarning",
     "KrigingRegressor",
     "PolynomialRegressor",
     "RBFRegressor",

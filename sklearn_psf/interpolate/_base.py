@@ -18,7 +18,11 @@ class DuplicateStarsWarning(UserWarning):
 
 
 class RankDeficientWarning(UserWarning):
-    """The least-squares design matrix of a polynomial fit is rank deficient."""
+    """A polynomial fit has more terms than stars (degree lowered) or a rank-deficient design."""
+
+
+class FewStarsWarning(UserWarning):
+    """Too few stars for the fitted statistics (e.g. a Kriging sill) to mean much."""
 
 
 def _query_chunks(n_queries: int, n_stars: int):
@@ -28,18 +32,21 @@ def _query_chunks(n_queries: int, n_stars: int):
         yield slice(start, min(start + size, n_queries))
 
 
-def _merge_duplicates(X, Y, *, owner: str, reason: str):
-    """Average the targets of stars with exactly the same position.
+def _merge_duplicates(X, Y, *, owner: str, reason: str, noise=None):
+    """Merge the stars with exactly the same position.
 
-    Returns ``X, Y`` unchanged (same objects) when all positions are distinct; otherwise
-    warns with :class:`DuplicateStarsWarning` and returns new arrays with one row per
-    distinct position, whose target is the mean of the duplicated stars' targets.
+    Returns ``X, Y, noise`` unchanged (same objects) when all positions are distinct;
+    otherwise warns with :class:`DuplicateStarsWarning` and returns new arrays with one
+    row per distinct position. Without ``noise`` (None) the merged value is the mean of
+    the duplicated stars' values; with ``noise`` (n_samples, n_targets) of variances it
+    is the inverse-variance weighted mean, of variance ``1 / sum(1 / noise)`` (stars of
+    zero variance, if any in a group, take all the weight, equally shared).
     """
     unique, index, inverse, counts = np.unique(
         X, axis=0, return_index=True, return_inverse=True, return_counts=True
     )
     if unique.shape[0] == X.shape[0]:
-        return X, Y
+        return X, Y, noise
     inverse = inverse.reshape(-1)
     duplicated = np.flatnonzero(counts > 1)
     duplicated = duplicated[np.argsort(index[duplicated])][:3]  # in order of appearance
@@ -50,14 +57,63 @@ def _merge_duplicates(X, Y, *, owner: str, reason: str):
         f"(e.g. star indices {groups}); {reason} Their values were averaged, one star per "
         "position. Remove or merge duplicated stars yourself to silence this warning.",
         DuplicateStarsWarning,
-        stacklevel=3,
+        stacklevel=4,
     )
-    Y_merged = np.zeros((unique.shape[0], Y.shape[1]))
-    np.add.at(Y_merged, inverse, Y)
-    Y_merged /= counts[:, None]
+
+    def group_sum(values):
+        out = np.zeros((unique.shape[0], values.shape[1]))
+        np.add.at(out, inverse, values)
+        return out
+
+    if noise is None:
+        weights = np.ones_like(Y)
+    else:
+        exact = noise == 0
+        exact_in_group = group_sum(exact.astype(float))[inverse] > 0
+        weights = np.where(exact_in_group, exact, 1.0 / np.where(exact, 1.0, noise))
+    wsum = group_sum(weights)
+    Y_merged = group_sum(weights * Y) / wsum
+    noise_merged = None
+    if noise is not None:
+        noise_merged = np.where(group_sum(exact.astype(float)) > 0, 0.0, 1.0 / wsum)
     # keep the order of first appearance, so that results do not depend on sorting
     order = np.argsort(index, kind="stable")
-    return unique[order], Y_merged[order]
+    return (unique[order], Y_merged[order],
+            None if noise is None else noise_merged[order])
+
+
+def _check_noise_var(owner: str, noise_var, n_samples: int, n_targets: int, *,
+                     positive: bool = False):
+    """Validate a ``noise_var`` fit parameter; None or a fresh (n_samples, n_targets) array."""
+    if noise_var is None:
+        return None
+    try:
+        nv = np.array(noise_var, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(
+            f"{owner}: noise_var must be an array of numbers (variances of the measurement "
+            f"noise of y), got {type(noise_var).__name__}."
+        ) from None
+    if nv.ndim == 1 and nv.shape[0] == n_samples:
+        nv = np.repeat(nv[:, None], n_targets, axis=1)
+    elif nv.shape != (n_samples, n_targets) and not (
+        nv.shape == (n_samples, 1) and n_targets == 1
+    ):
+        raise ValueError(
+            f"{owner}: noise_var must have shape ({n_samples},) or ({n_samples}, "
+            f"{n_targets}) (one variance per star, or per star and target), got {nv.shape}."
+        )
+    nv = nv.reshape(n_samples, n_targets)
+    bad = ~np.isfinite(nv) | (nv <= 0 if positive else nv < 0)
+    if bad.any():
+        rows = np.flatnonzero(bad.any(axis=1))
+        what = "> 0 (a weighted least-squares fit)" if positive else ">= 0"
+        raise ValueError(
+            f"{owner}: noise_var must be finite and {what}; rows {rows[:10].tolist()}"
+            f"{' ...' if rows.size > 10 else ''} ({rows.size} stars) are not. Drop these "
+            "stars or give them a finite variance."
+        )
+    return nv
 
 
 def _check_n_samples(owner: str, n_samples: int, n_min: int, what: str) -> None:
@@ -65,6 +121,18 @@ def _check_n_samples(owner: str, n_samples: int, n_min: int, what: str) -> None:
         raise ValueError(
             f"{owner} needs at least {n_min} samples (stars) {what}; got n_samples = "
             f"{n_samples}. Provide more stars or choose a simpler setting."
+        )
+
+
+def _check_finite(owner: str, a, what: str) -> None:
+    """ValueError naming the rows holding NaN or inf (in the caller's numbering)."""
+    bad = ~np.isfinite(a)
+    if bad.any():
+        rows = np.flatnonzero(bad.reshape(a.shape[0], -1).any(axis=1))
+        raise ValueError(
+            f"{owner}: {what} contains NaN or inf at rows {rows[:10].tolist()}"
+            f"{' ...' if rows.size > 10 else ''} ({rows.size} rows). Drop these stars (or flag "
+            "them as bad and leave them out) before fitting or predicting."
         )
 
 
@@ -82,11 +150,15 @@ class _BaseInterpolator(RegressorMixin, BaseEstimator):
         return tags
 
     def _validate_fit_data(self, X, y):
+        y_arr = np.asarray(y) if y is not None else None
+        if y_arr is not None and y_arr.dtype.kind in "fc" and y_arr.ndim in (1, 2):
+            _check_finite(type(self).__name__, y_arr, "y (values at the stars)")
         X, y = validate_data(
             self, X, y, multi_output=True, y_numeric=True, dtype=np.float64,
-            ensure_all_finite=True,
+            ensure_all_finite=False,
         )
         y = np.asarray(y, dtype=np.float64)
+        _check_finite(type(self).__name__, X, "X (star positions)")
         self._y_ndim = y.ndim
         # copies: the fitted model never aliases (and never modifies) the caller's arrays
         X = np.array(X, dtype=np.float64, order="C", copy=True)
@@ -96,7 +168,9 @@ class _BaseInterpolator(RegressorMixin, BaseEstimator):
 
     def _validate_predict_data(self, X):
         check_is_fitted(self)
-        return validate_data(self, X, reset=False, dtype=np.float64, ensure_all_finite=True)
+        X = validate_data(self, X, reset=False, dtype=np.float64, ensure_all_finite=False)
+        _check_finite(type(self).__name__, X, "X (query positions)")
+        return X
 
     def _format_output(self, Y):
         if self._y_ndim == 1:
@@ -153,3 +227,40 @@ def _check_n_neighbors(owner: str, n_neighbors):
             f"{n_neighbors!r}."
         )
     return int(n_neighbors)
+
+
+class _NoiseAwareInterpolator(_BaseInterpolator):
+    """An interpolator whose ``fit`` takes the per-star measurement noise ``noise_var``.
+
+    ``fit``'s signature carries ``noise_var``, so scikit-learn's metadata routing builds
+    ``set_fit_request(noise_var=...)``. Subclasses implement ``_fit(X, Y, noise)`` with
+    ``noise`` None or a validated (n_samples, n_targets) array.
+    """
+
+    #: noise_var must be > 0 (weighted least squares) rather than >= 0
+    _noise_positive = False
+
+    def fit(self, X, y, noise_var=None):
+        """Fit the interpolator to the stars.
+
+        Parameters
+        ----------
+        X : array-like of shape (n_samples, n_features)
+            Star positions.
+        y : array-like of shape (n_samples,) or (n_samples, n_targets)
+            Values at the stars (e.g. PCA coefficients of the stars' stamps).
+        noise_var : array-like of shape (n_samples,) or (n_samples, n_targets), default=None
+            Variance of the measurement noise of each value of ``y``, in ``y``'s units
+            squared (one per star, shared by the targets, or one per star and target).
+            None: no measurement noise.
+
+        Returns
+        -------
+        self : object
+            The fitted regressor.
+        """
+        X, Y = self._validate_fit_data(X, y)
+        noise = _check_noise_var(type(self).__name__, noise_var, X.shape[0], Y.shape[1],
+                                 positive=self._noise_positive)
+        self._fit(X, Y, noise)
+        return self

@@ -76,7 +76,7 @@ class DelaunayRegressor(_BaseInterpolator):
                 f"{name}: a Delaunay triangulation in {d} dimensions is too expensive; "
                 f"use at most {_MAX_FEATURES} features (positions are usually 2-D)."
             )
-        X, Y = _merge_duplicates(
+        X, Y, _ = _merge_duplicates(
             X, Y, owner=name, reason="a triangulation has one vertex per position."
         )
         if d == 1:

@@ -1,221 +1,154 @@
-"""Ordinary Kriging with bounded variograms, one factorisation for all targets."""
+"""Ordinary and universal Kriging with bounded variograms, measurement noise and
+maximum-likelihood hyperparameters."""
 
 from __future__ import annotations
 
 import numbers
+import warnings
 
 import numpy as np
-from scipy.linalg import LinAlgError, cho_factor, cho_solve, solve_triangular
+from scipy.linalg import LinAlgError, cho_factor, cho_solve, lapack, solve_triangular
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
+from sklearn.utils import check_random_state
 
 from ._base import (
-    _BaseInterpolator,
+    FewStarsWarning,
     _check_n_neighbors,
     _check_n_samples,
     _merge_duplicates,
+    _NoiseAwareInterpolator,
     _query_chunks,
 )
+from ._kriging_local import predict_local
+from ._kriging_ml import fit_hyperparameters
+from ._polynomial import _design, _exponents
+from ._variogram import _CORRELATIONS, variogram_models
 
-#: Local Kriging: queries per batch of stacked (k+1, k+1) bordered systems are bounded so
-#: that the batch's arrays stay around this many float64 elements (~16 MB).
-_LOCAL_BATCH_ELEMENTS = 2**21
+_DRIFT_DEGREE = {None: 0, "linear": 1, "quadratic": 2}
+#: fewer distinct stars than this: a FewStarsWarning (the sill is a variance of few values)
+_FEW_STARS = 5
+#: maximum likelihood needs at least this many stars
+_MIN_ML_STARS = 10
 
-
-def _exp_corr(r):
-    """exp(-r), computed in place on r (a fresh array owned by the caller)."""
-    np.negative(r, out=r)
-    return np.exp(r, out=r)
-
-
-def _sph_corr(r):
-    """1 - 1.5 r + 0.5 r^3 for r < 1, 0 beyond; in place on r."""
-    np.minimum(r, 1.0, out=r)
-    return 1.0 - r * (1.5 - 0.5 * r * r)
+_NAME = "KrigingRegressor"
 
 
-def _gau_corr(r):
-    """exp(-r^2), in place on r."""
-    np.square(r, out=r)
-    np.negative(r, out=r)
-    return np.exp(r, out=r)
+def _check_param(value, name, lo, hi, auto=True, lo_open=False):
+    if auto and isinstance(value, str) and value == "auto":
+        return
+    ok = isinstance(value, numbers.Real) and not isinstance(value, bool) and np.isfinite(value)
+    if not ok or value > hi or value < lo or (lo_open and value == lo):
+        bounds = f"{'(' if lo_open else '['}{lo}, {hi}]"
+        suffix = " or 'auto'" if auto else ""
+        raise ValueError(f"{_NAME}: {name} must be a number in {bounds}{suffix}, got {value!r}.")
 
 
-#: correlation function rho(h / a) of each model: gamma = sill (1 - (1 - nugget) rho)
-_CORRELATIONS = {"exponential": _exp_corr, "spherical": _sph_corr, "gaussian": _gau_corr}
+class KrigingRegressor(_NoiseAwareInterpolator):
+    """Ordinary or universal Kriging; the paper's scheme with its defaults.
 
-
-def _variogram(model, h, a, nugget, sill):
-    h = np.asarray(h, dtype=np.float64)
-    rho = _CORRELATIONS[model](h / a)
-    gamma = sill * (1.0 - (1.0 - nugget) * rho)
-    return np.where(h > 0, gamma, 0.0)
-
-
-def exponential_variogram(h, range, nugget=0.0, sill=1.0):
-    """Exponential variogram ``sill ((1 - nugget)(1 - exp(-h / range)) + nugget)``, 0 at h = 0.
-
-    Parameters
-    ----------
-    h : array-like
-        Distances (>= 0).
-    range : float
-        Range ``a`` in the units of ``h``.
-    nugget : float, default=0.0
-        Nugget as a fraction of the sill, in [0, 1].
-    sill : float, default=1.0
-        Sill (value of the variogram at infinite distance).
-
-    Returns
-    -------
-    gamma : ndarray
-        Variogram values, the shape of ``h``.
-
-    Examples
-    --------
-    >>> from sklearn_psf.interpolate import exponential_variogram
-    >>> exponential_variogram([0.0, 1.0], range=1.0, nugget=0.5, sill=2.0).round(4)
-    array([0.    , 1.6321])
-    """
-    return _variogram("exponential", h, range, nugget, sill)
-
-
-def spherical_variogram(h, range, nugget=0.0, sill=1.0):
-    """Spherical variogram ``sill ((1 - nugget)(1.5 h/a - 0.5 (h/a)^3) + nugget)`` for
-    0 < h < a, ``sill`` beyond, 0 at h = 0 (``a = range``).
-
-    Parameters
-    ----------
-    h : array-like
-        Distances (>= 0).
-    range : float
-        Range ``a``: the variogram reaches the sill at ``h = a``.
-    nugget : float, default=0.0
-        Nugget as a fraction of the sill, in [0, 1].
-    sill : float, default=1.0
-        Sill.
-
-    Returns
-    -------
-    gamma : ndarray
-        Variogram values, the shape of ``h``.
-
-    Examples
-    --------
-    >>> from sklearn_psf.interpolate import spherical_variogram
-    >>> spherical_variogram([0.0, 0.5, 2.0], range=1.0).round(4)
-    array([0.    , 0.6875, 1.    ])
-    """
-    return _variogram("spherical", h, range, nugget, sill)
-
-
-def gaussian_variogram(h, range, nugget=0.0, sill=1.0):
-    """Gaussian variogram ``sill ((1 - nugget)(1 - exp(-(h / range)^2)) + nugget)``, 0 at h = 0.
-
-    Very smooth fields; the Kriging system becomes ill-conditioned when stars are much
-    closer than ``range`` (add a small nugget then).
-
-    Parameters
-    ----------
-    h : array-like
-        Distances (>= 0).
-    range : float
-        Range ``a`` in the units of ``h``.
-    nugget : float, default=0.0
-        Nugget as a fraction of the sill, in [0, 1].
-    sill : float, default=1.0
-        Sill.
-
-    Returns
-    -------
-    gamma : ndarray
-        Variogram values, the shape of ``h``.
-
-    Examples
-    --------
-    >>> from sklearn_psf.interpolate import gaussian_variogram
-    >>> gaussian_variogram([0.0, 1.0], range=1.0).round(4)
-    array([0.    , 0.6321])
-    """
-    return _variogram("gaussian", h, range, nugget, sill)
-
-
-#: Variogram models by name: ``f(h, range, nugget=0.0, sill=1.0) -> gamma``.
-variogram_models = {
-    "exponential": exponential_variogram,
-    "spherical": spherical_variogram,
-    "gaussian": gaussian_variogram,
-}
-
-
-class KrigingRegressor(_BaseInterpolator):
-    """Ordinary Kriging, as in the paper (bordered system with the unbiasedness row).
-
-    The prediction at ``x`` is ``sum_i lambda_i y_i`` with ``sum_i lambda_i = 1`` and
-    weights minimising the variance under the variogram model. Each target column
-    ``t`` has its own sill ``sigma_t^2`` (its variance over the stars, as in the paper)
-    while range and nugget (a fraction of the sill) are shared, so the variogram
-    divided by the sill is the same for all targets and a single factorisation of the
-    Kriging system serves all of them.
+    The prediction at ``x`` is ``sum_i lambda_i y_i`` with weights minimising the
+    variance under the variogram model, subject to unbiasedness (``sum_i lambda_i = 1``
+    for ordinary Kriging, reproduction of a linear or quadratic drift for universal
+    Kriging). Each target column ``t`` has its own sill ``sigma_t^2`` while range and
+    nugget (a fraction of the sill) are shared.
 
     Parameters
     ----------
     variogram : {"exponential", "spherical", "gaussian"}, default="exponential"
-        Variogram model, see :data:`variogram_models`.
-    range : float, default=0.5
+        Variogram model, see :data:`variogram_models`. The exponential variogram of
+        range ``a`` is the covariance ``Matern(length_scale=a, nu=0.5)``.
+    range : float or "auto", default=0.5
         Range ``a`` in the units of ``X`` (0.5 is the paper's value for positions in the
         unit square: use ``make_pipeline(MinMaxScaler(), KrigingRegressor())``).
-    nugget : float, default=0.0
-        Nugget as a fraction of the sill, in [0, 1].
+        ``"auto"``: maximum likelihood (see Notes).
+    nugget : float or "auto", default=0.0
+        Nugget as a fraction of the sill, in [0, 1]. ``"auto"``: maximum likelihood.
     n_neighbors : int or None, default=None
-        ``None``: exact Kriging with all stars (one factorisation of the ``n_stars``
-        system, cost ``O(n_stars^3)`` and memory ``O(n_stars^2)``). An integer ``k``:
-        local Kriging in a moving neighbourhood: each query is predicted by ordinary
-        Kriging from its ``k`` nearest stars only (found with
-        :class:`scipy.spatial.cKDTree`; small bordered systems solved in batches), cost
-        ``O(n_queries k^3)``, for large numbers of stars (``10^4`` and more). Each
-        neighbourhood has its own unbiasedness constraint (a local mean); the sill of each
-        target stays the variance over all stars. ``k >= n_stars`` is exact Kriging with
-        a per-query solve (slower than ``None``).
+        ``None``: exact Kriging with all stars (one Cholesky factorisation, cost
+        ``O(n_stars^3)``, memory ``O(n_stars^2)``). An integer ``k``: local Kriging, each
+        query predicted from its ``k`` nearest stars (:class:`scipy.spatial.cKDTree`,
+        small bordered systems solved in batches), for ``10^4`` stars and more.
+    noise_scale : float or "auto", default=1.0
+        Factor on the ``noise_var`` given to :meth:`fit` (pixel-noise estimates are often
+        off by a factor). ``"auto"``: fitted by maximum likelihood along with the other
+        hyperparameters when ``noise_var`` is given (1 otherwise).
+    drift : {None, "linear", "quadratic"}, default=None
+        ``None``: ordinary Kriging (constant unknown mean). ``"linear"`` / ``"quadratic"``:
+        universal Kriging with an unknown polynomial mean of that degree in the
+        positions (PyKrige's ``regional_linear`` drift for ``"linear"``).
+    anisotropy_scaling : float, default=1.0
+        Geometric anisotropy, PyKrige's convention (2 features only): positions are
+        rotated by ``-anisotropy_angle`` and their second coordinate multiplied by
+        ``anisotropy_scaling`` before distances are computed; the range applies in that
+        frame, so it is ``range / anisotropy_scaling`` along the rotated second axis.
+    anisotropy_angle : float, default=0.0
+        Counter-clockwise angle in degrees of that rotation.
+    max_ml_samples : int, default=200
+        Maximum likelihood uses at most this many stars, drawn at random (with
+        ``random_state``) when there are more; the final Kriging system uses all stars.
+    random_state : int, RandomState instance or None, default=0
+        Seed of that subset (fixed by default, so that fits are reproducible).
 
     Attributes
     ----------
-    X_fit_ : ndarray of shape (n_stars, n_features)
-        Distinct star positions.
+    range_ : float
+        Range used (fitted with ``range="auto"``).
+    nugget_ : float
+        Nugget used, as a fraction of the sill.
     sill_ : ndarray of shape (n_targets,)
-        Variance of each target over the stars.
-    mean_ : ndarray of shape (n_targets,)
-        Generalised-least-squares estimate of each target's mean (exact mode; in local
-        mode the mean of the targets over the stars, for reference only).
-    dual_coef_ : ndarray of shape (n_stars, n_targets)
-        ``C^-1 (y - mean_)`` with ``C`` the normalised covariance matrix of the stars
-        (exact mode only).
+        Sill of each target: its variance over the stars with numeric ``range`` and
+        ``nugget`` (the paper), the maximum-likelihood sill otherwise.
+    noise_scale_ : float
+        Factor applied to ``noise_var`` (1 without noise).
+    log_likelihood_ : float or None
+        Maximum of the summed log-likelihood (on the ``max_ml_samples`` subset), None
+        without maximum likelihood.
+    X_fit_ : ndarray of shape (n_stars, n_features)
+        Distinct star positions (duplicated positions merged when ``nugget=0``).
     y_fit_ : ndarray of shape (n_stars, n_targets)
-        Star values (local mode only).
+        Values at those stars.
+    noise_var_ : ndarray of shape (n_stars, n_targets) or None
+        Measurement-noise variance of those values (after ``noise_scale_``).
+    drift_coef_ : ndarray of shape (n_drift_terms, n_targets)
+        Generalised-least-squares drift coefficients (exact mode), in positions mapped to
+        [-1, 1] over the training bounding box; the first row is the mean for
+        ``drift=None``.
+    mean_ : ndarray of shape (n_targets,)
+        ``drift_coef_[0]``: the GLS mean (``drift=None``) or the drift at the field's
+        centre; in local mode the mean of the targets over the stars, for reference.
+    dual_coef_ : ndarray of shape (n_stars, n_targets)
+        ``C_t^-1 (y_t - F drift_coef_t)`` with ``C_t`` the covariance of the stars
+        normalised by the sill (exact mode only).
     n_features_in_ : int
         Number of features seen during fit.
 
     Notes
     -----
-    For bounded variograms, ordinary Kriging with the bordered system
-    ``[G 1; 1^T 0]`` equals simple Kriging with the generalised-least-squares mean and
-    the covariance ``C = 1 - G`` (normalised by the sill). This implementation
-    factorises ``C`` once (Cholesky) and predicts ``mean + c(x)^T C^-1 (y - mean)`` in
-    chunks of queries; the Kriging variance is
-    ``sill (1 - c^T C^-1 c + (1 - 1^T C^-1 c)^2 / 1^T C^-1 1)``.
+    Exact mode solves simple Kriging with the generalised-least-squares drift, which
+    for bounded variograms equals the bordered system of ordinary/universal Kriging.
+    The covariance of the stars of target ``t``, normalised by its sill, is
+    ``C_t = (1 - nugget) rho(h / a)`` off the diagonal and ``1 + noise_var_t / sill_t``
+    on it (``GaussianProcessRegressor(alpha=noise_var)``'s model): targets whose
+    noise-to-sill ratios are equal share a factorisation (all of them without noise).
+    Predictions are of the noise-free field; the Kriging variance is
+    ``sill (1 - c^T C^-1 c + u^T (F^T C^-1 F)^-1 u)``, ``u = f(x) - F^T C^-1 c``.
 
-    In local mode (``n_neighbors=k``) each query solves the bordered system
-    ``[C_k 1; 1^T 0] [lambda; mu] = [c_k; 1]`` of its ``k`` nearest stars; the prediction
-    is ``lambda^T y_k`` and the variance ``sill (1 - lambda^T c_k - mu)``.
+    Without noise the variogram is 0 at distance 0, so a query exactly on a star returns
+    that star's value (and standard deviation 0) even with a nugget; between two
+    different stars the nugget applies even at distance 0 (distinct measurements), so
+    with ``nugget > 0`` stars sharing a position are kept. With ``nugget = 0`` they are
+    merged with a :class:`DuplicateStarsWarning` (values averaged, inverse-variance
+    weighted with ``noise_var``, which is exact for Kriging).
 
-    The variogram is 0 at distance 0, so a query exactly on a star returns that star's
-    value (and standard deviation 0) even with a nugget.
-
-    Between two different stars the nugget applies even at distance 0 (they are
-    distinct measurements), so with ``nugget > 0`` stars sharing a position are kept.
-    With ``nugget = 0`` they make the system singular: they are then merged (values
-    averaged) with a :class:`DuplicateStarsWarning`. If the
-    factorisation still fails (near-duplicates), a ``ValueError`` suggests a nugget.
+    Maximum likelihood (any of ``range``, ``nugget``, ``noise_scale`` ``"auto"``)
+    maximises the sum over targets of the Gaussian log-likelihood of the stars, with
+    shared range, nugget and noise scale, a sill per target and the drift profiled out
+    (generalised least squares), by L-BFGS-B on the log-parameters with analytic
+    gradients, starting from the best of three ranges. It matches
+    ``GaussianProcessRegressor(kernel=ConstantKernel() * Matern(nu=0.5) + WhiteKernel())``
+    on ``y - mean_``. Fewer than 5 distinct stars give a :class:`FewStarsWarning` (a sill
+    from so few values means little); maximum likelihood needs 10.
 
     Examples
     --------
@@ -228,8 +161,18 @@ class KrigingRegressor(_BaseInterpolator):
     >>> pred, std = reg.predict(X[:2], return_std=True)
     >>> bool(np.allclose(pred, y[:2])), bool(np.allclose(std, 0))
     (True, True)
-    >>> reg.predict([[0.5, 0.5]]).shape
-    (1, 2)
+
+    Noisy stars, hyperparameters by maximum likelihood, a linear drift:
+
+    >>> noise_var = np.full(40, 1e-4)
+    >>> y_obs = y + rng.normal(scale=1e-2, size=y.shape)
+    >>> reg = KrigingRegressor(range="auto", nugget="auto", drift="linear")
+    >>> reg = reg.fit(X, y_obs, noise_var=noise_var)
+    >>> bool(reg.range_ > 0), reg.sill_.shape
+    (True, (2,))
+    >>> loo_pred, loo_std = reg.loo_predict(return_std=True)
+    >>> loo_pred.shape
+    (40, 2)
 
     Local Kriging from the 20 nearest stars of each query:
 
@@ -238,91 +181,185 @@ class KrigingRegressor(_BaseInterpolator):
     True
     """
 
-    def __init__(self, variogram="exponential", range=0.5, nugget=0.0, n_neighbors=None):
+    def __init__(self, variogram="exponential", range=0.5, nugget=0.0, n_neighbors=None, *,
+                 noise_scale=1.0, drift=None, anisotropy_scaling=1.0, anisotropy_angle=0.0,
+                 max_ml_samples=200, random_state=0):
         self.variogram = variogram
         self.range = range
         self.nugget = nugget
         self.n_neighbors = n_neighbors
+        self.noise_scale = noise_scale
+        self.drift = drift
+        self.anisotropy_scaling = anisotropy_scaling
+        self.anisotropy_angle = anisotropy_angle
+        self.max_ml_samples = max_ml_samples
+        self.random_state = random_state
 
+    # ------------------------------------------------------------------ geometry
     def _correlation(self, D):
         """(1 - nugget) rho(D / a), overwriting D (a fresh distance matrix)."""
-        D *= 1.0 / self.range
+        D *= 1.0 / self.range_
         c = _CORRELATIONS[self.variogram](D)
-        if self.nugget:
-            c *= 1.0 - self.nugget
+        if self.nugget_:
+            c *= 1.0 - self.nugget_
         return c
 
-    def _star_covariance(self, X):
-        # Between two different stars the nugget applies even at distance 0 (distinct
-        # measurements at one position, as PyKrige does); only the diagonal is 1.
-        C = self._correlation(cdist(X, X))
-        np.fill_diagonal(C, 1.0)
-        return C
+    def _transform(self, X):
+        """Positions in the anisotropy frame (PyKrige's: rotate by -angle, stretch y)."""
+        if self._aniso is None:
+            return X
+        return X @ self._aniso.T
 
-    def _query_covariance(self, Xq):
-        """Covariance of queries with stars (1 at distance 0) and the on-star rows."""
-        D = cdist(Xq, self.X_fit_)
-        on_star = np.flatnonzero(D.min(axis=1) == 0)
-        zero = D[on_star] == 0
-        c = self._correlation(D)
-        c[on_star] = np.where(zero, 1.0, c[on_star])
-        return c, on_star
+    def _drift_design(self, X):
+        U = (X - self._drift_center) / self._drift_half_width
+        return _design(U, self._drift_powers, _DRIFT_DEGREE[self.drift], "monomial")
 
-    def _fit(self, X, Y):
-        name = "KrigingRegressor"
+    def _check_params(self, n_features):
         if self.variogram not in variogram_models:
             raise ValueError(
-                f"{name}: variogram must be one of {sorted(variogram_models)}, "
+                f"{_NAME}: variogram must be one of {sorted(variogram_models)}, "
                 f"got {self.variogram!r}."
             )
-        a, nug = self.range, self.nugget
-        if not isinstance(a, numbers.Real) or not np.isfinite(a) or a <= 0:
-            raise ValueError(f"{name}: range must be a finite number > 0, got {a!r}.")
-        if not isinstance(nug, numbers.Real) or not 0 <= nug <= 1:
-            raise ValueError(f"{name}: nugget must be a number in [0, 1], got {nug!r}.")
-        if nug == 0:
-            X, Y = _merge_duplicates(
-                X, Y, owner=name, reason="with nugget=0 the Kriging system would be singular."
-            )
-        _check_n_samples(name, X.shape[0], 2, "(distinct positions)")
-        k = _check_n_neighbors(name, self.n_neighbors)
-        self.sill_ = Y.var(axis=0)
-        self.X_fit_ = X
-        if k is not None:
-            self._fit_local(X, Y, k)
-            return
-        for attr in ("y_fit_", "_tree", "_k"):
-            self.__dict__.pop(attr, None)
-        C = self._star_covariance(X)
-        try:
-            # C is symmetric: its transpose is the same matrix in Fortran order, which LAPACK
-            # factorises in place (no copy of an n_stars^2 array)
-            factor = cho_factor(C.T, lower=True, overwrite_a=True, check_finite=False)
-        except LinAlgError:
+        _check_param(self.range, "range", 0, np.inf, lo_open=True)
+        _check_param(self.nugget, "nugget", 0, 1)
+        _check_param(self.noise_scale, "noise_scale", 0, np.inf, lo_open=True)
+        _check_param(self.anisotropy_scaling, "anisotropy_scaling", 0, np.inf, auto=False,
+                     lo_open=True)
+        _check_param(self.anisotropy_angle, "anisotropy_angle", -np.inf, np.inf, auto=False)
+        if self.drift not in _DRIFT_DEGREE:
             raise ValueError(
-                f"{name}: the Kriging covariance matrix is not positive definite (stars "
-                "almost at the same position relative to the range, or a variogram invalid "
-                "in this dimension). Add a small nugget (e.g. nugget=1e-6), lower the range, "
-                "or merge close stars."
-            ) from None
-        ones = np.ones(X.shape[0])
-        w = cho_solve(factor, ones, check_finite=False)
-        self._one_c_one = float(ones @ w)
-        self.mean_ = (w @ Y) / self._one_c_one
-        self.dual_coef_ = cho_solve(factor, Y - self.mean_, check_finite=False)
-        # The lower triangle holds L; the upper one is never read (no tril copy: at 10^4
-        # stars that would be another 800 MB).
-        self._chol = factor[0]
-        self._c_inv_one = w
+                f"{_NAME}: drift must be None, 'linear' or 'quadratic', got {self.drift!r}."
+            )
+        if isinstance(self.max_ml_samples, bool) or not isinstance(
+            self.max_ml_samples, numbers.Integral
+        ) or self.max_ml_samples < _MIN_ML_STARS:
+            raise ValueError(
+                f"{_NAME}: max_ml_samples must be an integer >= {_MIN_ML_STARS}, got "
+                f"{self.max_ml_samples!r}."
+            )
+        self._aniso = None
+        if self.anisotropy_scaling != 1.0 or self.anisotropy_angle % 360.0 != 0.0:
+            if n_features != 2:
+                raise ValueError(
+                    f"{_NAME}: anisotropy needs 2 features (x, y), got {n_features}."
+                )
+            t = np.deg2rad(self.anisotropy_angle)
+            rot = np.array([[np.cos(t), np.sin(t)], [-np.sin(t), np.cos(t)]])
+            self._aniso = np.diag([1.0, self.anisotropy_scaling]) @ rot
 
-    def _fit_local(self, X, Y, k):
-        for attr in ("dual_coef_", "_chol", "_c_inv_one", "_one_c_one"):
+    # ------------------------------------------------------------------ fit
+    def _fit(self, X, Y, noise):
+        self._check_params(X.shape[1])
+        if self.nugget == 0:
+            X, Y, noise = _merge_duplicates(
+                X, Y, owner=_NAME, noise=noise,
+                reason="with nugget=0 the Kriging system would be singular.",
+            )
+        n, d = X.shape
+        self._drift_powers = _exponents(d, _DRIFT_DEGREE[self.drift])
+        n_drift = self._drift_powers.shape[0]
+        _check_n_samples(_NAME, n, max(2, n_drift + 1), "(distinct positions)")
+        if n < _FEW_STARS:
+            warnings.warn(
+                f"{_NAME}: only {n} distinct stars; the sill (variance of the values) and "
+                "the Kriging variances mean little. Use more stars or a constant model.",
+                FewStarsWarning, stacklevel=3,
+            )
+        k = _check_n_neighbors(_NAME, self.n_neighbors)
+        lo, hi = X.min(axis=0), X.max(axis=0)
+        self._drift_center, half = (lo + hi) / 2.0, (hi - lo) / 2.0
+        self._drift_half_width = np.where(half > 0, half, 1.0)
+        U, F = self._transform(X), self._drift_design(X)
+        self._fit_hyperparameters(U, Y, F, noise)
+        self.X_fit_, self.y_fit_, self._U_fit, self._F_fit = X, Y, U, F
+        self.noise_var_ = None if noise is None else noise * self.noise_scale_
+        self._set_groups()
+        for attr in ("dual_coef_", "drift_coef_", "_factors", "_tree", "_k"):
             self.__dict__.pop(attr, None)
-        self.y_fit_ = Y
-        self.mean_ = Y.mean(axis=0)
-        self._k = min(k, X.shape[0])
-        self._tree = cKDTree(X)
+        if k is not None:
+            self.mean_ = Y.mean(axis=0)
+            self._k = min(k, n)
+            if self._k < n_drift:
+                raise ValueError(
+                    f"{_NAME}: n_neighbors must be at least {n_drift} for "
+                    f"drift={self.drift!r}, got {k}."
+                )
+            self._tree = cKDTree(U)
+            return
+        self._fit_exact(U, Y, F)
 
+    def _fit_hyperparameters(self, U, Y, F, noise):
+        auto = [p == "auto" for p in (self.range, self.nugget)]
+        auto_noise = self.noise_scale == "auto" and noise is not None
+        self.log_likelihood_ = None
+        if not (any(auto) or auto_noise):
+            self.range_, self.nugget_ = float(self.range), float(self.nugget)
+            self.sill_ = Y.var(axis=0)
+            self.noise_scale_ = 1.0 if self.noise_scale == "auto" else float(self.noise_scale)
+            return
+        n = U.shape[0]
+        _check_n_samples(_NAME, n, _MIN_ML_STARS, "to fit hyperparameters by maximum "
+                         "likelihood (distinct positions)")
+        sub = np.arange(n)
+        if n > self.max_ml_samples:
+            rng = check_random_state(self.random_state)
+            sub = np.sort(rng.choice(n, self.max_ml_samples, replace=False))
+        fit = fit_hyperparameters(
+            cdist(U[sub], U[sub]), Y[sub], F[sub], None if noise is None else noise[sub],
+            self.variogram, range_=self.range, nugget=self.nugget,
+            noise_scale=self.noise_scale,
+        )
+        self.range_, self.nugget_, self.sill_ = fit["range"], fit["nugget"], fit["sill"]
+        self.noise_scale_, self.log_likelihood_ = fit["noise_scale"], fit["log_likelihood"]
+
+    def _set_groups(self):
+        """Targets sharing a normalised covariance (equal noise-to-sill ratios)."""
+        T = self.y_fit_.shape[1]
+        if self.noise_var_ is None:
+            self._noise_ratio_groups, self._group_targets = [None], [np.arange(T)]
+            self._group_of = np.zeros(T, dtype=int)
+            return
+        sill = np.where(self.sill_ > 0, self.sill_, np.inf)  # constant target: exact
+        ratio = self.noise_var_ / sill
+        unique, inverse = np.unique(ratio.T, axis=0, return_inverse=True)
+        self._group_of = inverse.reshape(-1)
+        self._noise_ratio_groups = list(unique)
+        self._group_targets = [np.flatnonzero(self._group_of == g) for g in range(len(unique))]
+
+    def _fit_exact(self, U, Y, F):
+        C0 = self._correlation(cdist(U, U))
+        np.fill_diagonal(C0, 1.0)
+        n_groups = len(self._group_targets)
+        self._factors = []
+        self.dual_coef_ = np.empty_like(Y)
+        self.drift_coef_ = np.empty((F.shape[1], Y.shape[1]))
+        for g, (ratio, targets) in enumerate(zip(self._noise_ratio_groups,
+                                                 self._group_targets)):
+            # the last group factorises C0 in place (C0.T is the same symmetric matrix in
+            # Fortran order: no copy of an n_stars^2 array without noise)
+            C = C0.T if g == n_groups - 1 else C0.copy(order="F")
+            if ratio is not None:
+                C[np.diag_indices_from(C)] += ratio
+            try:
+                L = cho_factor(C, lower=True, overwrite_a=True, check_finite=False)
+            except LinAlgError:
+                raise ValueError(
+                    f"{_NAME}: the Kriging covariance matrix is not positive definite "
+                    "(stars almost at the same position relative to the range, or a "
+                    "variogram invalid in this dimension). Add a small nugget (e.g. "
+                    "nugget=1e-6), lower the range, or merge close stars."
+                ) from None
+            KiF = cho_solve(L, F, check_finite=False)
+            FKiF_inv = np.linalg.inv(F.T @ KiF)
+            beta = FKiF_inv @ (KiF.T @ Y[:, targets])
+            self.drift_coef_[:, targets] = beta
+            self.dual_coef_[:, targets] = cho_solve(L, Y[:, targets] - F @ beta,
+                                                    check_finite=False)
+            # the lower triangle holds L; the upper one is never read
+            self._factors.append((L[0], KiF, FKiF_inv))
+        self.mean_ = self.drift_coef_[0].copy()
+
+    # ------------------------------------------------------------------ predict
     def predict(self, X, return_std=False):
         """Kriging prediction, and optionally its standard deviation.
 
@@ -331,7 +368,8 @@ class KrigingRegressor(_BaseInterpolator):
         X : array-like of shape (n_queries, n_features)
             Query positions.
         return_std : bool, default=False
-            Also return the Kriging standard deviation of each target.
+            Also return the Kriging standard deviation of each target (of the noise-free
+            field; the nugget is part of the field).
 
         Returns
         -------
@@ -341,81 +379,81 @@ class KrigingRegressor(_BaseInterpolator):
             Kriging standard deviation (only with ``return_std=True``).
         """
         X = self._validate_predict_data(X)
+        U, Fq = self._transform(X), self._drift_design(X)
         if getattr(self, "_tree", None) is not None:
-            pred, var = self._predict_local(X, return_std)
+            pred, var = predict_local(self, U, Fq, return_std)
         else:
-            pred, var = self._predict_exact(X, return_std)
+            pred, var = self._predict_exact(U, Fq, return_std)
         pred = self._format_output(pred)
         if not return_std:
             return pred
-        std = np.sqrt(np.clip(var, 0.0, None)[:, None] * self.sill_)
+        std = np.sqrt(np.clip(var[:, self._group_of], 0.0, None) * self.sill_)
         return pred, self._format_output(std)
 
-    def _predict_exact(self, X, return_std):
-        m, T = X.shape[0], self.dual_coef_.shape[1]
+    def _predict_exact(self, U, Fq, return_std):
+        m, T = U.shape[0], self.dual_coef_.shape[1]
         pred = np.empty((m, T))
-        var = np.empty(m) if return_std else None
-        for sl in _query_chunks(m, self.X_fit_.shape[0]):
-            c, on_star = self._query_covariance(X[sl])
+        var = np.empty((m, len(self._factors))) if return_std else None
+        for sl in _query_chunks(m, self._U_fit.shape[0]):
+            D = cdist(U[sl], self._U_fit)
+            on_star = np.flatnonzero(D.min(axis=1) == 0)
+            zero = D[on_star] == 0
+            c = self._correlation(D)
+            c[on_star] = np.where(zero, 1.0, c[on_star])  # variogram 0 at distance 0
             np.matmul(c, self.dual_coef_, out=pred[sl])
-            pred[sl] += self.mean_
-            if return_std:
-                u = 1.0 - c @ self._c_inv_one
-                # c^T C^-1 c = |L^-1 c|^2: one triangular solve on the chunk, in place on
-                # c.T (Fortran-contiguous, so LAPACK needs no copy; c is not used after).
-                v = solve_triangular(self._chol, c.T, lower=True, check_finite=False,
-                                     overwrite_b=True)
+            pred[sl] += Fq[sl] @ self.drift_coef_
+            if not return_std:
+                continue
+            for g, (L, KiF, FKiF_inv) in enumerate(self._factors):
+                u = Fq[sl] - c @ KiF
+                # c^T C^-1 c = |L^-1 c|^2: a triangular solve on c.T (Fortran-contiguous;
+                # overwritten in place for the last group)
+                last = g == len(self._factors) - 1
+                v = solve_triangular(L, c.T, lower=True, check_finite=False,
+                                     overwrite_b=last)
                 q = np.einsum("ij,ij->j", v, v)
-                var[sl] = 1.0 - q + u * u / self._one_c_one
-                var[sl][on_star] = 0.0  # exactly 0 on a star, not rounding noise
+                var[sl, g] = 1.0 - q + np.einsum("ip,pq,iq->i", u, FKiF_inv, u)
+                if self._noise_ratio_groups[g] is None:
+                    var[sl, g][on_star] = 0.0  # exactly 0 on a star, not rounding noise
         return pred, var
 
-    def _predict_local(self, X, return_std):
-        m, T = X.shape[0], self.y_fit_.shape[1]
-        k = self._k
-        pred = np.empty((m, T))
-        var = np.empty(m) if return_std else None
-        batch = int(max(1, _LOCAL_BATCH_ELEMENTS // ((k + 1) ** 2 + k * T)))
-        Xs, Ys = self.X_fit_, self.y_fit_
-        for start in range(0, m, batch):
-            sl = slice(start, min(start + batch, m))
-            dist, idx = self._tree.query(X[sl], k=k)
-            if k == 1:
-                dist, idx = dist[:, None], idx[:, None]
-            b = idx.shape[0]
-            P = Xs[idx]  # (b, k, d) neighbour positions
-            # bordered systems [C 1; 1^T 0] of every query's neighbourhood, stacked
-            A = np.empty((b, k + 1, k + 1))
-            D = A[:, :k, :k]
-            diff = P[:, :, None, :] - P[:, None, :, :]
-            np.sqrt(np.einsum("bijd,bijd->bij", diff, diff), out=D)
-            del diff
-            D[...] = self._correlation(D)
-            diag = np.arange(k)
-            A[:, diag, diag] = 1.0  # distinct stars: nugget between them, 1 on the diagonal
-            A[:, :k, k] = 1.0
-            A[:, k, :k] = 1.0
-            A[:, k, k] = 0.0
-            rhs = np.empty((b, k + 1))
-            on = dist == 0
-            rhs[:, :k] = self._correlation(dist.copy())
-            rhs[:, :k][on] = 1.0  # on a star: covariance 1 (the variogram is 0 there)
-            rhs[:, k] = 1.0
-            try:
-                sol = np.linalg.solve(A, rhs[:, :, None])[:, :, 0]
-            except np.linalg.LinAlgError:
-                raise ValueError(
-                    "KrigingRegressor: a local Kriging system is singular (stars almost at "
-                    "the same position relative to the range). Add a small nugget (e.g. "
-                    "nugget=1e-6) or merge close stars."
-                ) from None
-            lam = sol[:, :k]
-            pred[sl] = np.einsum("bk,bkt->bt", lam, Ys[idx])
-            if return_std:
-                v = 1.0 - np.einsum("bk,bk->b", lam, rhs[:, :k]) - sol[:, k]
-                v[on.any(axis=1)] = 0.0
-                var[sl] = v
-        return pred, var
+    def loo_predict(self, return_std=False):
+        """Leave-one-out predictions at the stars, in closed form (exact mode).
+
+        The prediction of star ``i`` from all the others with the fitted
+        hyperparameters: ``y_i - [A^-1 b]_i / [A^-1]_ii`` with ``A`` the bordered
+        Kriging system (Dubrule 1983), one triangular inversion per factorisation.
+
+        Parameters
+        ----------
+        return_std : bool, default=False
+            Also return the standard deviation of ``y_i - prediction``: the Kriging
+            variance at the star plus its own measurement noise.
+
+        Returns
+        -------
+        y_loo : ndarray of shape (n_stars,) or (n_stars, n_targets)
+            Predictions at the rows of ``X_fit_`` (the stars given to :meth:`fit`, less
+            merged duplicates).
+        y_std : ndarray, same shape as ``y_loo``
+            Standard deviation of the leave-one-out residuals (only with
+            ``return_std=True``); divide the residuals by it for a chi statistic.
+        """
+        if getattr(self, "_tree", None) is not None or not hasattr(self, "dual_coef_"):
+            raise ValueError(
+                f"{_NAME}: loo_predict needs a fitted exact model (n_neighbors=None)."
+            )
+        pdiag = np.empty_like(self.y_fit_)
+        for g, (L, KiF, FKiF_inv) in enumerate(self._factors):
+            Linv, info = lapack.dtrtri(L, lower=1)
+            Linv = np.tril(Linv)
+            d = np.einsum("ij,ij->j", Linv, Linv) - np.einsum("ip,pq,iq->i", KiF, FKiF_inv,
+                                                              KiF)
+            pdiag[:, self._group_targets[g]] = d[:, None]
+        pred = self._format_output(self.y_fit_ - self.dual_coef_ / pdiag)
+        if not return_std:
+            return pred
+        return pred, self._format_output(np.sqrt(self.sill_ / pdiag))
 
     def _predict(self, X):  # pragma: no cover - predict is overridden
         raise NotImplementedError

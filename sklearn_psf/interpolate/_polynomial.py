@@ -10,7 +10,7 @@ from math import comb
 import numpy as np
 from numpy.polynomial import chebyshev
 
-from ._base import RankDeficientWarning, _BaseInterpolator, _check_n_samples
+from ._base import RankDeficientWarning, _NoiseAwareInterpolator
 
 
 def _exponents(n_features: int, degree: int) -> np.ndarray:
@@ -43,16 +43,36 @@ def _design(U, exponents, degree, basis):
     return A
 
 
-class _PolynomialBase(_BaseInterpolator):
+def _weighted_lstsq(A, Y, sqrt_w):
+    """Least squares of each column of Y with row weights ``sqrt_w**2`` (None: unweighted).
+
+    Columns sharing their weights share one solve. Returns coef and the smallest rank.
+    """
+    if sqrt_w is None:
+        coef, _, rank, _ = np.linalg.lstsq(A, Y, rcond=None)
+        return coef, rank
+    coef = np.empty((A.shape[1], Y.shape[1]))
+    unique, inverse = np.unique(sqrt_w.T, axis=0, return_inverse=True)
+    ranks = []
+    for g, w in enumerate(unique):
+        cols = np.flatnonzero(inverse.reshape(-1) == g)
+        coef[:, cols], _, rank, _ = np.linalg.lstsq(A * w[:, None], Y[:, cols] * w[:, None],
+                                                    rcond=None)
+        ranks.append(rank)
+    return coef, min(ranks)
+
+
+class _PolynomialBase(_NoiseAwareInterpolator):
     _basis = "monomial"
+    _noise_positive = True
 
     def _scale(self, X):
         return (X - self.center_) / self.half_width_
 
-    def _fit_degree(self, U, Y, degree):
+    def _fit_degree(self, U, Y, degree, sqrt_w=None):
         exponents = _exponents(U.shape[1], degree)
         A = _design(U, exponents, degree, self._basis)
-        coef, _, rank, _ = np.linalg.lstsq(A, Y, rcond=None)
+        coef, rank = _weighted_lstsq(A, Y, sqrt_w)
         return exponents, coef, rank, A
 
     def _check_degree(self, degree, name="degree"):
@@ -65,22 +85,30 @@ class _PolynomialBase(_BaseInterpolator):
                 f"{type(self).__name__}: {name} must be a non-negative integer, got {degree!r}."
             )
 
-    def _set_fit(self, X, U, Y, degree):
+    def _set_fit(self, X, U, Y, degree, sqrt_w):
         owner = type(self).__name__
-        _check_n_samples(
-            owner, X.shape[0], _n_terms(X.shape[1], degree),
-            f"for degree {degree} in {X.shape[1]} features (one per polynomial term)",
-        )
-        self.powers_, self.coef_, rank, _ = self._fit_degree(U, Y, degree)
+        n, d = X.shape
+        capped = degree
+        while capped > 0 and _n_terms(d, capped) > n:
+            capped -= 1
+        if capped < degree:
+            warnings.warn(
+                f"{owner}: {n} stars are fewer than the {_n_terms(d, degree)} terms of "
+                f"degree {degree} in {d} features; the degree is lowered to {capped} "
+                f"({_n_terms(d, capped)} terms). Give more stars or a lower degree.",
+                RankDeficientWarning,
+                stacklevel=4,
+            )
+        self.powers_, self.coef_, rank, _ = self._fit_degree(U, Y, capped, sqrt_w)
         if rank < self.powers_.shape[0]:
             warnings.warn(
                 f"{owner}: the design matrix has rank {rank} < {self.powers_.shape[0]} terms "
-                "(stars too few or aligned for this degree); the minimum-norm least-squares "
+                f"(stars aligned for degree {capped}); the minimum-norm least-squares "
                 "solution is used. Lower the degree.",
                 RankDeficientWarning,
-                stacklevel=3,
+                stacklevel=4,
             )
-        self.degree_ = int(degree)
+        self.degree_ = int(capped)
 
     def _bounds(self, X):
         lo, hi = X.min(axis=0), X.max(axis=0)
@@ -155,10 +183,11 @@ class PolynomialRegressor(_PolynomialBase):
         self.degree = degree
         self.max_degree = max_degree
 
-    def _fit(self, X, Y):
+    def _fit(self, X, Y, noise):
         self._bounds(X)
         U = self._scale(X)
         n, d = X.shape
+        sqrt_w = None if noise is None else 1.0 / np.sqrt(noise)
         if isinstance(self.degree, str):
             if self.degree != "auto":
                 raise ValueError(
@@ -175,8 +204,9 @@ class PolynomialRegressor(_PolynomialBase):
             scale2 = np.maximum(Y.var(axis=0), np.finfo(float).tiny)
             self.criterion_ = {}
             for g in candidates:
-                _, coef, _, A = self._fit_degree(U, Y, g)
-                rss = np.sum((Y - A @ coef) ** 2, axis=0)
+                _, coef, _, A = self._fit_degree(U, Y, g, sqrt_w)
+                res = Y - A @ coef
+                rss = np.sum((res if sqrt_w is None else res * sqrt_w) ** 2, axis=0)
                 rss = np.maximum(rss, n * scale2 * 1e-24)  # exact fits: avoid log(0)
                 p = _n_terms(d, g)
                 self.criterion_[g] = float(np.sum(n * np.log(rss / n) + p * np.log(n)))
@@ -184,7 +214,7 @@ class PolynomialRegressor(_PolynomialBase):
         else:
             self._check_degree(self.degree)
             degree = self.degree
-        self._set_fit(X, U, Y, degree)
+        self._set_fit(X, U, Y, degree, sqrt_w)
 
 
 class ChebyshevRegressor(_PolynomialBase):
@@ -230,7 +260,8 @@ class ChebyshevRegressor(_PolynomialBase):
     def __init__(self, degree=5):
         self.degree = degree
 
-    def _fit(self, X, Y):
+    def _fit(self, X, Y, noise):
         self._check_degree(self.degree)
         self._bounds(X)
-        self._set_fit(X, self._scale(X), Y, self.degree)
+        sqrt_w = None if noise is None else 1.0 / np.sqrt(noise)
+        self._set_fit(X, self._scale(X), Y, self.degree, sqrt_w)

@@ -8,7 +8,12 @@ from math import comb
 import numpy as np
 from scipy.interpolate import RBFInterpolator
 
-from ._base import _BaseInterpolator, _check_n_neighbors, _check_n_samples, _merge_duplicates
+from ._base import (
+    _check_n_neighbors,
+    _check_n_samples,
+    _merge_duplicates,
+    _NoiseAwareInterpolator,
+)
 
 #: kernels exposed, and the degree of the polynomial that scipy adds by default
 _KERNELS = {
@@ -19,7 +24,7 @@ _KERNELS = {
 }
 
 
-class RBFRegressor(_BaseInterpolator):
+class RBFRegressor(_NoiseAwareInterpolator):
     """Radial basis function interpolation, ``y(x) = sum_i w_i phi(|x - x_i|) + P(x)``.
 
     A thin wrapper of :class:`scipy.interpolate.RBFInterpolator` (kernels and their
@@ -54,12 +59,20 @@ default="gaussian"
     Attributes
     ----------
     interpolator_ : scipy.interpolate.RBFInterpolator
-        The fitted scipy interpolator.
+        The fitted scipy interpolator (the first one with per-target noise).
+    interpolators_ : list of scipy.interpolate.RBFInterpolator
+        One per group of targets sharing their smoothing (one without ``noise_var``).
     n_features_in_ : int
         Number of features seen during fit.
 
     Notes
     -----
+    ``fit(X, y, noise_var=...)``: star ``i`` of target ``t`` gets the smoothing
+    ``smoothing + noise_var[i, t] / var(y_t)``, the noise-to-signal ratio with the
+    target's variance as the kernel's amplitude (the Gaussian-process equivalent for
+    kernels equal to 1 at 0, gaussian and inverse multiquadric; a heuristic for the
+    others). Targets with different ratios need one scipy interpolator each.
+
     With ``smoothing=0`` stars at exactly the same position make the system singular:
     their values are averaged with a :class:`DuplicateStarsWarning`. A singular system
     otherwise raises a ``ValueError`` suggesting to change ``epsilon`` or add smoothing.
@@ -82,7 +95,7 @@ default="gaussian"
         self.smoothing = smoothing
         self.n_neighbors = n_neighbors
 
-    def _fit(self, X, Y):
+    def _fit(self, X, Y, noise):
         name = "RBFRegressor"
         if self.kernel not in _KERNELS:
             raise ValueError(
@@ -97,8 +110,8 @@ default="gaussian"
         if self.smoothing < 0:
             raise ValueError(f"{name}: smoothing must be >= 0, got {self.smoothing!r}.")
         if self.smoothing == 0:
-            X, Y = _merge_duplicates(
-                X, Y, owner=name,
+            X, Y, noise = _merge_duplicates(
+                X, Y, owner=name, noise=noise,
                 reason="with smoothing=0 the RBF system would be singular.",
             )
         k = _check_n_neighbors(name, self.n_neighbors)
@@ -114,11 +127,24 @@ default="gaussian"
             f"(distinct positions) for the degree-{degree} polynomial of the "
             f"{self.kernel} kernel in {X.shape[1]} features",
         )
+        if noise is None:
+            groups, smoothings = [np.arange(Y.shape[1])], [float(self.smoothing)]
+        else:
+            # per-star smoothing: the noise-to-signal ratio of each target (its variance
+            # over the stars as the kernel's amplitude); targets with equal ratios share
+            var = Y.var(axis=0)
+            ratio = noise / np.where(var > 0, var, np.inf)
+            unique, inverse = np.unique(ratio.T, axis=0, return_inverse=True)
+            groups = [np.flatnonzero(inverse.reshape(-1) == g) for g in range(len(unique))]
+            smoothings = [self.smoothing + r for r in unique]
         try:
-            self.interpolator_ = RBFInterpolator(
-                X, Y, kernel=self.kernel, epsilon=float(self.epsilon),
-                smoothing=float(self.smoothing), neighbors=k,
-            )
+            self.interpolators_ = [
+                RBFInterpolator(
+                    X, Y[:, cols], kernel=self.kernel, epsilon=float(self.epsilon),
+                    smoothing=smooth, neighbors=k,
+                )
+                for cols, smooth in zip(groups, smoothings)
+            ]
         except np.linalg.LinAlgError as exc:
             raise ValueError(
                 f"{name}: the RBF system is singular ({exc}). Try another epsilon, a "
@@ -126,5 +152,11 @@ default="gaussian"
                 "spline needs stars spanning every dimension)."
             ) from None
 
+        self._groups = groups
+        self.interpolator_ = self.interpolators_[0]
+
     def _predict(self, X):
-        return self.interpolator_(X)
+        out = np.empty((X.shape[0], self.n_targets_))
+        for cols, interp in zip(self._groups, self.interpolators_):
+            out[:, cols] = interp(X)
+        return out

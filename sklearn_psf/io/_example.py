@@ -127,20 +127,27 @@ def _example_wcs(shape, pixel_scale):
     return w
 
 
-def _sextractor_columns(vignettes, noise_rms, aperture=8.0):
-    """FLUX_AUTO, FLUXERR_AUTO, MAG_AUTO, FLUX_RADIUS, FLUX_MAX measured on the vignettes."""
+def _sextractor_columns(vignettes, noise_rms, aperture=8.0, sub=5):
+    """FLUX_AUTO, FLUXERR_AUTO, MAG_AUTO, FLUX_RADIUS, FLUX_MAX measured on the vignettes.
+
+    FLUX_RADIUS interpolates the growth curve of sub x sub sub-pixels (as SExtractor does),
+    so that it varies continuously with the source's size.
+    """
     n, v, _ = vignettes.shape
-    yy, xx = np.mgrid[:v, :v] - v // 2
+    fine = (np.arange(v * sub) + 0.5) / sub - 0.5 - v // 2
+    yy, xx = np.meshgrid(fine, fine, indexing="ij")
     r = np.hypot(xx, yy).ravel()
-    inside = r <= aperture
-    order = np.argsort(r[inside])
-    radii = r[inside][order]
-    flat = np.where(vignettes > -1e29, vignettes, 0.0).reshape(n, -1)[:, inside][:, order]
-    cum = np.cumsum(flat, axis=1)
+    pixel = (np.arange(v * sub) // sub)
+    index = (pixel[:, None] * v + pixel[None, :]).ravel()
+    inside = np.flatnonzero(r <= aperture)
+    order = inside[np.argsort(r[inside])]
+    radii = r[order]
+    flat = np.where(vignettes > -1e29, vignettes, 0.0).reshape(n, -1)
+    cum = np.cumsum(flat[:, index[order]], axis=1) / sub**2
     flux = cum[:, -1]
-    half = np.array([np.interp(0.5 * f, c, radii) if f > 0 else np.nan
-                     for f, c in zip(flux, np.maximum.accumulate(cum, axis=1))])
-    err = noise_rms * np.sqrt(inside.sum())
+    half = np.array([np.interp(0.5 * f, np.maximum.accumulate(c), radii) if f > 0 else np.nan
+                     for f, c in zip(flux, cum)])
+    err = noise_rms * np.sqrt(np.pi * aperture**2)
     with np.errstate(divide="ignore", invalid="ignore"):
         mag = np.where(flux > 0, 25.0 - 2.5 * np.log10(np.maximum(flux, 1e-30)), 99.0)
     return {"FLUX_AUTO": flux, "FLUXERR_AUTO": np.full(n, err), "MAG_AUTO": mag,
@@ -154,7 +161,8 @@ def write_example_ldac(folder, *, n_stars: int = 300, n_galaxies: int = 300,
 
     Stars are cut from a :func:`sklearn_psf.simulate.make_psf_field` image (the vignette
     side is the field's stamp size); galaxies are the true PSF at the field's galaxy
-    positions convolved with an elliptical Gaussian (sigma 0.8 to 4 pixels along each axis),
+    positions convolved with an elliptical Gaussian (sigma 0.3 to 4 pixels along each axis:
+    some barely resolved),
     with the same background noise and star-like fluxes. The catalogue columns
     (``X_IMAGE``, ``Y_IMAGE`` 1-based, ``FLUX_AUTO``, ``FLUXERR_AUTO``, ``MAG_AUTO``,
     ``FLUX_RADIUS``, ``FLUX_MAX``, ``FLAGS``, ``ALPHA_J2000``, ``DELTA_J2000``) are measured on
@@ -206,7 +214,7 @@ def write_example_ldac(folder, *, n_stars: int = 300, n_galaxies: int = 300,
     gal_pos = np.column_stack([field.galaxies["x"], field.galaxies["y"]]).astype(np.float64)
     psf = np.asarray(field.galaxies["stamp"], dtype=np.float64).reshape(-1, s, s)
     flux = rng.choice(np.asarray(field.stars["flux"]), len(psf))
-    gal = np.array([gaussian_filter(p, rng.uniform(0.8, 4.0, 2), mode="constant") * f
+    gal = np.array([gaussian_filter(p, rng.uniform(0.3, 4.0, 2), mode="constant") * f
                     for p, f in zip(psf, flux)]) + rng.normal(0.0, noise, psf.shape)
     kinds = [np.full(n_stars, "star"), np.full(len(gal), "galaxy")]
     vignettes, positions = [stars, gal], [star_pos, gal_pos]
@@ -242,6 +250,7 @@ def write_example_ldac(folder, *, n_stars: int = 300, n_galaxies: int = 300,
     table["FLAGS"] = np.concatenate([flags, np.zeros(n - n_stars, dtype=np.int16)])
     table["VIGNET"] = vig
     header = wcs.to_header()
+    header["NAXIS1"], header["NAXIS2"] = image_shape[1], image_shape[0]
     header["SATURATE"] = (saturate, "saturation level (ADU)")
     header["GAIN"] = (1.0, "e-/ADU")
     path = os.path.join(os.fspath(folder), "catalog.ldac")

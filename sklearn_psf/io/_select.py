@@ -55,7 +55,7 @@ def _peak(table):
 
 def select_stars(catalog, *, min_snr: float = 50.0, saturation: float | None = None,
                  stamp_size: int = 25, image_shape=None, isolation: float | None = None,
-                 locus_width: float = 0.1, max_spread_model: float = 0.003,
+                 locus_width: float | str = "auto", max_spread_model: float = 0.003,
                  min_class_star: float = 0.8):
     """Select clean, isolated point sources of a catalogue, counting each rejection by reason.
 
@@ -74,7 +74,9 @@ def select_stars(catalog, *, min_snr: float = 50.0, saturation: float | None = N
     - ``off_locus``: the size-magnitude locus: ``flux_radius`` more than ``locus_width``
       (relative) from the stellar locus, the mode of the radii of the brighter half (by
       ``flux``) of the sources left. Stars share one radius at every magnitude; galaxies are
-      larger, cosmic rays smaller.
+      larger, cosmic rays smaller. ``"auto"``: 3 times the robust scatter (1.4826 x median
+      absolute relative deviation) of the sources within 15% of the locus, kept in
+      [0.03, 0.1].
 
     Parameters
     ----------
@@ -91,7 +93,7 @@ def select_stars(catalog, *, min_snr: float = 50.0, saturation: float | None = N
         Shape of the image; None: no edge cut.
     isolation : float, optional
         Smallest Chebyshev distance to another source; default ``stamp_size``.
-    locus_width : float, default=0.1
+    locus_width : float or "auto", default="auto"
     max_spread_model : float, default=0.003
     min_class_star : float, default=0.8
 
@@ -101,7 +103,7 @@ def select_stars(catalog, *, min_snr: float = 50.0, saturation: float | None = N
         True for the selected stars.
     counts : dict
         Reason (every one of :data:`SELECTION_REASONS`) -> number of sources dropped, and
-        ``locus_radius`` (float, NaN when no locus cut was made).
+        ``locus_radius`` and ``locus_width`` (floats, NaN when no locus cut was made).
 
     Examples
     --------
@@ -159,7 +161,7 @@ def select_stars(catalog, *, min_snr: float = 50.0, saturation: float | None = N
     elif cls is not None:
         cut("extended", np.nan_to_num(cls, nan=-1.0) >= min_class_star)
     radius = _column(catalog, "flux_radius")
-    counts["locus_radius"] = np.nan
+    counts["locus_radius"] = counts["locus_width"] = np.nan
     if radius is not None:
         cut("off_locus", np.isfinite(radius) & (radius > 0))
         left = np.flatnonzero(keep)
@@ -170,5 +172,11 @@ def select_stars(catalog, *, min_snr: float = 50.0, saturation: float | None = N
                 left = left[: max(5, left.size // 2)]
             locus = _shorth_mode(radius[left], 0.5 if left.size < 20 else 0.3)
             counts["locus_radius"] = locus
-            cut("off_locus", np.abs(radius / locus - 1.0) <= locus_width)
+            rel = np.abs(radius / locus - 1.0)
+            width = locus_width
+            if isinstance(width, str):
+                near = rel[keep & (rel <= 0.15)]
+                width = float(np.clip(3 * 1.4826 * np.median(near), 0.03, 0.1))
+            counts["locus_width"] = float(width)
+            cut("off_locus", rel <= width)
     return keep, counts

@@ -111,6 +111,7 @@ def _find_stars(data, *, weight=None, stamp_size=25, detect_thresh=5.0, min_snr=
     keep, cuts = select_stars(measured, min_snr=min_snr, saturation=saturation, stamp_size=s,
                               image_shape=(ny, nx), isolation=isolation, locus_width=locus_width)
     locus = cuts.pop("locus_radius")
+    cuts.pop("locus_width")
     counts.update(cuts)
     idx = np.flatnonzero(keep)
     if idx.size:

@@ -1,0 +1,52 @@
+"""Command line: ``sklearn-psf compare`` runs the paper's comparison and writes a report;
+``sklearn-psf fit`` builds a validated PSF model of a FITS image and ``sklearn-psf predict``
+evaluates a saved model at given positions.
+
+Run ``sklearn-psf <command> --help`` for the options. Errors in the arguments or the data end with
+a one-line message and exit status 2 (set ``SKLEARN_PSF_DEBUG=1`` for the traceback); the
+library itself never prints. The parsers import nothing heavy: each command imports the
+library when it runs, so ``sklearn-psf --help`` answers at once.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+from .._cli_fit import CLIInputError, _add_fit_parsers, _fit, _predict
+from ._compare import PRESETS, STUDIES, STUDY_SCHEMES, add_compare_parser, run_compare
+
+__all__ = ["PRESETS", "STUDIES", "STUDY_SCHEMES", "build_parser", "main"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``sklearn-psf`` argument parser (commands ``compare``, ``fit``, ``predict``)."""
+    parser = argparse.ArgumentParser(
+        prog="sklearn-psf", description="PSF modelling and interpolation (Berge et al. 2012)."
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    add_compare_parser(sub)
+    _add_fit_parsers(sub)
+    return parser
+
+
+def main(argv=None) -> int:
+    """Entry point of the ``sklearn-psf`` command."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    runners = {"compare": run_compare, "fit": _fit, "predict": _predict}
+    try:
+        return runners[args.command](args)
+    except (CLIInputError, ValueError, OSError) as exc:
+        if os.environ.get("SKLEARN_PSF_DEBUG"):
+            raise
+        print(f"sklearn-psf: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("sklearn-psf: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,239 @@
+"""``sklearn-psf compare``: its parser and its runner (the study of :mod:`sklearn_psf.study`)."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+from dataclasses import replace
+
+from .._cli_fit import CLIInputError, _check_output, _positive_int
+
+PRESETS = {
+    # The paper: 50 simulations of 1000 stars and 2000 galaxy-PSFs on a Subaru-sized image.
+    "paper": {"n_simulations": 50, "study_simulations": 10, "n_stars": 1000, "n_galaxies": 2000,
+              "image_shape": (7769, 10032)},
+    # A few minutes on 2 cores: the same image and densities, fewer simulations (underpowered:
+    # the report says so next to each verdict).
+    "quick": {"n_simulations": 4, "study_simulations": 2, "n_stars": 1000, "n_galaxies": 2000,
+              "image_shape": (7769, 10032)},
+}
+STUDIES = ("maps", "snr", "density", "outliers", "tuning", "scale")
+# The paper's figures of the discussion show these three schemes.
+STUDY_SCHEMES = ("polynomial", "delaunay", "kriging")
+# Embedded reference bases: the default (5 components, 90% of the variance) and one the size of
+# the paper's Subaru basis (13 components).
+REFERENCES = {"default": 5, "paper13": 13}
+# The smallest scale of the simulated PSF variation (arcsec) tried by the "scale" study.
+SCALE_STUDY = (4.0, 8.0, 16.0)
+
+
+def _snr(text):
+    if text == "realistic":
+        return text
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number or 'realistic', got {text!r}") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"S/N must be positive, got {value}")
+    return value
+
+
+def _positive_float(text):
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {value}")
+    return value
+
+
+def _shape(text):
+    try:
+        ny, nx = (int(v) for v in text.lower().replace("x", ",").split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected NY,NX in pixels, got {text!r}") from None
+    if ny <= 0 or nx <= 0:
+        raise argparse.ArgumentTypeError(f"image sides must be positive, got {text!r}")
+    return ny, nx
+
+
+def _csv_list(text):
+    return [item.strip() for item in text.split(",") if item.strip()]
+
+
+def add_compare_parser(sub):
+    """Add the ``compare`` command to the sub-parsers ``sub``."""
+    cmp = sub.add_parser(
+        "compare",
+        help="run the paper's comparison of interpolation schemes on simulated PSF fields",
+        description="Simulate PSF fields from the embedded reference, fit a PSF model per "
+        "interpolation scheme on the stars, evaluate it at the galaxy-PSFs against the optimal "
+        "predictor of the same field, and write tables, figures and a Markdown report.",
+    )
+    cmp.add_argument("-o", "--output", default="sklearn_psf_results", help="output folder")
+    cmp.add_argument("--quick", action="store_true",
+                     help="a few simulations only: minutes instead of the paper's 50 simulations "
+                          "(too few to decide most verdicts; the report says so)")
+    cmp.add_argument("--n-simulations", type=_positive_int, help="simulations of the main comparison")
+    cmp.add_argument("--study-simulations", type=_positive_int,
+                     help="simulations per configuration of the side studies")
+    cmp.add_argument("--n-stars", type=_positive_int, help="stars per simulation [1000]")
+    cmp.add_argument("--n-galaxies", type=_positive_int, help="galaxy-PSFs per simulation [2000]")
+    cmp.add_argument("--image-shape", type=_shape, metavar="NY,NX",
+                     help="simulated image size in pixels [7769,10032: Subaru SuprimeCam]")
+    cmp.add_argument("--snr", type=_snr, default=100.0, help="star S/N, or 'realistic' [100]")
+    cmp.add_argument("--smallest-scale", type=_positive_float, metavar="ARCSEC",
+                     help="smallest scale of the simulated PSF variation, arcsec [8: the "
+                          "cell of the simulations' random fields]")
+    cmp.add_argument("--reference", default="default", metavar="NAME|PATH",
+                     help="reference basis of the simulations: 'default' (5 components), "
+                          "'paper13' (13 components, the size of the paper's basis) or a "
+                          "ReferenceBasis FITS file")
+    cmp.add_argument("--schemes", type=_csv_list,
+                     help="comma-separated schemes of the main comparison (default: all)")
+    cmp.add_argument("--studies", type=_csv_list, default=list(STUDIES),
+                     help=f"comma-separated studies among {','.join(STUDIES)}, or 'none'")
+    cmp.add_argument("--seed", type=int, default=0, help="seed of the whole study [0]")
+    cmp.add_argument("--n-jobs", type=int, default=1, help="parallel simulations (joblib)")
+    cmp.add_argument("--scheduler", metavar="ADDRESS",
+                     help="run on the Dask cluster at ADDRESS (joblib's dask backend)")
+    return cmp
+
+
+@contextlib.contextmanager
+def _backend(scheduler):
+    if scheduler is None:
+        yield
+        return
+    try:
+        from distributed import Client
+    except ImportError:
+        raise CLIInputError("--scheduler needs Dask: pip install 'sklearn-psf[dask]'") from None
+    import joblib
+
+    try:
+        client = Client(scheduler, timeout="10s")
+    except OSError as exc:
+        raise CLIInputError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+    with client, joblib.parallel_backend("dask"):
+        yield
+
+
+def _load_reference(name):
+    from .. import datasets
+
+    if name in REFERENCES:
+        return datasets.load_default_reference(n_components=REFERENCES[name])
+    try:
+        return datasets.ReferenceBasis.load(name)
+    except (OSError, ValueError) as exc:
+        raise CLIInputError(f"--reference {name!r} is neither an embedded basis "
+                            f"({', '.join(REFERENCES)}) nor a readable ReferenceBasis FITS "
+                            f"file ({exc})") from None
+
+
+def _selected(names, available, what):
+    unknown = [n for n in names if n not in available]
+    if unknown:
+        raise CLIInputError(f"unknown {what} {unknown[0]!r}; choose among {', '.join(available)}")
+    return names
+
+
+def run_compare(args) -> int:
+    """Run ``sklearn-psf compare``: the study, its report, a summary on the terminal."""
+    from tqdm.auto import tqdm
+
+    from ..metrics import requirement_curves, survey_table
+    from ..model import PSFModel
+    from ..study import compare
+    from ..study.report import write_report
+
+    preset = dict(PRESETS["quick" if args.quick else "paper"])
+    n_sims = args.n_simulations or preset["n_simulations"]
+    study_sims = args.study_simulations or preset["study_simulations"]
+    studies = [] if args.studies == ["none"] else _selected(args.studies, STUDIES, "study")
+    all_schemes = compare.default_schemes()
+    names = _selected(args.schemes or list(all_schemes), list(all_schemes), "scheme")
+    schemes = {n: all_schemes[n] for n in names}
+    study_schemes = {n: all_schemes[n] for n in STUDY_SCHEMES}
+    _check_output(args.output)
+    reference = _load_reference(args.reference)
+
+    base = compare.SimulationConfig(
+        n_stars=args.n_stars or preset["n_stars"],
+        n_galaxies=args.n_galaxies or preset["n_galaxies"],
+        snr=args.snr,
+        image_shape=args.image_shape or preset["image_shape"],
+        smallest_scale=args.smallest_scale,
+    ).validate()
+    tuning = None
+    with _backend(args.scheduler):
+        if "tuning" in studies:
+            with tqdm(total=len(compare.PARAM_GRIDS), desc="tuning", unit="scheme") as bar:
+                tuning = compare.tune_schemes(base, random_state=args.seed, reference=reference,
+                                              n_jobs=args.n_jobs, progress=bar.update)
+            schemes.update(compare.tuned_schemes(tuning))
+        if not args.schemes:
+            # the library's own defaults (basis, outlier rejection, interpolator) next to the
+            # paper's settings
+            schemes[compare.DEFAULT_MODEL] = PSFModel()
+        runs = [("comparison", [base], schemes, n_sims)]
+        if "maps" in studies:
+            runs.append(("maps", [replace(base, label="grid", galaxy_layout="grid")],
+                         {n: s for n, s in schemes.items() if n in all_schemes}, 1))
+        if "snr" in studies:
+            runs.append(("S/N study", compare.snr_study_configs(base), study_schemes, study_sims))
+        if "density" in studies:
+            runs.append(("density study", compare.density_study_configs(base), study_schemes,
+                         study_sims))
+        if "outliers" in studies:
+            runs.append(("outlier study", compare.outlier_study_configs(base), study_schemes,
+                         study_sims))
+        if "scale" in studies:
+            runs.append(("scale study", compare.scale_study_configs(base, SCALE_STUDY),
+                         study_schemes, study_sims))
+        results = []
+        for title, configs, run_schemes, sims in runs:
+            with tqdm(total=len(configs) * sims, desc=title, unit="sim") as bar:
+                results.append(compare.run_study(
+                    configs, run_schemes, n_simulations=sims, random_state=args.seed,
+                    reference=reference, n_jobs=args.n_jobs, progress=bar.update,
+                    oracle=title != "maps",
+                ))
+    result = compare.combine_results(results)
+    curves = requirement_curves(result.theta)
+    result.requirements = dict(zip(curves.levels, curves.d1_limit))
+    result.surveys = survey_table()
+    result.tuning = tuning
+    result.config["quick"] = bool(args.quick)
+    result.config["reference"] = args.reference
+    stamps, positions = compare.example_stars(base, result.config["seeds"][0], reference)
+    paths = write_report(result, args.output, stamps=stamps, positions=positions)
+    print(_summary_text(result))
+    print(f"\nWrote {len(paths)} files to {args.output}/ (report: {args.output}/report.md)")
+    return 0
+
+
+def _summary_text(result):
+    """A few lines for the terminal: each scheme's median residuals and survey verdicts."""
+    import numpy as np
+
+    from ..study.report import summarize, survey_verdicts
+
+    summary = summarize(result.scores[result.scores["config"] == "default"])
+    verdicts = survey_verdicts(result.scores, result.surveys)
+    lines = [f"{'scheme':<18}{'e_rms':>10}{'/oracle':>9}{'|rho1|':>10}{'sigma_sys2':>12}  meets"]
+    for row in summary[np.argsort(summary["e_rms_median"])]:
+        met = [str(v["survey"]) for v in verdicts if v["scheme"] == row["scheme"] and v["meets"]]
+        ratio = row["e_rms_ratio_median"] if "e_rms_ratio_median" in summary.colnames else np.nan
+        lines.append(
+            f"{row['scheme']:<18}{row['e_rms_median']:>10.2e}{ratio:>9.3f}"
+            f"{row['rho1_mean_abs_median']:>10.1e}{row['sigma_sys2_median']:>12.1e}  "
+            + (", ".join(met) or "none")
+        )
+    if result.config.get("quick"):
+        lines.append("--quick: too few simulations to decide most verdicts (see report.md).")
+    return "\n".join(lines)
+
