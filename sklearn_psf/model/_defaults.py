@@ -57,9 +57,11 @@ def make_default_interpolator():
     """The default interpolator: positions scaled to the unit square, then Kriging fitted to
     the data.
 
-    ``make_pipeline(MinMaxScaler(), KrigingRegressor(range="auto", nugget="auto"))``: range,
-    nugget and sills by maximum likelihood, each star's coefficient noise in the Kriging
-    system (:class:`~sklearn_psf.model.PSFModel` passes it). Pass it explicitly to
+    ``make_pipeline(MinMaxScaler(), KrigingRegressor(range="auto", nugget="auto",
+    noise_scale="auto"))``: range, nugget, sills and a scale factor on the stars' coefficient
+    noise by maximum likelihood over all coefficients at once; each star's coefficient noise
+    enters the Kriging system as a measurement error (:class:`~sklearn_psf.model.PSFModel`
+    passes it), so that faint stars count less than bright ones. Pass it explicitly to
     ``PSFModel(interpolator=...)`` to tune its nested parameters
     (``interpolator__krigingregressor__range``).
 
@@ -73,7 +75,8 @@ def make_default_interpolator():
     >>> list(make_default_interpolator().named_steps)
     ['minmaxscaler', 'krigingregressor']
     """
-    return make_paper_interpolator()  # INTEGRATION: auto Kriging
+    return make_pipeline(MinMaxScaler(), KrigingRegressor(range="auto", nugget="auto",
+                                                          noise_scale="auto"))
 
 
 def make_paper_interpolator():

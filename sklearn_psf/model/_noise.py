@@ -89,6 +89,25 @@ def cross_predict(interpolator, X, coef, noise_var, n_splits, random_state):
     return pred
 
 
+def leave_out_predict(template, fitted, X, coef, noise_var, n_splits, random_state):
+    """Each star's coefficients predicted without it.
+
+    In closed form when the fitted interpolator's final step offers ``loo_predict`` (exact
+    Kriging: one factorisation for all stars); otherwise by ``n_splits``-fold
+    cross-prediction with the hyperparameters ``fitted`` found (see :func:`freeze_auto`).
+    """
+    final = _final_step(fitted)
+    if hasattr(final, "loo_predict"):
+        try:
+            pred = np.asarray(final.loo_predict(), dtype=np.float64).reshape(len(coef), -1)
+        except ValueError:  # local Kriging, or merged duplicates: fall back to folds
+            pred = None
+        if pred is not None and len(getattr(final, "X_fit_", ())) == len(coef):
+            return pred
+    return cross_predict(freeze_auto(template, fitted), X, coef, noise_var, n_splits,
+                         random_state)
+
+
 def _solve_floor(statistic, target):
     """Smallest t >= 0 with ``statistic(t) <= target`` (statistic decreasing in t)."""
     if statistic(0.0) <= target:

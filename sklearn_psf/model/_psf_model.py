@@ -25,9 +25,9 @@ from ._defaults import (
 )
 from ._noise import (
     coefficient_residuals,
-    cross_predict,
     fit_interpolator,
     freeze_auto,
+    leave_out_predict,
     pixel_residuals,
 )
 
@@ -265,12 +265,13 @@ class PSFModel(RegressorMixin, BaseEstimator):
             if usable.sum() < k + 2:
                 raise ValueError(f"{int(usable.sum())} usable stars are too few for a basis of "
                                  f"{k} components: need at least {k + 2}.")
-            inliers, score = self._reject(detector, X, y, coef, var, usable & keep, usable,
-                                          interp, stamp_fit)
-            if round_ == 1 or not noise_aware or (inliers == keep).all():
+            trusted = usable & keep
+            inliers, score, fitted = self._reject(detector, X, y, coef, var, trusted, usable,
+                                                  interp, stamp_fit)
+            mask = usable & inliers
+            if round_ == 1 or not noise_aware or (mask == trusted).all():
                 break
             keep = inliers  # fit the basis again without the rejected stars
-        mask = usable & inliers
         if (~usable).any():
             warnings.warn(
                 f"{int((~usable).sum())} stars could not be fitted on the basis (no centroid "
@@ -282,7 +283,12 @@ class PSFModel(RegressorMixin, BaseEstimator):
                 f"Outlier rejection kept {kept} of {n} stars: too few to interpolate. Use a "
                 "milder detector (e.g. a larger p_value or alpha) or outliers=None."
             )
-        fit_interpolator(interp, X[mask], coef[mask], None if var is None else var[mask])
+        if fitted is not None and (mask == trusted).all():
+            interp = fitted  # the chi^2 test's reference fit is on exactly these stars
+        else:
+            if fitted is not None:  # hyperparameters found on the trusted stars
+                interp = freeze_auto(interp, fitted)
+            fit_interpolator(interp, X[mask], coef[mask], None if var is None else var[mask])
 
         self.basis_ = basis
         self.outliers_ = detector
@@ -336,31 +342,32 @@ class PSFModel(RegressorMixin, BaseEstimator):
         return coef, None, np.zeros(len(y), dtype=np.int64), None
 
     def _reject(self, detector, X, y, coef, var, trusted, usable, interp, stamp_fit):
-        """Inlier mask over all stars and the detector's score (NaN where unusable).
+        """Inlier mask over all stars, the detector's score (NaN where unusable) and the
+        interpolator fitted on the trusted stars (None unless the test is chi^2).
 
-        The chi^2 test's references (cross-predictions, model-error floors) come from the
-        ``trusted`` stars only (the inliers of the previous round); every usable star is
-        judged against them.
+        The chi^2 test's references (leave-one-out or cross-predictions, model-error floors)
+        come from the ``trusted`` stars only (the inliers of the previous round); every
+        usable star is judged against them.
         """
         n = len(X)
-        if detector is None:
-            return np.ones(n, dtype=bool), None
-        idx = np.flatnonzero(usable)
         inliers = np.ones(n, dtype=bool)
+        if detector is None:
+            return inliers, None, None
+        idx = np.flatnonzero(usable)
         score = np.full(n, np.nan)
         if not isinstance(detector, ChiSquareOutlierDetector):
             labels = np.asarray(detector.fit_predict(coef[idx]))
             inliers[idx] = labels == 1
             if hasattr(detector, "score_samples"):
                 score[idx] = detector.score_samples(coef[idx])
-            return inliers, score
+            return inliers, score, None
         ref = trusted[idx]
         train = idx[ref]
         noise = None if var is None else var[train]
         full = fit_interpolator(clone(interp), X[train], coef[train], noise)
         predicted = np.asarray(full.predict(X[idx]), dtype=np.float64).reshape(len(idx), -1)
-        predicted[ref] = cross_predict(freeze_auto(interp, full), X[train], coef[train], noise,
-                                       self.cv, self.random_state)
+        predicted[ref] = leave_out_predict(interp, full, X[train], coef[train], noise,
+                                           self.cv, self.random_state)
         z_coef, _ = coefficient_residuals(X[idx], coef[idx], predicted,
                                           None if var is None else var[idx], reference=ref)
         detector.fit(z_coef)
@@ -374,7 +381,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
             ok &= pix.predict(z_pix) == 1
             score[idx] = np.minimum(score[idx], pix.score_samples(z_pix))
         inliers[idx] = ok
-        return inliers, score
+        return inliers, score, full
 
     def save(self, path, *, residuals=None, summary=None, overwrite: bool = False) -> None:
         """Write the fitted model to a self-describing FITS file (atomically).

@@ -130,7 +130,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         many as hold that fraction of the weighted variance (the paper's 0.9, noise-blind).
     max_components : int, default=20
         Upper bound for "noise" and float choices.
-    n_iter : int, default=3
+    n_iter : int, default=2
         Rounds of fill / normalise / PCA / fit.
     max_star_weight : float, default=10.0
         Cap of a star's PCA weight in units of the median star weight.
@@ -174,7 +174,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
     array([1., 1.])
     """
 
-    def __init__(self, n_components="noise", max_components: int = 20, n_iter: int = 3,
+    def __init__(self, n_components="noise", max_components: int = 20, n_iter: int = 2,
                  max_star_weight: float = 10.0, guess_sigma: float = 3.0):
         self.n_components = n_components
         self.max_components = max_components
