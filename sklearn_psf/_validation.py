@@ -38,3 +38,12 @@ def as_stamps(stamps, *, name="stamps", copy=False):
             )
         return arr.reshape(arr.shape[0], size, size)
     raise ValueError(f"{name} must have shape (n, s, s) or (n, s*s), got {arr.ndim} dimensions.")
+
+
+def rows_text(rows, limit: int = 10) -> str:
+    """``"3, 7, 12"``: row numbers for an error message, the first ``limit`` of them."""
+    rows = [int(r) for r in rows]
+    text = ", ".join(map(str, rows[:limit]))
+    if len(rows) > limit:
+        text += f", ... ({len(rows)} rows)"
+    return text

@@ -12,12 +12,13 @@ import numpy as np
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
 from sklearn_psf import FixedBasis, PSFModel, StampNormalizer
+from sklearn_psf.preprocessing import ChiSquareOutlierDetector, StampPCA
 
 _NOT_SQUARE = ("the check's data have a non-square number of pixels (2-10 features); "
-               "StampNormalizer needs square stamps to centre them")
+               "stamps must be square to be centred")
 _NOT_STAMPS = ("the check's targets are 1 to 5 values per sample, many zero or negative: "
-               "PSFModel's y must be star stamps with a square number of pixels and positive "
-               "flux, to be flux-normalised and projected on a basis")
+               "PSFModel's y must be star stamps of at least 3x3 pixels and positive flux, to "
+               "be fitted on a basis")
 _FIXED_SIZE = ("the check's data have 1-10 features; a FixedBasis of 9-pixel components only "
                "projects 9-pixel stamps")
 
@@ -34,6 +35,7 @@ _STAMP_DATA_CHECKS = [
 ]
 _MODEL_CHECKS = [
     "check_dict_unchanged", "check_dont_overwrite_parameters", "check_dtype_object",
+    "check_estimators_dtypes",
     "check_estimators_fit_returns_self", "check_estimators_nan_inf",
     "check_estimators_overwrite_params", "check_estimators_pickle",
     "check_f_contiguous_array_estimator", "check_fit2d_predict1d", "check_fit_check_is_fitted",
@@ -47,6 +49,11 @@ _MODEL_CHECKS = [
 EXPECTED_FAILURES = {
     "PSFModel": dict.fromkeys(_MODEL_CHECKS, _NOT_STAMPS),
     "StampNormalizer": dict.fromkeys(_STAMP_DATA_CHECKS, _NOT_SQUARE),
+    "StampPCA": {
+        **dict.fromkeys(_STAMP_DATA_CHECKS, _NOT_SQUARE),
+        "check_n_features_in_after_fitting": _NOT_SQUARE,
+        "check_positive_only_tag_during_fit": _NOT_SQUARE,
+    },
     "FixedBasis": {
         **dict.fromkeys(_STAMP_DATA_CHECKS, _FIXED_SIZE),
         "check_fit2d_1feature": _FIXED_SIZE,
@@ -62,7 +69,7 @@ def _expected(estimator):
 
 @parametrize_with_checks(
     [StampNormalizer(), FixedBasis(components=np.random.default_rng(0).random((2, 9))),
-     PSFModel()],
+     StampPCA(), ChiSquareOutlierDetector(), PSFModel()],
     expected_failed_checks=_expected,
 )
 def test_sklearn_compatible(estimator, check):

@@ -13,8 +13,14 @@ from sklearn.neighbors import KNeighborsRegressor
 from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import MinMaxScaler, PolynomialFeatures
 
-from sklearn_psf.model import PSFModel
-from sklearn_psf.preprocessing import FixedBasis, IQROutlierDetector, StampNormalizer
+from sklearn_psf.model import PSFModel, UnusableStarsWarning, make_paper_basis
+from sklearn_psf.preprocessing import (
+    ChiSquareOutlierDetector,
+    FixedBasis,
+    IQROutlierDetector,
+    StampNormalizer,
+    StampPCA,
+)
 
 S = 15
 FIELD = 2000.0
@@ -73,7 +79,7 @@ def data():
 def test_predicts_held_out_stamps_kriging_beats_linear(data):
     X, y, Xt, yt = data
     X0, y0 = X.copy(), y.copy()
-    model = PSFModel(interpolator=kriging()).fit(X, y)
+    model = PSFModel(interpolator=kriging(), basis=make_paper_basis(), outliers="iqr").fit(X, y)
     np.testing.assert_array_equal(X, X0)
     np.testing.assert_array_equal(y, y0)
     assert model.stamp_size_ == S
@@ -81,7 +87,7 @@ def test_predicts_held_out_stamps_kriging_beats_linear(data):
     pred = model.predict(Xt)
     assert pred.shape == (60, S * S)
     err_krig = np.sqrt(np.mean((pred - yt) ** 2)) / yt.max()
-    lin = PSFModel(interpolator=linear()).fit(X, y)
+    lin = PSFModel(interpolator=linear(), basis=make_paper_basis(), outliers="iqr").fit(X, y)
     err_lin = np.sqrt(np.mean((lin.predict(Xt) - yt) ** 2)) / yt.max()
     assert err_krig < 0.01
     assert err_krig < 0.7 * err_lin
@@ -115,12 +121,20 @@ def test_outlier_stars_are_rejected(data):
     cube = y.reshape(-1, S, S)
     for i in bad:  # a bright companion: a binary star
         cube[i] += 0.8 * np.roll(cube[i], (4, -4), axis=(0, 1))
-    model = PSFModel(interpolator=KNeighborsRegressor(5)).fit(X, y)
+    model = PSFModel(interpolator=KNeighborsRegressor(5), basis=make_paper_basis(),
+                     outliers="iqr").fit(X, y)
     assert not model.inlier_mask_[bad].any()
     assert model.inlier_mask_.mean() > 0.95
     assert isinstance(model.outliers_, IQROutlierDetector)
+    # the default: chi^2 against each star's noise and the model's own error (real stars
+    # are noisy: sky noise of 0.2% of the brightest star's peak)
+    noisy = y + np.random.default_rng(1).normal(0.0, 2e-3 * y.max(), y.shape)
+    default = PSFModel(interpolator=KNeighborsRegressor(5)).fit(X, noisy)
+    assert isinstance(default.outliers_, ChiSquareOutlierDetector)
+    assert not default.inlier_mask_[bad].any()
+    assert default.inlier_mask_.sum() >= 0.98 * (len(X) - len(bad))
     # any scikit-learn outlier detector works
-    iso = PSFModel(interpolator=KNeighborsRegressor(5),
+    iso = PSFModel(interpolator=KNeighborsRegressor(5), basis=make_paper_basis(),
                    outliers=IsolationForest(contamination=0.02, random_state=0)).fit(X, y)
     assert not iso.inlier_mask_[bad].any()
 
@@ -143,7 +157,7 @@ def test_grid_search_cross_validate_clone_pickle(data):
     np.testing.assert_array_equal(again.predict(Xt), fitted.predict(Xt))
     c = clone(fitted)
     assert not hasattr(c, "basis_")
-    assert c.get_params()["outliers"] == "iqr"
+    assert c.get_params()["outliers"] == "chi2"
 
 
 def test_default_model_uses_kriging_interpolator(data):
@@ -165,9 +179,15 @@ def test_bad_input(data):
     with pytest.raises(ValueError, match="NaN"):
         PSFModel(interpolator=knn).fit(Xn, y[:20])
     yn = y[:20].copy()
-    yn[4, 7] = np.nan
-    with pytest.raises(ValueError, match="NaN"):
-        PSFModel(interpolator=knn).fit(X[:20], yn)
+    yn[4, 7] = np.nan  # a masked pixel: fine for the default basis, not for the paper's
+    with pytest.raises(ValueError, match="rows 4"):
+        PSFModel(interpolator=knn, basis=make_paper_basis()).fit(X[:20], yn)
+    assert PSFModel(interpolator=knn).fit(X[:20], yn).inlier_mask_[4]
+    with pytest.raises(TypeError, match="weights"):
+        PSFModel(interpolator=knn, basis=make_paper_basis()).fit(X[:20], y[:20],
+                                                                  weights=np.ones((20, S * S)))
+    with pytest.raises(ValueError, match="odd"):
+        PSFModel(interpolator=knn).fit(X[:20], np.ones((20, 16)))
     with pytest.raises(ValueError, match="square"):
         PSFModel(interpolator=knn).fit(X[:20], y[:20, :-1])
     # extra position columns (e.g. an exposure index) go to the interpolator as they are,
@@ -178,8 +198,11 @@ def test_bad_input(data):
         three.predict(X[:3])
     y0 = y[:20].copy()
     y0[5] = 0.0
-    with pytest.raises(ValueError, match="All-zero stamps at rows 5"):
-        PSFModel(interpolator=knn).fit(X[:20], y0)
+    with pytest.raises(ValueError, match="non-positive total flux at rows 5"):
+        PSFModel(interpolator=knn, basis=make_paper_basis()).fit(X[:20], y0)
+    with pytest.warns(UnusableStarsWarning, match="rows 5"):
+        empty = PSFModel(interpolator=knn).fit(X[:20], y0)
+    assert not empty.inlier_mask_[5] and empty.fit_flag_[5] != 0
     basis = FixedBasis(np.eye(S * S)[:6])
     with pytest.raises(ValueError, match="too few"):
         PSFModel(interpolator=knn, basis=basis).fit(X[:5], y[:5])
@@ -202,12 +225,12 @@ def test_grid_search_reaches_the_default_interpolator_and_basis(data):
     X, y, _, _ = data
     model = PSFModel()
     search = GridSearchCV(model, {"interpolator__krigingregressor__range": [0.2, 0.6],
-                                  "basis__pca__n_components": [0.8, 0.9]}, cv=3)
+                                  "basis__n_components": [2, "noise"]}, cv=3)
     search.fit(X, y)
     assert model.interpolator is None and model.basis is None  # clone + set_params only
     best = search.best_estimator_
     assert best.interpolator.named_steps["krigingregressor"].range in (0.2, 0.6)
-    assert best.basis.named_steps["pca"].n_components in (0.8, 0.9)
+    assert isinstance(best.basis, StampPCA) and best.basis.n_components in (2, "noise")
     # the same values set by hand give the same model
     by_hand = PSFModel().set_params(**search.best_params_).fit(X, y)
     np.testing.assert_allclose(by_hand.predict(X[:5]), best.predict(X[:5]))

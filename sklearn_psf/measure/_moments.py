@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from astropy.table import Table
 
-from .._validation import as_stamps
+from .._validation import as_stamps, rows_text
 
 __all__ = [
     "adaptive_moments",
@@ -85,8 +85,8 @@ def _masked_pixels(cube, weights):
         if not valid:
             rows = np.flatnonzero(~(np.isfinite(w) & (w >= 0)).all(axis=(1, 2)))
             raise ValueError(
-                f"weights hold negative, NaN or infinite values in rows {rows[:10].tolist()}"
-                f"{' ...' if rows.size > 10 else ''}: pass inverse variances >= 0, with 0 for "
+                f"weights hold negative, NaN or infinite values in rows {rows_text(rows)}: "
+                "pass inverse variances >= 0, with 0 for "
                 "masked pixels."
             )
         if _USE_NUMBA:

@@ -2,7 +2,10 @@
 
 from ._basis import FixedBasis
 from ._normalize import CentringWarning, StampNormalizer, fourier_shift
+from ._chi2 import ChiSquareOutlierDetector
+from ._noise import estimate_pixel_weights
 from ._outliers import IQROutlierDetector
+from ._pca import FIT_NO_CENTROID, FIT_NO_FLUX, FIT_OK, StampFit, StampFitWarning, StampPCA
 from ._stamps import (
     CUT_BAD_POSITION,
     CUT_MASKED,
@@ -19,6 +22,14 @@ __all__ = [
     "fourier_shift",
     "FixedBasis",
     "IQROutlierDetector",
+    "ChiSquareOutlierDetector",
+    "StampPCA",
+    "StampFit",
+    "StampFitWarning",
+    "estimate_pixel_weights",
+    "FIT_OK",
+    "FIT_NO_CENTROID",
+    "FIT_NO_FLUX",
     "CUT_OK",
     "CUT_OFF_EDGE",
     "CUT_NAN",

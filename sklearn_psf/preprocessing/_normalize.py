@@ -8,6 +8,7 @@ import numpy as np
 from sklearn.base import BaseEstimator, OneToOneFeatureMixin, TransformerMixin
 from sklearn.utils.validation import check_is_fitted, validate_data
 
+from .._validation import rows_text
 from ..measure._moments import adaptive_moments
 
 __all__ = ["StampNormalizer", "CentringWarning", "fourier_shift"]
@@ -16,13 +17,6 @@ __all__ = ["StampNormalizer", "CentringWarning", "fourier_shift"]
 class CentringWarning(UserWarning):
     """A stamp could not be centred (its adaptive moments failed) and was left unshifted."""
 
-
-def _rows_text(rows, limit=10):
-    rows = [int(r) for r in rows]
-    text = ", ".join(map(str, rows[:limit]))
-    if len(rows) > limit:
-        text += f", ... ({len(rows)} rows)"
-    return text
 
 
 def fourier_shift(cube, dx, dy):
@@ -180,19 +174,19 @@ class StampNormalizer(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
         bad = ~np.isfinite(X).all(axis=1)
         if bad.any():
             raise ValueError(
-                f"Stamps with NaN or infinite pixels at rows {_rows_text(np.flatnonzero(bad))}: "
+                f"Stamps with NaN or infinite pixels at rows {rows_text(np.flatnonzero(bad))}: "
                 "remove them (e.g. using the flags of cut_stamps) before normalising."
             )
         total = X.sum(axis=1)
         zero = ~(X != 0).any(axis=1)
         if zero.any():
-            raise ValueError(f"All-zero stamps at rows {_rows_text(np.flatnonzero(zero))}.")
+            raise ValueError(f"All-zero stamps at rows {rows_text(np.flatnonzero(zero))}.")
         if self.flux:
             nonpos = ~(total > 0)
             if nonpos.any():
                 raise ValueError(
                     f"Stamps with non-positive total flux at rows "
-                    f"{_rows_text(np.flatnonzero(nonpos))}: they cannot be flux-normalised."
+                    f"{rows_text(np.flatnonzero(nonpos))}: they cannot be flux-normalised."
                 )
             X /= total[:, None]
         if self.center:
@@ -221,7 +215,7 @@ class StampNormalizer(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
             todo = idx
         if failed:
             warnings.warn(
-                f"Adaptive moments failed for stamps at rows {_rows_text(sorted(set(failed)))}; "
+                f"Adaptive moments failed for stamps at rows {rows_text(sorted(set(failed)))}; "
                 "they were left uncentred.",
                 CentringWarning,
                 stacklevel=3,

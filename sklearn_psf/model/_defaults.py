@@ -1,0 +1,96 @@
+"""The default parts of a PSF model (noise-aware) and the paper's (noise-blind) ones."""
+
+from __future__ import annotations
+
+from sklearn.decomposition import PCA
+from sklearn.pipeline import make_pipeline
+from sklearn.preprocessing import MinMaxScaler
+
+from ..interpolate import KrigingRegressor
+from ..preprocessing import StampNormalizer, StampPCA
+
+__all__ = ["make_default_basis", "make_default_interpolator", "make_paper_basis",
+           "make_paper_interpolator"]
+
+
+def make_default_basis():
+    """The default stamp basis: :class:`~sklearn_psf.preprocessing.StampPCA`.
+
+    Weighted PCA of the raw star stamps with as many components as stand above the noise,
+    and weighted-least-squares coefficients with their noise variance (masked pixels
+    excluded). See :func:`make_paper_basis` for the paper's noise-blind basis.
+
+    Returns
+    -------
+    basis : StampPCA
+
+    Examples
+    --------
+    >>> from sklearn_psf.model import make_default_basis
+    >>> make_default_basis()
+    StampPCA()
+    """
+    return StampPCA()
+
+
+def make_paper_basis():
+    """The paper's basis: ``make_pipeline(StampNormalizer(), PCA(n_components=0.9))``.
+
+    PCA keeps 90% of the variance (Berge et al. 2012) with ``svd_solver="full"``
+    (deterministic). On noisy stars the noise holds most of the variance, and this basis then
+    keeps hundreds of components: use it for the paper's study, not for real data.
+
+    Returns
+    -------
+    basis : sklearn.pipeline.Pipeline
+
+    Examples
+    --------
+    >>> from sklearn_psf.model import make_paper_basis
+    >>> list(make_paper_basis().named_steps)
+    ['stampnormalizer', 'pca']
+    """
+    return make_pipeline(StampNormalizer(), PCA(n_components=0.9, svd_solver="full"))
+
+
+def make_default_interpolator():
+    """The default interpolator: positions scaled to the unit square, then Kriging fitted to
+    the data.
+
+    ``make_pipeline(MinMaxScaler(), KrigingRegressor(range="auto", nugget="auto",
+    noise_scale="auto"))``: range, nugget, sills and a scale factor on the stars' coefficient
+    noise by maximum likelihood over all coefficients at once; each star's coefficient noise
+    enters the Kriging system as a measurement error (:class:`~sklearn_psf.model.PSFModel`
+    passes it), so that faint stars count less than bright ones. Pass it explicitly to
+    ``PSFModel(interpolator=...)`` to tune its nested parameters
+    (``interpolator__krigingregressor__range``).
+
+    Returns
+    -------
+    interpolator : sklearn.pipeline.Pipeline
+
+    Examples
+    --------
+    >>> from sklearn_psf.model import make_default_interpolator
+    >>> list(make_default_interpolator().named_steps)
+    ['minmaxscaler', 'krigingregressor']
+    """
+    return make_pipeline(MinMaxScaler(), KrigingRegressor(range="auto", nugget="auto",
+                                                          noise_scale="auto"))
+
+
+def make_paper_interpolator():
+    """The paper's interpolator: ``MinMaxScaler`` + exponential Kriging, range 0.5, nugget 0.
+
+    Returns
+    -------
+    interpolator : sklearn.pipeline.Pipeline
+
+    Examples
+    --------
+    >>> from sklearn_psf.model import make_paper_interpolator
+    >>> make_paper_interpolator()[-1]
+    KrigingRegressor()
+    """
+    return make_pipeline(MinMaxScaler(),
+                         KrigingRegressor(variogram="exponential", range=0.5, nugget=0.0))

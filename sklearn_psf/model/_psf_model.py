@@ -1,0 +1,527 @@
+"""PSFModel: basis + outlier rejection + interpolation, predicting PSF stamps anywhere."""
+
+from __future__ import annotations
+
+import inspect
+import warnings
+
+import numpy as np
+from sklearn.base import BaseEstimator, RegressorMixin, clone
+from sklearn.metrics import r2_score
+from sklearn.utils.validation import check_is_fitted, validate_data
+
+from ..preprocessing import (
+    FIT_OK,
+    ChiSquareOutlierDetector,
+    IQROutlierDetector,
+    StampNormalizer,
+)
+from .._validation import rows_text
+from ._defaults import (
+    make_default_basis,
+    make_default_interpolator,
+    make_paper_basis,
+    make_paper_interpolator,
+)
+from ._noise import (
+    coefficient_residuals,
+    fit_interpolator,
+    freeze_auto,
+    leave_out_predict,
+    pixel_residuals,
+)
+
+__all__ = ["PSFModel", "UnusableStarsWarning"]
+
+
+class UnusableStarsWarning(UserWarning):
+    """Some stars could not be fitted on the basis (no centroid or no positive flux) and
+    were left out; ``PSFModel.fit_flag_`` tells which."""
+
+
+class PSFModel(RegressorMixin, BaseEstimator):
+    """A PSF model: a stamp basis, outlier rejection and an interpolator of coefficients.
+
+    What :class:`sklearn.compose.TransformedTargetRegressor` is to scikit-learn: ``fit(X, y,
+    weights=None)`` with star positions ``X``, raw star stamps ``y`` and optionally their pixel
+    weights (inverse variance, 0 = masked; NaN pixels are masked too)
+
+    1. fits ``basis`` on the stamps and fits each star on it: coefficients (n, k) and, for a
+       noise-aware basis such as the default :class:`~sklearn_psf.preprocessing.StampPCA`,
+       their noise variance from the pixel weights (weighted least squares on the unmasked
+       pixels: masked pixels are left out, not zero-filled);
+    2. rejects outlying stars (fit time only; the kept stars are ``inlier_mask_``); with
+       ``outliers="chi2"`` (the default), a star is rejected when its pixels differ from its
+       own fit on the basis, or its coefficients from their interpolation from the other
+       stars (5-fold cross-prediction), by more than its noise and the model's own error
+       allow (:class:`~sklearn_psf.preprocessing.ChiSquareOutlierDetector`); the basis is
+       then fitted again without the rejected stars;
+    3. fits ``interpolator`` on (positions, coefficients) of the kept stars, passing each
+       star's coefficient noise as ``noise_var`` when the interpolator takes it (Kriging
+       with a measurement-error term, weighted least squares for polynomials, smoothing for
+       RBF).
+
+    ``predict(X)`` interpolates coefficients at X and rebuilds normalised (unit-sum), centred
+    stamps with ``basis_.inverse_transform``.
+
+    The paper's noise-blind model is ``PSFModel(basis=make_paper_basis(),
+    interpolator=make_paper_interpolator(), outliers="iqr")`` (PCA keeping 90% of the
+    variance, exponential Kriging with range 0.5 and nugget 0, IQR cut with alpha 3.5).
+
+    Parameters
+    ----------
+    interpolator : regressor, optional
+        A multi-output scikit-learn regressor from positions (n, d) to coefficients (n, k).
+        Default :func:`make_default_interpolator` (MinMaxScaler + Kriging with
+        hyperparameters fitted by maximum likelihood).
+    basis : transformer, optional
+        Transformer from stamps to coefficients with ``inverse_transform``. Default
+        :func:`make_default_basis` (:class:`~sklearn_psf.preprocessing.StampPCA`). Bases
+        without a ``project`` method (e.g. :func:`make_paper_basis`, or
+        ``make_pipeline(StampNormalizer(), FixedBasis(components, mean))``) know no noise:
+        they take clean, unmasked stamps and no weights.
+    outliers : "chi2", "iqr", outlier detector or None, default="chi2"
+        "chi2": :class:`~sklearn_psf.preprocessing.ChiSquareOutlierDetector` on standardised
+        residuals (see above; with a basis that knows no noise, on the coefficients'
+        cross-prediction residuals only, in units of their robust scatter). A
+        ``ChiSquareOutlierDetector`` instance works the same way with its own ``p_value``.
+        "iqr": the paper's ``IQROutlierDetector(alpha=3.5)`` on the coefficients; any
+        scikit-learn outlier detector with ``fit_predict`` returning +1/-1 also works on the
+        coefficients. None keeps every star.
+    cv : int, default=5
+        Folds of the cross-prediction used by the chi^2 test.
+    random_state : int, RandomState or None, default=0
+        Seeds the folds of the cross-prediction (and nothing else).
+
+    Attributes
+    ----------
+    basis_ : transformer
+        Fitted basis.
+    outliers_ : outlier detector or None
+        Fitted detector.
+    interpolator_ : regressor
+        Interpolator fitted on the kept stars.
+    inlier_mask_ : ndarray of shape (n_stars,), bool
+        Stars kept for the interpolation (usable and not rejected).
+    fit_flag_ : ndarray of shape (n_stars,), int
+        The basis fit's flag of each star (``FIT_OK`` = 0 for bases that know no noise).
+    n_components_ : int
+        Number of coefficients per stamp.
+    stamp_size_ : int
+        Side s of the stamps.
+    n_features_in_ : int
+        Number of position columns (2 for (x, y)).
+    X_fit_ : ndarray of shape (n_stars, n_features)
+        Positions of the stars given to ``fit``.
+    coefficients_ : ndarray of shape (n_stars, n_components_)
+        Basis coefficients of those stars (NaN where ``fit_flag_`` is not 0).
+    coefficient_var_ : ndarray of shape (n_stars, n_components_) or None
+        Their noise variance (None for a basis that knows no noise).
+    outlier_score_ : ndarray of shape (n_stars,)
+        The detector's ``score_samples`` (larger = more normal; log10 p-value for "chi2");
+        NaN for unusable stars; None without outlier rejection.
+
+    See Also
+    --------
+    sklearn_psf.validation.fit_and_validate : fit with reserved stars and report residuals.
+    sklearn_psf.io.save_model : the model file format.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from sklearn_psf.model import PSFModel
+    >>> rng = np.random.default_rng(0)
+    >>> X = rng.uniform(0, 1000, (80, 2))
+    >>> yy, xx = np.mgrid[0:15, 0:15] - 7.0
+    >>> sig = (1.8 + X[:, 0] / 2000.0)[:, None, None]         # size varies along x
+    >>> stars = 5e4 * np.exp(-0.5 * (xx**2 + yy**2) / sig**2) / (2 * np.pi * sig**2)
+    >>> stamps = stars + rng.normal(0.0, 10.0, stars.shape)   # S/N about 200
+    >>> model = PSFModel().fit(X, stamps.reshape(80, -1))
+    >>> model.n_components_, int(model.inlier_mask_.sum())
+    (1, 80)
+    >>> model.predict([[500.0, 500.0]]).shape
+    (1, 225)
+    """
+
+    def __init__(self, interpolator=None, basis=None, outliers="chi2", cv=5, random_state=0):
+        self.interpolator = interpolator
+        self.basis = basis
+        self.outliers = outliers
+        self.cv = cv
+        self.random_state = random_state
+
+    def set_params(self, **params):
+        """Set parameters, including nested ones of the default basis and interpolator.
+
+        ``interpolator__krigingregressor__range`` works on ``PSFModel()`` (whose
+        ``interpolator`` is None): a nested key first replaces None by the default pipeline,
+        as ``GridSearchCV(PSFModel(), {"interpolator__krigingregressor__range": [...]})``
+        expects.
+
+        Returns
+        -------
+        self : PSFModel
+        """
+        defaults = {"interpolator": make_default_interpolator, "basis": make_default_basis}
+        for name, make in defaults.items():
+            nested = any(key.startswith(f"{name}__") for key in params)
+            if nested and params.get(name, getattr(self, name)) is None:
+                params = {name: make(), **{k: v for k, v in params.items() if k != name}}
+        return super().set_params(**params)
+
+    def _make_outliers(self):
+        if self.outliers is None:
+            return None
+        if isinstance(self.outliers, str):
+            if self.outliers == "chi2":
+                return ChiSquareOutlierDetector()
+            if self.outliers == "iqr":
+                return IQROutlierDetector(alpha=3.5)
+            raise ValueError(f"outliers must be 'chi2', 'iqr', None or an outlier detector, "
+                             f"got {self.outliers!r}.")
+        if not hasattr(self.outliers, "fit_predict"):
+            raise TypeError(
+                "outliers must be 'chi2', 'iqr', None or an estimator with fit_predict "
+                f"returning +1/-1, got {type(self.outliers).__name__}."
+            )
+        return clone(self.outliers)
+
+    def _check_fit_data(self, X, y, weights):
+        if y is None:
+            raise ValueError(f"{type(self).__name__} requires y to be passed, but the target y "
+                             "is None: pass the star stamps.")
+        y = np.asarray(y)
+        if y.ndim == 3:
+            y = y.reshape(y.shape[0], -1)
+        X, y = validate_data(self, X, y, multi_output=True, y_numeric=True, dtype=np.float64,
+                             ensure_all_finite=True)
+        if y.ndim != 2:
+            raise ValueError("y must hold flattened stamps of shape (n_stars, s*s).")
+        s = int(round(np.sqrt(y.shape[1])))
+        if s * s != y.shape[1] or s % 2 == 0:
+            raise ValueError(
+                f"y has {y.shape[1]} pixels per star: pass flattened square stamps of odd side "
+                "(n_stars, s*s), s odd, so that the stamp has a central pixel."
+            )
+        n = X.shape[0]
+        if n < 3:
+            raise ValueError(f"PSFModel needs at least 3 stars, got n_samples = {n}.")
+        if weights is not None:
+            weights = np.asarray(weights, dtype=np.float64)
+            if weights.ndim == 3:
+                weights = weights.reshape(weights.shape[0], -1)
+            if weights.shape != y.shape:
+                raise ValueError(f"weights must have the shape of the stamps {y.shape}, got "
+                                 f"{weights.shape}.")
+        return X, y, s, weights
+
+    def fit(self, X, y, weights=None):
+        """Fit the basis on the stamps, reject outliers, fit the interpolator.
+
+        Parameters
+        ----------
+        X : array-like of shape (n_stars, n_features)
+            Star positions, usually (x, y) in pixels; further columns (e.g. an exposure
+            index for a multi-exposure model) are passed to the interpolator as they are.
+        y : array-like of shape (n_stars, s*s) or (n_stars, s, s)
+            Star stamps (raw, any flux units; s odd), NaN for masked pixels. Not modified.
+        weights : array-like of the shape of y, optional
+            Inverse variance of each pixel, 0 for masked ones. Default: estimated from each
+            stamp's border (see :func:`~sklearn_psf.preprocessing.estimate_pixel_weights`).
+            A fit parameter that ``cross_validate``/``GridSearchCV`` split with the stars
+            (with metadata routing: ``PSFModel().set_fit_request(weights=True)``).
+
+        Returns
+        -------
+        self : PSFModel
+
+        Raises
+        ------
+        ValueError
+            For NaN positions, non-square or even-sided stamps, too few stars for the basis,
+            or when outlier rejection leaves too few stars; rows are named in the caller's
+            numbering.
+        """
+        y_in = np.asarray(y) if y is not None else None
+        X, y, s, weights = self._check_fit_data(
+            X, None if y_in is None else np.where(np.isnan(y_in), 0.0, y_in), weights)
+        if np.isnan(y_in).any():  # NaN pixels are masked pixels
+            y = np.where(np.isnan(y_in.reshape(y.shape)), np.nan, y)
+        basis = make_default_basis() if self.basis is None else clone(self.basis)
+        interp = make_default_interpolator() if self.interpolator is None else clone(
+            self.interpolator)
+        detector = self._make_outliers()
+        noise_aware = hasattr(basis, "project")
+        n = X.shape[0]
+        if not noise_aware:
+            self._check_noise_blind(basis, y, weights)
+
+        keep = np.ones(n, dtype=bool)
+        for round_ in range(2):
+            basis = clone(basis).fit(*self._basis_data(basis, y[keep], weights, keep))
+            coef, var, flag, stamp_fit = self._project(basis, y, weights)
+            usable = flag == FIT_OK
+            k = coef.shape[1]
+            if usable.sum() < k + 2:
+                raise ValueError(f"{int(usable.sum())} usable stars are too few for a basis of "
+                                 f"{k} components: need at least {k + 2}.")
+            trusted = usable & keep
+            inliers, score, fitted = self._reject(detector, X, y, coef, var, trusted, usable,
+                                                  interp, stamp_fit)
+            mask = usable & inliers
+            if round_ == 1 or not noise_aware or (mask == trusted).all():
+                break
+            keep = inliers  # fit the basis again without the rejected stars
+        if (~usable).any():
+            warnings.warn(
+                f"{int((~usable).sum())} stars could not be fitted on the basis (no centroid "
+                f"or no positive flux) and were left out: rows "
+                f"{rows_text(np.flatnonzero(~usable))}.", UnusableStarsWarning, stacklevel=2)
+        kept = int(mask.sum())
+        if kept < 2:
+            raise ValueError(
+                f"Outlier rejection kept {kept} of {n} stars: too few to interpolate. Use a "
+                "milder detector (e.g. a larger p_value or alpha) or outliers=None."
+            )
+        if fitted is not None and (mask == trusted).all():
+            interp = fitted  # the chi^2 test's reference fit is on exactly these stars
+        else:
+            if fitted is not None:  # hyperparameters found on the trusted stars
+                interp = freeze_auto(interp, fitted)
+            fit_interpolator(interp, X[mask], coef[mask], None if var is None else var[mask])
+
+        self.basis_ = basis
+        self.outliers_ = detector
+        self.interpolator_ = interp
+        self.inlier_mask_ = mask
+        self.fit_flag_ = flag
+        self.outlier_score_ = score
+        self.n_components_ = k
+        self.stamp_size_ = s
+        self.X_fit_ = np.array(X, copy=True)
+        self.coefficients_ = coef
+        self.coefficient_var_ = var
+        return self
+
+    @staticmethod
+    def _check_noise_blind(basis, y, weights):
+        if weights is not None:
+            raise TypeError(
+                f"This model's basis ({type(basis).__name__}) cannot use pixel weights: use a "
+                "noise-aware basis such as StampPCA (the default), or give no weights."
+            )
+        bad = np.isnan(y).any(axis=1)
+        if bad.any():
+            raise ValueError(
+                f"Stamps with NaN (masked) pixels at rows {rows_text(np.flatnonzero(bad))}: "
+                f"this model's basis ({type(basis).__name__}) cannot mask pixels; use a "
+                "noise-aware basis such as StampPCA (the default) or drop those stars."
+            )
+        nonpos = ~(y.sum(axis=1) > 0)
+        if nonpos.any():
+            raise ValueError(
+                f"Stamps with non-positive total flux at rows "
+                f"{rows_text(np.flatnonzero(nonpos))}: they are not star stamps."
+            )
+
+    @staticmethod
+    def _basis_data(basis, y, weights, keep):
+        if "weights" in inspect.signature(basis.fit).parameters and weights is not None:
+            return y, None, weights[keep]
+        return (y,)
+
+    @staticmethod
+    def _project(basis, y, weights):
+        """Coefficients, their noise variance, fit flags and the StampFit (None, None for a
+        basis that knows no noise) of every star."""
+        if hasattr(basis, "project"):
+            fit = basis.project(y, weights)
+            return fit.coefficients, fit.coefficient_var, np.asarray(fit.flag), fit
+        coef = np.asarray(basis.transform(y), dtype=np.float64)
+        coef = coef.reshape(len(y), -1)
+        return coef, None, np.zeros(len(y), dtype=np.int64), None
+
+    def _reject(self, detector, X, y, coef, var, trusted, usable, interp, stamp_fit):
+        """Inlier mask over all stars, the detector's score (NaN where unusable) and the
+        interpolator fitted on the trusted stars (None unless the test is chi^2).
+
+        The chi^2 test's references (leave-one-out or cross-predictions, model-error floors)
+        come from the ``trusted`` stars only (the inliers of the previous round); every
+        usable star is judged against them.
+        """
+        n = len(X)
+        inliers = np.ones(n, dtype=bool)
+        if detector is None:
+            return inliers, None, None
+        idx = np.flatnonzero(usable)
+        score = np.full(n, np.nan)
+        if not isinstance(detector, ChiSquareOutlierDetector):
+            labels = np.asarray(detector.fit_predict(coef[idx]))
+            inliers[idx] = labels == 1
+            if hasattr(detector, "score_samples"):
+                score[idx] = detector.score_samples(coef[idx])
+            return inliers, score, None
+        ref = trusted[idx]
+        train = idx[ref]
+        noise = None if var is None else var[train]
+        full = fit_interpolator(clone(interp), X[train], coef[train], noise)
+        predicted = np.asarray(full.predict(X[idx]), dtype=np.float64).reshape(len(idx), -1)
+        predicted[ref] = leave_out_predict(interp, full, X[train], coef[train], noise,
+                                           self.cv, self.random_state)
+        z_coef, _ = coefficient_residuals(X[idx], coef[idx], predicted,
+                                          None if var is None else var[idx], reference=ref)
+        detector.fit(z_coef)
+        ok = detector.predict(z_coef) == 1
+        score[idx] = detector.score_samples(z_coef)
+        if stamp_fit is not None:
+            z_pix, _ = pixel_residuals(np.where(np.isnan(y[idx]), 0.0, y[idx]),
+                                       stamp_fit.model[idx], stamp_fit.weights[idx],
+                                       reference=ref)
+            pix = clone(detector).fit(z_pix)
+            ok &= pix.predict(z_pix) == 1
+            score[idx] = np.minimum(score[idx], pix.score_samples(z_pix))
+        inliers[idx] = ok
+        return inliers, score, full
+
+    def save(self, path, *, residuals=None, summary=None, overwrite: bool = False) -> None:
+        """Write the fitted model to a self-describing FITS file (atomically).
+
+        See :func:`sklearn_psf.io.save_model` for the format; joblib/pickle work too.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+        residuals : astropy.table.Table, optional
+            Reserved-star residuals (from :func:`sklearn_psf.validation.fit_and_validate`).
+        summary : dict, optional
+            Validation summary stored with them.
+        overwrite : bool, default=False
+
+        Examples
+        --------
+        >>> import os, tempfile
+        >>> import numpy as np
+        >>> from sklearn.neighbors import KNeighborsRegressor
+        >>> from sklearn_psf.model import PSFModel
+        >>> rng = np.random.default_rng(0)
+        >>> X = rng.uniform(0, 1000, (40, 2))
+        >>> yy, xx = np.mgrid[0:11, 0:11] - 5.0
+        >>> y = np.exp(-0.5 * (xx.ravel() ** 2 + yy.ravel() ** 2) / (1.5 + X[:, :1] / 1e3) ** 2)
+        >>> model = PSFModel(interpolator=KNeighborsRegressor(3), outliers=None).fit(X, y)
+        >>> path = os.path.join(tempfile.mkdtemp(), "psf.fits")
+        >>> model.save(path)
+        >>> back = PSFModel.load(path)
+        >>> bool(np.array_equal(back.predict(X[:5]), model.predict(X[:5])))
+        True
+        """
+        from .io import save_model
+
+        save_model(self, path, residuals=residuals, summary=summary, overwrite=overwrite)
+
+    @classmethod
+    def load(cls, path) -> "PSFModel":
+        """Read a model written by :meth:`save` (see :func:`sklearn_psf.io.load_model`).
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+
+        Returns
+        -------
+        model : PSFModel
+            Fitted; predictions are identical to the saved model's.
+
+        Raises
+        ------
+        ValueError
+            For a missing, corrupt or truncated file, a file that is not a model, or a model
+            file of an unknown (e.g. newer) format version.
+        """
+        from .io import load_model
+
+        return load_model(path)
+
+    def _check_X(self, X):
+        check_is_fitted(self)
+        X = validate_data(self, X, dtype=np.float64, reset=False)
+        return X
+
+    def predict_coefficients(self, X):
+        """Interpolated basis coefficients at positions X.
+
+        Parameters
+        ----------
+        X : array-like of shape (m, 2)
+
+        Returns
+        -------
+        coefficients : ndarray of shape (m, n_components_)
+        """
+        X = self._check_X(X)
+        coef = np.asarray(self.interpolator_.predict(X), dtype=np.float64)
+        return coef.reshape(X.shape[0], self.n_components_)
+
+    def predict(self, X):
+        """Normalised PSF stamps at positions X.
+
+        Parameters
+        ----------
+        X : array-like of shape (m, 2)
+
+        Returns
+        -------
+        stamps : ndarray of shape (m, s*s)
+        """
+        coef = self.predict_coefficients(X)
+        return np.asarray(self.basis_.inverse_transform(coef), dtype=np.float64)
+
+    def transform_stamps(self, y):
+        """Coefficients of given stamps through the fitted basis (e.g. for scorers).
+
+        Parameters
+        ----------
+        y : array-like of shape (m, s*s) or (m, s, s)
+
+        Returns
+        -------
+        coefficients : ndarray of shape (m, n_components_)
+        """
+        check_is_fitted(self)
+        y = np.asarray(y, dtype=np.float64)
+        if y.ndim == 3:
+            y = y.reshape(y.shape[0], -1)
+        return np.asarray(self.basis_.transform(y), dtype=np.float64)
+
+    def score(self, X, y, sample_weight=None):
+        """R^2 of predicted stamps against the normalised true stamps.
+
+        The true stamps are normalised with ``StampNormalizer()`` (the package's convention:
+        unit flux, adaptive centroid at the stamp centre; idempotent on stamps already
+        normalised), and R^2 is computed over all pixels together
+        (``r2_score(..., multioutput="variance_weighted")``), so that faint wing pixels do not
+        weigh as much as the core.
+
+        Parameters
+        ----------
+        X : array-like of shape (m, 2)
+        y : array-like of shape (m, s*s) or (m, s, s)
+        sample_weight : array-like of shape (m,), optional
+
+        Returns
+        -------
+        score : float
+        """
+        y = np.asarray(y, dtype=np.float64)
+        if y.ndim == 3:
+            y = y.reshape(y.shape[0], -1)
+        truth = StampNormalizer().fit_transform(y)
+        pred = self.predict(X)
+        return float(
+            r2_score(truth, pred, sample_weight=sample_weight, multioutput="variance_weighted")
+        )
+
+    def __sklearn_tags__(self):
+        tags = super().__sklearn_tags__()
+        tags.target_tags.multi_output = True
+        tags.target_tags.single_output = False
+        return tags
