@@ -30,6 +30,8 @@ _DRIFT_DEGREE = {None: 0, "linear": 1, "quadratic": 2}
 _FEW_STARS = 5
 #: maximum likelihood needs at least this many stars
 _MIN_ML_STARS = 10
+#: exact mode with per-target noise keeps one factor per target: at most this many bytes
+_MAX_FACTOR_BYTES = 4 * 2**30
 
 _NAME = "KrigingRegressor"
 
@@ -66,7 +68,8 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         Nugget as a fraction of the sill, in [0, 1]. ``"auto"``: maximum likelihood.
     n_neighbors : int or None, default=None
         ``None``: exact Kriging with all stars (one Cholesky factorisation, cost
-        ``O(n_stars^3)``, memory ``O(n_stars^2)``). An integer ``k``: local Kriging, each
+        ``O(n_stars^3)``, memory ``O(n_stars^2)``, times the number of targets with a
+        per-target ``noise_var``). An integer ``k``: local Kriging, each
         query predicted from its ``k`` nearest stars (:class:`scipy.spatial.cKDTree`,
         small bordered systems solved in batches), for ``10^4`` stars and more.
     noise_scale : float or "auto", default=1.0
@@ -343,9 +346,15 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         self._group_targets = [np.flatnonzero(self._group_of == g) for g in range(len(unique))]
 
     def _fit_exact(self, U, Y, F):
+        n, n_groups = U.shape[0], len(self._group_targets)
+        if n_groups > 1 and n_groups * n * n * 8 > _MAX_FACTOR_BYTES:
+            raise ValueError(
+                f"{_NAME}: {n} stars with noise_var need one {n} x {n} factorisation per "
+                f"target ({n_groups} targets: {n_groups * n * n * 8 / 2**30:.1f} GiB). Use "
+                "local Kriging (n_neighbors=50 for instance) or fewer stars."
+            )
         C0 = self._correlation(cdist(U, U))
         np.fill_diagonal(C0, 1.0)
-        n_groups = len(self._group_targets)
         self._factors = []
         self.dual_coef_ = np.empty_like(Y)
         self.drift_coef_ = np.empty((F.shape[1], Y.shape[1]))

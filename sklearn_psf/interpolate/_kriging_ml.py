@@ -230,7 +230,7 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
         x0 = min(starts, key=lambda s: fun(s)[0])
         res = minimize(fun, x0, jac=True, method="L-BFGS-B",
                        bounds=[bounds[name] for name in names] + [tuple(np.log(_P_BOUNDS))] * T,
-                       options={"maxiter": 200, "maxfun": 400, "ftol": 1e-10, "gtol": 1e-6})
+                       options={"maxiter": 200, "maxfun": 400, "ftol": 1e-9, "gtol": 1e-5})
     v = fun.unpack(res.x)
     nu = v["nu"]
     return {
