@@ -7,7 +7,7 @@ public subpackages (:mod:`sklearn_psf.interpolate`, :mod:`sklearn_psf.preprocess
 :mod:`sklearn_psf.report`).
 """
 
-__version__ = "0.1.0.dev0"
+from ._version import __version__
 
 from .datasets import load_default_reference
 from .interpolate import (

@@ -93,15 +93,15 @@ def test_format_versions(tmp_path, star_data):
     model = PSFModel(interpolator=KNeighborsRegressor(4), outliers=None).fit(X, stamps)
     path = tmp_path / "m.fits"
     model.save(path)
-    assert fits.getheader(path)["FORMAT"] == MODEL_FORMAT_VERSION == 1
+    assert fits.getheader(path)["FORMAT"] == MODEL_FORMAT_VERSION == 2
     # the oldest known version (1) loads
     _restamp(path, tmp_path / "v1.fits", FORMAT=1)
     assert_allclose(load_model(tmp_path / "v1.fits").predict(X[:4]), model.predict(X[:4]),
                     rtol=1e-12, atol=1e-15)
     # a newer version: a clear message, not a wrong model
-    _restamp(path, tmp_path / "v2.fits", FORMAT=2)
-    with pytest.raises(ValueError, match="format version 2.*upgrade sklearn_psf"):
-        load_model(tmp_path / "v2.fits")
+    _restamp(path, tmp_path / "v3.fits", FORMAT=3)
+    with pytest.raises(ValueError, match="format version 3.*upgrade sklearn_psf"):
+        load_model(tmp_path / "v3.fits")
     # an older, unknown version
     _restamp(path, tmp_path / "v0.fits", FORMAT=0)
     with pytest.raises(ValueError, match="format version 0, which no sklearn_psf release"):
@@ -291,7 +291,7 @@ def test_find_stars_noise_saturation_and_masks():
 def test_extract_star_stamps_reasons(field):
     img = field.image.astype(float)
     pos = np.column_stack([field.stars["x"], field.stars["y"]]).astype(float)[:20]
-    xs, ys = pos[:, 0].astype(int), pos[:, 1].astype(int)
+    xs, ys = np.floor(pos + 0.5).astype(int).T   # centre pixels (sub-pixel positions)
     weight = np.ones_like(img)
     weight[ys[0], xs[0]] = 0          # masked core
     j = 5 + int(np.argmin(img[ys[5:], xs[5:]]))  # a faint star

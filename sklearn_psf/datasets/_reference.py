@@ -30,7 +30,7 @@ _FORMAT = "SKPSF-REFERENCE"
 
 
 def _version() -> str:
-    from .. import __version__
+    from .._version import __version__
 
     return __version__
 

@@ -47,17 +47,19 @@ from ._catalog import read_catalog, write_ldac
 from ._draw import draw_psf, extrapolation_flags
 from ._example import write_example_exposure, write_example_ldac
 from ._image import FITSHeaderWarning, read_image
-from ._model_io import (
+from ._select import SELECTION_REASONS, select_stars
+from ._stars import REJECTION_REASONS, StarStamps, extract_star_stamps, find_stars
+from ._vignettes import VIGNET_MASKED, extract_vignettes
+from ._wcs import celestial_wcs, pixel_to_sky, sky_to_pixel
+
+# model files live with the model (sklearn_psf.model); io re-exports them for convenience
+from ..model import (  # noqa: E402
     MODEL_FORMAT,
     MODEL_FORMAT_VERSION,
     load_model,
     read_model_validation,
     save_model,
 )
-from ._select import SELECTION_REASONS, select_stars
-from ._stars import REJECTION_REASONS, StarStamps, extract_star_stamps, find_stars
-from ._vignettes import VIGNET_MASKED, extract_vignettes
-from ._wcs import celestial_wcs, pixel_to_sky, sky_to_pixel
 
 __all__ = [
     "FITSHeaderWarning",

@@ -10,6 +10,8 @@ import numpy as np
 from astropy.io import fits
 from astropy.utils.exceptions import AstropyUserWarning
 
+from .._files import one_line as _one_line
+
 __all__ = ["read_image", "FITSHeaderWarning"]
 
 _READ_ERRORS = (OSError, TypeError, KeyError, IndexError, ValueError, EOFError,
@@ -45,11 +47,6 @@ def _tolerant_fits(path):
         warnings.warn(f"{path!r} has a non-standard FITS header, read as it is "
                       f"({len(header_notes)} note(s), first: {header_notes[0][:160]})",
                       FITSHeaderWarning, stacklevel=3)
-
-
-def _one_line(exc) -> str:
-    """An exception's message on one line (astropy's span several)."""
-    return " ".join(str(exc).split())
 
 
 class _FileError(ValueError):

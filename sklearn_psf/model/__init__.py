@@ -6,13 +6,19 @@ from ._defaults import (
     make_paper_basis,
     make_paper_interpolator,
 )
-from ._psf_model import PSFModel, UnusableStarsWarning
+from ._file import MODEL_FORMAT, MODEL_FORMAT_VERSION, read_model_validation, save_model
+from ._psf_model import PSFModel, UnusableStarsWarning, load_model
 
 __all__ = [
+    "MODEL_FORMAT",
+    "MODEL_FORMAT_VERSION",
     "PSFModel",
     "UnusableStarsWarning",
+    "load_model",
     "make_default_basis",
     "make_default_interpolator",
     "make_paper_basis",
     "make_paper_interpolator",
+    "read_model_validation",
+    "save_model",
 ]

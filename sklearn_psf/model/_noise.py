@@ -90,22 +90,30 @@ def cross_predict(interpolator, X, coef, noise_var, n_splits, random_state):
 
 
 def leave_out_predict(template, fitted, X, coef, noise_var, n_splits, random_state):
-    """Each star's coefficients predicted without it.
+    """Each star's coefficients predicted without it, and the relative size of that
+    prediction's error variance from star to star (or None).
 
     In closed form when the fitted interpolator's final step offers ``loo_predict`` (exact
-    Kriging: one factorisation for all stars); otherwise by ``n_splits``-fold
-    cross-prediction with the hyperparameters ``fitted`` found (see :func:`freeze_auto`).
+    Kriging: one factorisation for all stars, and its leave-one-out variance, larger for
+    stars at the edges, whose prediction is an extrapolation); otherwise by
+    ``n_splits``-fold cross-prediction with the hyperparameters ``fitted`` found (see
+    :func:`freeze_auto`); NaN when the interpolator cannot be fitted on a fold.
     """
     final = _final_step(fitted)
-    if hasattr(final, "loo_predict"):
+    if hasattr(final, "loo_predict") and len(getattr(final, "X_fit_", ())) == len(coef):
         try:
-            pred = np.asarray(final.loo_predict(), dtype=np.float64).reshape(len(coef), -1)
-        except ValueError:  # local Kriging, or merged duplicates: fall back to folds
+            pred, std = final.loo_predict(return_std=True)
+        except ValueError:  # local Kriging: fall back to folds
             pred = None
-        if pred is not None and len(getattr(final, "X_fit_", ())) == len(coef):
-            return pred
-    return cross_predict(freeze_auto(template, fitted), X, coef, noise_var, n_splits,
-                         random_state)
+        if pred is not None:
+            var = np.asarray(std, dtype=np.float64).reshape(len(coef), -1) ** 2
+            return (np.asarray(pred, dtype=np.float64).reshape(len(coef), -1),
+                    var / np.maximum(np.median(var, axis=0), 1e-300))
+    try:
+        return cross_predict(freeze_auto(template, fitted), X, coef, noise_var, n_splits,
+                             random_state), None
+    except ValueError:  # too few stars per fold for this interpolator: no coefficient test
+        return np.full_like(coef, np.nan), None
 
 
 def _solve_floor(statistic, target):
@@ -127,7 +135,8 @@ def _solve_floor(statistic, target):
     return hi
 
 
-def coefficient_residuals(X, coef, predicted, noise_var, reference=None, n_neighbors=20):
+def coefficient_residuals(X, coef, predicted, noise_var, reference=None, relative=None,
+                          n_neighbors=20):
     """Standardised coefficient residuals against their cross-prediction.
 
     The variance of a residual is the star's coefficient noise plus the interpolation error
@@ -135,19 +144,23 @@ def coefficient_residuals(X, coef, predicted, noise_var, reference=None, n_neigh
     component it is the larger of a global ``tau_k^2`` — the smallest value that brings the
     80th percentile of ``r^2 / (noise_var + tau_k^2)`` down to that of a chi^2 with one degree
     of freedom — and the same statistic over its ``n_neighbors`` nearest other stars (the
-    80th percentile of their noise-free squared residuals, scaled to a chi^2_1). Floors come
-    from the ``reference`` stars (boolean mask; default all).
+    80th percentile of their noise-free squared residuals, scaled to a chi^2_1). With
+    ``relative`` (n, k), the global floor of each star is scaled by it (the interpolator's
+    own error variance at the star over its median). Floors come from the ``reference`` stars
+    (boolean mask; default all).
     """
     r = coef - predicted
     var = np.zeros_like(r) if noise_var is None else noise_var
+    rel = np.ones_like(r) if relative is None else relative
     ref = np.ones(len(r), dtype=bool) if reference is None else np.asarray(reference, bool)
-    rr, vr = r[ref], var[ref]
+    rr, vr, lr = r[ref], var[ref], rel[ref]
     target = float(stats.chi2.ppf(_FLOOR_QUANTILE, 1))
     tau2 = np.array([
-        _solve_floor(lambda t, k=k: np.quantile(rr[:, k] ** 2 / np.maximum(vr[:, k] + t, 1e-300),
-                                                _FLOOR_QUANTILE), target)
+        _solve_floor(lambda t, k=k: np.quantile(
+            rr[:, k] ** 2 / np.maximum(vr[:, k] + t * lr[:, k], 1e-300), _FLOOR_QUANTILE),
+            target)
         for k in range(r.shape[1])
-    ])
+    ]) * rel
     m = min(n_neighbors, int(ref.sum()) - 1)
     if m >= 5:
         _, idx = cKDTree(X[ref]).query(X, k=m + 1)

@@ -23,15 +23,15 @@ from ._defaults import (
     make_paper_basis,
     make_paper_interpolator,
 )
+from ._file import read_model, save_model
 from ._noise import (
     coefficient_residuals,
     fit_interpolator,
-    freeze_auto,
     leave_out_predict,
     pixel_residuals,
 )
 
-__all__ = ["PSFModel", "UnusableStarsWarning"]
+__all__ = ["PSFModel", "UnusableStarsWarning", "load_model"]
 
 
 class UnusableStarsWarning(UserWarning):
@@ -133,12 +133,12 @@ class PSFModel(RegressorMixin, BaseEstimator):
     >>> rng = np.random.default_rng(0)
     >>> X = rng.uniform(0, 1000, (80, 2))
     >>> yy, xx = np.mgrid[0:15, 0:15] - 7.0
-    >>> sig = (1.8 + X[:, 0] / 2000.0)[:, None, None]         # size varies along x
+    >>> sig = (1.8 + X[:, 0] / 2000.0)[:, None, None]   # size varies along x: 2 components
     >>> stars = 5e4 * np.exp(-0.5 * (xx**2 + yy**2) / sig**2) / (2 * np.pi * sig**2)
     >>> stamps = stars + rng.normal(0.0, 10.0, stars.shape)   # S/N about 200
     >>> model = PSFModel().fit(X, stamps.reshape(80, -1))
     >>> model.n_components_, int(model.inlier_mask_.sum())
-    (1, 80)
+    (2, 80)
     >>> model.predict([[500.0, 500.0]]).shape
     (1, 225)
     """
@@ -286,8 +286,6 @@ class PSFModel(RegressorMixin, BaseEstimator):
         if fitted is not None and (mask == trusted).all():
             interp = fitted  # the chi^2 test's reference fit is on exactly these stars
         else:
-            if fitted is not None:  # hyperparameters found on the trusted stars
-                interp = freeze_auto(interp, fitted)
             fit_interpolator(interp, X[mask], coef[mask], None if var is None else var[mask])
 
         self.basis_ = basis
@@ -366,10 +364,15 @@ class PSFModel(RegressorMixin, BaseEstimator):
         noise = None if var is None else var[train]
         full = fit_interpolator(clone(interp), X[train], coef[train], noise)
         predicted = np.asarray(full.predict(X[idx]), dtype=np.float64).reshape(len(idx), -1)
-        predicted[ref] = leave_out_predict(interp, full, X[train], coef[train], noise,
-                                           self.cv, self.random_state)
+        relative = np.ones_like(predicted)
+        predicted[ref], rel = leave_out_predict(interp, full, X[train], coef[train], noise,
+                                                self.cv, self.random_state)
+        if rel is not None:  # stars judged from outside: as far as the worst trusted one
+            relative[ref] = rel
+            relative[~ref] = rel.max(axis=0)
         z_coef, _ = coefficient_residuals(X[idx], coef[idx], predicted,
-                                          None if var is None else var[idx], reference=ref)
+                                          None if var is None else var[idx], reference=ref,
+                                          relative=relative)
         detector.fit(z_coef)
         ok = detector.predict(z_coef) == 1
         score[idx] = detector.score_samples(z_coef)
@@ -414,8 +417,6 @@ class PSFModel(RegressorMixin, BaseEstimator):
         >>> bool(np.array_equal(back.predict(X[:5]), model.predict(X[:5])))
         True
         """
-        from .io import save_model
-
         save_model(self, path, residuals=residuals, summary=summary, overwrite=overwrite)
 
     @classmethod
@@ -437,9 +438,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
             For a missing, corrupt or truncated file, a file that is not a model, or a model
             file of an unknown (e.g. newer) format version.
         """
-        from .io import load_model
-
-        return load_model(path)
+        return read_model(path, cls)
 
     def _check_X(self, X):
         check_is_fitted(self)
@@ -525,3 +524,43 @@ class PSFModel(RegressorMixin, BaseEstimator):
         tags.target_tags.multi_output = True
         tags.target_tags.single_output = False
         return tags
+
+
+def load_model(path) -> PSFModel:
+    """Read a PSF model file written by :func:`save_model` / :meth:`PSFModel.save`.
+
+    Files of every known format version (``FORMAT`` keyword, see
+    :data:`MODEL_FORMAT_VERSION`) load; a newer or unknown version fails with a message
+    naming the version and what to do.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    model : PSFModel
+        Fitted; predictions are identical to the saved model's.
+
+    Raises
+    ------
+    ValueError
+        For a missing, corrupt or truncated file, a FITS file that is not a model file, or an
+        unknown/newer format version.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from sklearn_psf.model import PSFModel, load_model, save_model
+    >>> rng = np.random.default_rng(0)
+    >>> X = rng.uniform(0, 1000, (40, 2))
+    >>> yy, xx = np.mgrid[0:11, 0:11] - 5.0
+    >>> y = np.exp(-0.5 * (xx.ravel() ** 2 + yy.ravel() ** 2) / (1.5 + X[:, :1] / 1e3) ** 2)
+    >>> model = PSFModel(outliers=None).fit(X, y + rng.normal(0, 1e-3, y.shape))
+    >>> path = os.path.join(tempfile.mkdtemp(), "psf.fits")
+    >>> save_model(model, path)
+    >>> bool(np.array_equal(load_model(path).predict(X), model.predict(X)))
+    True
+    """
+    return read_model(path, PSFModel)

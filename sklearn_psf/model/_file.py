@@ -16,7 +16,8 @@ HDU 0 (primary, no data)
     The fitted linear basis: stamps = coefficients @ components + mean.
 ``STARS`` (binary table)
     ``x``, ``y`` (0-based), ``coeffs`` (k per row) and ``inlier`` of every fitted star: the
-    interpolator's training data.
+    interpolator's training data; from format 2, ``coeff_var`` (their noise variance, for a
+    noise-aware basis), ``fit_flag`` and ``outlier_score``.
 ``ARRAY_0``, ... (images, optional)
     Array-valued constructor parameters (e.g. a ``FixedBasis``'s components).
 ``RESERVED`` (binary table, optional)
@@ -24,20 +25,23 @@ HDU 0 (primary, no data)
 ``RHO1`` (binary table, optional)
     rho1 on the reserved stars (``theta``, ``xi``, ``sigma_xi``, ``npairs``).
 
-Loading rebuilds the basis as ``StampNormalizer`` steps + a fitted :class:`FixedBasis` of
-the stored mean and components, and refits the interpolator (and the outlier detector) on the
-stored stars: our interpolators are deterministic, so predictions are identical to the saved
-model's, and the file does not depend on pickled internals of any library version.
+Format 2 adds the noise-aware basis (``SPEC`` entry ``basis_kind``: ``"stamppca"``, with
+``stamppca`` holding its noise level and variances; the basis is then rebuilt as a fitted
+:class:`~sklearn_psf.preprocessing.StampPCA`).
+
+Loading rebuilds the basis (``StampNormalizer`` steps + a fitted :class:`FixedBasis` of the
+stored mean and components, or the ``StampPCA``) and refits the interpolator (with the
+stored hyperparameters and coefficient noise) and the outlier detector on the stored stars:
+our interpolators are deterministic, so predictions are identical to the saved model's, and
+the file does not depend on pickled internals of any library version.
 """
 
 from __future__ import annotations
 
-import contextlib
 import datetime
 import importlib
 import json
 import os
-import tempfile
 import warnings
 
 import numpy as np
@@ -47,46 +51,19 @@ from astropy.utils.exceptions import AstropyUserWarning
 from sklearn.base import BaseEstimator, clone
 from sklearn.pipeline import Pipeline
 
-from ._image import _one_line
+from .._files import one_line, write_fits_atomic
+from .._version import __version__
+from ._defaults import make_default_interpolator
+from ._noise import fit_interpolator
 
-__all__ = ["save_model", "load_model", "read_model_validation", "MODEL_FORMAT",
-           "MODEL_FORMAT_VERSION", "write_fits_atomic"]
+__all__ = ["save_model", "read_model", "read_model_validation", "MODEL_FORMAT",
+           "MODEL_FORMAT_VERSION"]
 
 #: Value of the ``SKPSFFMT`` keyword of a model file.
 MODEL_FORMAT = "SKPSF-MODEL"
 #: Format version written by this version of the package (``FORMAT`` keyword).
-MODEL_FORMAT_VERSION = 1
+MODEL_FORMAT_VERSION = 2
 _ALLOWED_MODULES = ("sklearn", "sklearn_psf")
-
-
-# ----------------------------------------------------------------------------- atomic writes
-def write_fits_atomic(hdul: fits.HDUList, path, overwrite: bool = False) -> None:
-    """Write an HDU list to ``path`` through a temporary file in the same folder.
-
-    The temporary file is renamed over ``path`` (``os.replace``) only once it is complete;
-    on any error it is removed, so ``path`` is never left half-written.
-    """
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    if os.path.exists(path) and not overwrite:
-        raise FileExistsError(f"{path!r} already exists: pass overwrite=True to replace it.")
-    if not os.path.isdir(folder):
-        raise FileNotFoundError(f"The folder {folder!r} of {path!r} does not exist.")
-    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp",
-                               dir=folder)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            hdul.writeto(f)
-            f.flush()
-            os.fsync(f.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
 
 
 # ----------------------------------------------------------------------------- estimator specs
@@ -193,10 +170,20 @@ def _leaf_steps(transformer):
     return [transformer]
 
 
-def _linear_basis(basis, s):
-    """(normalizer params list, mean (p,), components (k, p)) of a fitted basis, or raise."""
-    from ..preprocessing import StampNormalizer
+_STAMPPCA_STATE = ("explained_variance_", "noise_variance_", "noise_edge_")
 
+
+def _describe_basis(basis, s):
+    """(kind, normalizer params, mean (p,), components (k, p), extra state) of a fitted basis.
+
+    ``kind`` is ``"stamppca"`` for :class:`StampPCA`, ``"linear"`` for StampNormalizer steps
+    and a linear basis (PCA without whitening, FixedBasis); anything else raises.
+    """
+    from ..preprocessing import StampNormalizer, StampPCA
+
+    if isinstance(basis, StampPCA):
+        state = {name: np.asarray(getattr(basis, name)).tolist() for name in _STAMPPCA_STATE}
+        return "stamppca", [], basis.mean_, basis.components_, state
     leaves = _leaf_steps(basis)
     *pre, last = leaves
     bad = [type(t).__name__ for t in pre if not isinstance(t, StampNormalizer)]
@@ -204,8 +191,8 @@ def _linear_basis(basis, s):
     mean = getattr(last, "mean_", None)
     if bad or comps is None or mean is None or getattr(last, "whiten", False):
         raise ValueError(
-            "save_model stores bases made of StampNormalizer steps and a linear basis (PCA "
-            "without whitening, FixedBasis); this model's basis is "
+            "save_model stores a StampPCA basis, or StampNormalizer steps and a linear basis "
+            "(PCA without whitening, FixedBasis); this model's basis is "
             f"{[type(t).__name__ for t in leaves]}. Save it with joblib.dump instead."
         )
     comps = np.asarray(comps, dtype=np.float64).reshape(len(comps), -1)
@@ -218,12 +205,22 @@ def _linear_basis(basis, s):
                        atol=1e-15):
         raise ValueError("The model's basis is not linear (inverse_transform differs from "
                          "coefficients @ components + mean): save it with joblib.dump instead.")
-    return [t.get_params(deep=False) for t in pre], mean, comps
+    return "linear", [t.get_params(deep=False) for t in pre], mean, comps, {}
 
 
-def _rebuild_basis(normalizer_params, mean, comps):
-    from ..preprocessing import FixedBasis, StampNormalizer
+def _rebuild_basis(kind, normalizer_params, mean, comps, params, state):
+    from ..preprocessing import FixedBasis, StampNormalizer, StampPCA
 
+    if kind == "stamppca":
+        basis = StampPCA(**params)
+        s = int(round(np.sqrt(mean.size)))
+        basis.mean_, basis.components_ = mean, comps
+        basis.n_components_, basis.stamp_size_, basis.n_features_in_ = len(comps), s, s * s
+        basis._n_features_out = len(comps)
+        for name in _STAMPPCA_STATE:
+            setattr(basis, name, np.asarray(state[name], dtype=np.float64)
+                    if name == "explained_variance_" else float(state[name]))
+        return basis
     steps = [(f"stampnormalizer{i or ''}", StampNormalizer(**p))
              for i, p in enumerate(normalizer_params)]
     steps.append(("fixedbasis", FixedBasis(comps, mean)))
@@ -279,14 +276,12 @@ def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = F
     >>> path = os.path.join(tempfile.mkdtemp(), "psf.fits")
     >>> save_model(model, path)
     >>> fits.getheader(path)["FORMAT"], [h.name for h in fits.open(path)][1:3]
-    (1, ['SPEC', 'BASIS_MEAN'])
+    (2, ['SPEC', 'BASIS_MEAN'])
     """
     from sklearn.utils.validation import check_is_fitted
 
-    from .. import __version__
-    from ..model import PSFModel
 
-    if not isinstance(model, PSFModel):
+    if not all(hasattr(model, name) for name in ("basis", "interpolator", "outliers")):
         raise TypeError(f"save_model needs a PSFModel, got {type(model).__name__}.")
     check_is_fitted(model)
     if not hasattr(model, "coefficients_"):
@@ -297,10 +292,14 @@ def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = F
                          f"this model was fitted on {model.X_fit_.shape[1]} position columns: "
                          "use joblib.dump.")
     s, k = int(model.stamp_size_), int(model.n_components_)
-    normalizers, mean, comps = _linear_basis(model.basis_, s)
+    kind, normalizers, mean, comps, state = _describe_basis(model.basis_, s)
     arrays = []
     spec = {
         "interpolator": _encode(model.interpolator, arrays, "interpolator"),
+        "basis_kind": kind,
+        "stamppca": state,
+        "basis_params": _encode(model.basis_.get_params(deep=False) if kind == "stamppca"
+                                else {}, arrays, "basis"),
         "basis": _encode(model.basis, arrays, "basis"),
         "outliers": _encode(model.outliers, arrays, "outlier detector"),
         "normalizers": [{k2: _encode(v, arrays, "normalizer") for k2, v in p.items()}
@@ -332,12 +331,18 @@ def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = F
     hdus = [primary, spec_hdu,
             fits.ImageHDU(mean.reshape(s, s), name="BASIS_MEAN"),
             fits.ImageHDU(comps.reshape(k, s, s), name="BASIS_COMPONENTS")]
-    stars = fits.table_to_hdu(Table({
+    columns = {
         "x": np.asarray(model.X_fit_[:, 0], dtype=np.float64),
         "y": np.asarray(model.X_fit_[:, 1], dtype=np.float64),
         "coeffs": np.asarray(model.coefficients_, dtype=np.float64).reshape(-1, k),
         "inlier": np.asarray(model.inlier_mask_, dtype=bool),
-    }))
+        "fit_flag": np.asarray(model.fit_flag_, dtype=np.int64),
+    }
+    if model.coefficient_var_ is not None:
+        columns["coeff_var"] = np.asarray(model.coefficient_var_, dtype=np.float64).reshape(-1, k)
+    if model.outlier_score_ is not None:
+        columns["outlier_score"] = np.asarray(model.outlier_score_, dtype=np.float64)
+    stars = fits.table_to_hdu(Table(columns))
     stars.name = "STARS"
     hdus.append(stars)
     for i, arr in enumerate(arrays):
@@ -360,7 +365,6 @@ def _versions():
     import astropy
     import sklearn
 
-    from .. import __version__
 
     return {"sklearn_psf": __version__, "numpy": np.__version__,
             "scikit-learn": sklearn.__version__, "astropy": astropy.__version__}
@@ -401,7 +405,7 @@ def _open_checked(path):
             AstropyUserWarning) as exc:
         raise ValueError(
             f"Could not read the model file {path!r} ({type(exc).__name__}: "
-            f"{_one_line(exc)}); the file "
+            f"{one_line(exc)}); the file "
             "is corrupt or truncated: write it again."
         ) from None
 
@@ -425,9 +429,8 @@ def _check_format(header, path):
     return version
 
 
-def _read_v1(header, content, path):
-    from ..model import PSFModel
-
+def _read(header, content, path, model_class):
+    """Formats 1 and 2 (format 1: linear basis, no noise, interpolator refitted as given)."""
     try:
         spec_table = content["SPEC"]
         spec = {str(k): json.loads(str(v)) for k, v in zip(spec_table["key"], spec_table["json"])}
@@ -442,42 +445,51 @@ def _read_v1(header, content, path):
     arrays = [content[f"ARRAY_{i}"] for i in range(len([n for n in content
                                                         if n.startswith("ARRAY_")]))]
     interpolator = _decode(spec["interpolator"], arrays)
-    basis = _decode(spec["basis"], arrays)
-    outliers = _decode(spec["outliers"], arrays)
-    normalizers = [{key: _decode(v, arrays) for key, v in p.items()}
-                   for p in spec["normalizers"]]
-    model = PSFModel(interpolator=interpolator, basis=basis, outliers=outliers)
+    model = model_class(interpolator=interpolator, basis=_decode(spec["basis"], arrays),
+                        outliers=_decode(spec["outliers"], arrays))
     X = np.column_stack([np.asarray(stars["x"], dtype=np.float64),
                          np.asarray(stars["y"], dtype=np.float64)])
-    coef = np.asarray(stars["coeffs"], dtype=np.float64).reshape(len(X), k)
+    n = len(X)
+    coef = np.asarray(stars["coeffs"], dtype=np.float64).reshape(n, k)
     mask = np.asarray(stars["inlier"], dtype=bool)
+    var = (np.asarray(stars["coeff_var"], dtype=np.float64).reshape(n, k)
+           if "coeff_var" in stars.colnames else None)
     # the model's own fit path, minus the basis: same interpolator, same data
     detector = model._make_outliers()
     if detector is not None:
-        detector.fit(coef)
-    from ..model import make_default_interpolator
-
+        detector.fit(coef[np.isfinite(coef).all(axis=1)])
     interp = make_default_interpolator() if interpolator is None else clone(interpolator)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # warnings were already shown when the model was fitted
-        interp.fit(X[mask], coef[mask])
-    model.basis_ = _rebuild_basis(normalizers, mean, comps)
+        fit_interpolator(interp, X[mask], coef[mask], None if var is None else var[mask])
+    normalizers = [{key: _decode(v, arrays) for key, v in p.items()}
+                   for p in spec["normalizers"]]
+    model.basis_ = _rebuild_basis(spec.get("basis_kind", "linear"), normalizers, mean, comps,
+                                  _decode(spec.get("basis_params", {}), arrays) or {},
+                                  spec.get("stamppca", {}))
     model.outliers_ = detector
     model.interpolator_ = interp
     model.inlier_mask_ = mask
+    model.fit_flag_ = (np.asarray(stars["fit_flag"], dtype=np.int64)
+                       if "fit_flag" in stars.colnames else np.zeros(n, dtype=np.int64))
+    model.outlier_score_ = (np.asarray(stars["outlier_score"], dtype=np.float64)
+                            if "outlier_score" in stars.colnames else None)
     model.n_components_ = k
     model.stamp_size_ = s
     model.n_features_in_ = 2
     model.X_fit_ = X
     model.coefficients_ = coef
+    model.coefficient_var_ = var
     return model
 
 
-_READERS = {1: _read_v1}
+_READERS = {1: _read, 2: _read}
 
 
-def load_model(path):
-    """Read a PSF model file written by :func:`save_model` / ``PSFModel.save``.
+def read_model(path, model_class):
+    """Read a PSF model file written by :func:`save_model` into a ``model_class`` instance.
+
+    The implementation of :func:`sklearn_psf.model.load_model` / ``PSFModel.load``.
 
     Files of every known format version (``FORMAT`` keyword, see
     :data:`MODEL_FORMAT_VERSION`) load; a newer or unknown version fails with a message
@@ -486,38 +498,18 @@ def load_model(path):
     Parameters
     ----------
     path : str or os.PathLike
+    model_class : type
+        :class:`~sklearn_psf.model.PSFModel`.
 
     Returns
     -------
     model : PSFModel
         Fitted; predictions are identical to the saved model's.
-
-    Raises
-    ------
-    ValueError
-        For a missing, corrupt or truncated file, a FITS file that is not a model file, or an
-        unknown/newer format version.
-
-    Examples
-    --------
-    >>> import os, tempfile
-    >>> import numpy as np
-    >>> from sklearn_psf.io import load_model, save_model
-    >>> from sklearn_psf.model import PSFModel
-    >>> rng = np.random.default_rng(0)
-    >>> X = rng.uniform(0, 1000, (40, 2))
-    >>> yy, xx = np.mgrid[0:11, 0:11] - 5.0
-    >>> y = np.exp(-0.5 * (xx.ravel() ** 2 + yy.ravel() ** 2) / (1.5 + X[:, :1] / 1e3) ** 2)
-    >>> model = PSFModel(outliers=None).fit(X, y)
-    >>> path = os.path.join(tempfile.mkdtemp(), "psf.fits")
-    >>> save_model(model, path)
-    >>> bool(np.array_equal(load_model(path).predict(X), model.predict(X)))
-    True
     """
     path = os.fspath(path)
     header, content = _open_checked(path)
     version = _check_format(header, path)
-    return _READERS[version](header, content, path)
+    return _READERS[version](header, content, path, model_class)
 
 
 def read_model_validation(path):
