@@ -212,7 +212,7 @@ def _select(args, catalog, saturation, image_shape, lines):
 def _fit_one(args):
     from tqdm.auto import tqdm
 
-    from .compare import default_schemes, make_psf_model
+    from .study.compare import default_schemes, make_psf_model
     from .io import (celestial_wcs, extract_star_stamps, extract_vignettes, find_stars,
                      read_catalog, read_image, save_model)
     from .validation import fit_and_validate
@@ -350,7 +350,7 @@ def _predict(args):
 
     from .io import (celestial_wcs, draw_psf, extrapolation_flags, load_model, pixel_to_sky,
                      read_catalog, read_model_validation, sky_to_pixel)
-    from .io._model_io import write_fits_atomic
+    from ._files import write_fits_atomic
     from .measure import adaptive_moments
 
     _check_output_file(args.output)

@@ -76,7 +76,8 @@ def test_fit_then_predict(tmp_path, exposure, capsys):
     code, _, err = _run(["predict", model_path, "--positions", tmp_path / "one.csv",
                          "--one-based", "-o", tmp_path / "psfs1.fits"], capsys)
     assert code == 0, err
-    assert_allclose(Table.read(tmp_path / "psfs1.fits")["psf"], table["psf"], rtol=1e-12)
+    assert_allclose(Table.read(tmp_path / "psfs1.fits")["psf"], table["psf"], rtol=1e-12,
+                    atol=1e-15)  # x + 1 - 1 may differ from x by one ulp
 
 
 def _one_line_error(code, err, pattern):
@@ -173,7 +174,11 @@ def test_fit_on_ldac_vignettes_alone_then_predict(tmp_path, ldac, capsys):
     model = load_model(tmp_path / "m.fits")
     fitted = model.X_fit_
     truth = ldac["truth"]
-    is_star = np.isin(fitted[:, 0] + 1j * fitted[:, 1], truth["x"] + 1j * truth["y"])
+    from scipy.spatial import cKDTree
+
+    true_xy = np.column_stack([truth["x"], truth["y"]])
+    dist, nearest = cKDTree(true_xy).query(fitted)
+    is_star = dist < 1e-6
     assert is_star.mean() > 0.95           # fitted objects are stars, not galaxies
     assert len(fitted) >= 0.9 * 0.8 * n_clean  # 80% fitted, 20% reserved
     for name in ("stamps", "whiskers", "rho", "maps"):
@@ -186,9 +191,8 @@ def test_fit_on_ldac_vignettes_alone_then_predict(tmp_path, ldac, capsys):
 
     # predict at the true star positions given as RA-less SExtractor ASCII, sub-pixel centred
     cat = tmp_path / "pos.cat"
-    fitted_truth = truth[np.isin(truth["x"] + 1j * truth["y"], fitted[:, 0] + 1j * fitted[:, 1])]
-    truth = fitted_truth[:30]   # at fitted stars: inside the hull, no extrapolation
-    rows = "".join(f"{i + 1:6d} {x + 1:12.4f} {y + 1:12.4f}\n"
+    truth = truth[np.unique(nearest[is_star])][:30]   # fitted stars: inside the hull
+    rows = "".join(f"{i + 1:6d} {x + 1:15.9f} {y + 1:15.9f}\n"
                    for i, (x, y) in enumerate(zip(truth["x"], truth["y"])))
     cat.write_text("#   1 NUMBER    Running object number\n"
                    "#   2 X_IMAGE   Object position along x   [pixel]\n"

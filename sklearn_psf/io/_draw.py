@@ -40,7 +40,8 @@ def draw_psf(model, positions, *, centered: bool = True, oversampling: int = 1) 
     Returns
     -------
     ndarray of shape (n, S, S)
-        Unit-sum PSFs, S = s * oversampling.
+        Unit-sum PSFs, S = s * oversampling; with ``centered=False`` and ``oversampling=1``
+        the model's ``predict`` stamps as they are.
 
     Examples
     --------
@@ -69,7 +70,7 @@ def draw_psf(model, positions, *, centered: bool = True, oversampling: int = 1) 
     s = int(round(np.sqrt(flat.shape[1])))
     cube = flat.reshape(len(X), s, s)
     if not centered and n_over == 1:
-        return cube / cube.sum(axis=(1, 2), keepdims=True)
+        return cube  # the model's own stamps
     offset = X - np.floor(X + 0.5) if centered else np.zeros_like(X)
     c = (s - 1) / 2
     size = s * n_over

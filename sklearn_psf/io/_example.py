@@ -69,8 +69,8 @@ def write_example_exposure(folder, *, n_stars: int = 300, image_shape=(2000, 200
     s = field.stamp_size
     h = s // 2
     weight = np.full(img.shape, 1.0 / field.noise_rms**2, dtype=np.float32)
-    xs = np.asarray(field.stars["x"], dtype=int)
-    ys = np.asarray(field.stars["y"], dtype=int)
+    x0, y0 = np.asarray(field.stars["x"], float), np.asarray(field.stars["y"], float)
+    xs, ys = np.floor(x0 + 0.5).astype(int), np.floor(y0 + 0.5).astype(int)  # centre pixels
     peaks = img[ys, xs]
     saturate = float(2.0 * peaks.max())
     if defects and n_stars >= 4:
@@ -96,7 +96,7 @@ def write_example_exposure(folder, *, n_stars: int = 300, image_shape=(2000, 200
              "truth": os.path.join(folder, "truth.fits")}
     fits.HDUList([fits.PrimaryHDU(), sci, fits.ImageHDU(weight, name="WGT")]).writeto(
         paths["image"], overwrite=True)
-    Table({"NUMBER": np.arange(1, n_stars + 1), "X_IMAGE": xs + 1.0, "Y_IMAGE": ys + 1.0,
+    Table({"NUMBER": np.arange(1, n_stars + 1), "X_IMAGE": x0 + 1.0, "Y_IMAGE": y0 + 1.0,
            "FLAGS": np.zeros(n_stars, dtype=np.int16)}).write(paths["stars"], overwrite=True)
     gal = field.galaxies
     Table({"x": np.asarray(gal["x"], float), "y": np.asarray(gal["y"], float)}).write(
