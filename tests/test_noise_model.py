@@ -213,3 +213,21 @@ def test_weights_are_routed_and_split_by_cross_validation():
     bad[7, 3] = -1.0
     with pytest.raises(ValueError, match="rows 7"):
         PSFModel().fit(X, noisy, weights=bad)
+
+
+def test_stamp_normalizer_fills_masked_pixels_from_the_mirror_pixel():
+    from sklearn_psf.preprocessing import StampNormalizer
+
+    X, noisy, truth, flux = stars(20, 1e5, 12)  # nearly noise-free Moffats (point-symmetric)
+    norm = StampNormalizer().fit(noisy)
+    clean = norm.transform(noisy)
+    masked = noisy.copy()
+    cube = masked.reshape(-1, S, S)
+    cube[:, S // 2 - 1:S // 2 + 2, S // 2 + 2] = np.nan  # three pixels beside the core
+    out = norm.transform(masked)
+    assert np.abs(out - clean).max() < 0.02 * clean.max()
+    zero = norm.transform(np.nan_to_num(masked))  # what ignoring the mask would do
+    assert np.abs(zero - clean).max() > 5 * np.abs(out - clean).max()
+    w = np.where(np.isnan(masked), 0.0, 1.0)
+    np.testing.assert_allclose(norm.transform(np.nan_to_num(masked, nan=7.0), weights=w), out)
+    np.testing.assert_allclose(norm.fit_transform(masked, weights=w), out)

@@ -133,7 +133,7 @@ class StampNormalizer(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
             )
         return s
 
-    def fit(self, X, y=None):
+    def fit(self, X, y=None, weights=None):
         """Check the stamps and record their size.
 
         Parameters
@@ -141,6 +141,8 @@ class StampNormalizer(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
         X : array-like of shape (n, s*s)
             Flattened square stamps.
         y : ignored
+        weights : ignored
+            Accepted so that ``fit_transform(X, weights=...)`` works.
 
         Returns
         -------
@@ -150,13 +152,21 @@ class StampNormalizer(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
         self.stamp_size_ = self._validate_stamp_size(X.shape[1])
         return self
 
-    def transform(self, X):
+    def transform(self, X, weights=None):
         """Normalise and centre stamps.
 
         Parameters
         ----------
         X : array-like of shape (n, s*s)
-            Flattened square stamps. Not modified.
+            Flattened square stamps. Not modified. NaN pixels are masked pixels.
+        weights : array-like of shape (n, s*s), optional
+            Pixel weights (inverse variance); 0 marks a masked pixel. Only the mask is used:
+            a masked pixel is filled with the stamp's value at the point-symmetric position
+            through the star's adaptive centroid (the stamp rotated by 180 degrees about it,
+            with a sub-pixel Fourier shift; three rounds of fill and re-measured centroid),
+            before the flux normalisation and centring. PSFs are close to point-symmetric, so this is a fair fill for a
+            few pixels; for stamps with many masked pixels prefer
+            :class:`StampPCA`, which leaves them out of a weighted fit.
 
         Returns
         -------
@@ -166,17 +176,27 @@ class StampNormalizer(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
         Raises
         ------
         ValueError
-            For NaN/infinite pixels, all-zero stamps or non-positive flux (naming the rows).
+            For infinite pixels, all-zero stamps or non-positive flux (naming the rows).
         """
         check_is_fitted(self)
         X = validate_data(self, X, dtype=np.float64, reset=False, ensure_all_finite=False,
                           copy=True)
-        bad = ~np.isfinite(X).all(axis=1)
+        masked = np.isnan(X)
+        if weights is not None:
+            w = np.asarray(weights, dtype=np.float64).reshape(X.shape[0], -1)
+            if w.shape != X.shape:
+                raise ValueError(f"weights must have the shape of the stamps {X.shape}, got "
+                                 f"{np.shape(weights)}.")
+            masked |= w == 0
+        bad = np.isinf(X).any(axis=1) | masked.all(axis=1)
         if bad.any():
             raise ValueError(
-                f"Stamps with NaN or infinite pixels at rows {rows_text(np.flatnonzero(bad))}: "
-                "remove them (e.g. using the flags of cut_stamps) before normalising."
+                f"Stamps with infinite or only masked pixels at rows "
+                f"{rows_text(np.flatnonzero(bad))}: remove them (e.g. using the flags of "
+                "cut_stamps) before normalising."
             )
+        if masked.any():
+            X = self._fill_masked(X, masked)
         total = X.sum(axis=1)
         zero = ~(X != 0).any(axis=1)
         if zero.any():
@@ -191,6 +211,44 @@ class StampNormalizer(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
             X /= total[:, None]
         if self.center:
             X = self._centre(X)
+        return X
+
+    def fit_transform(self, X, y=None, weights=None):
+        """Fit, then normalise and centre X (see :meth:`transform`).
+
+        Parameters
+        ----------
+        X : array-like of shape (n, s*s)
+        y : ignored
+        weights : array-like of shape (n, s*s), optional
+
+        Returns
+        -------
+        Xt : ndarray of shape (n, s*s)
+        """
+        return self.fit(X).transform(X, weights=weights)
+
+    def _fill_masked(self, X, masked):
+        """Masked pixels from their point-symmetric partner through the centroid."""
+        s = self.stamp_size_
+        rows = np.flatnonzero(masked.any(axis=1))
+        cube = np.where(masked, 0.0, X)[rows].reshape(-1, s, s)
+        mask = masked[rows].reshape(-1, s, s)
+        centre = (s - 1) / 2.0
+        weights = np.where(mask, 0.0, 1.0)
+        for step in range(3):  # the centroid of a stamp with a hole is biased: measure, fill,
+            # measure again on the filled stamp
+            mom = adaptive_moments(cube, weights=weights if step == 0 else None,
+                                   guess_sigma=self.guess_sigma)
+            ok = np.asarray(mom["flag"]) == 0
+            dx = np.where(ok, np.asarray(mom["x0"]) - centre, 0.0)
+            dy = np.where(ok, np.asarray(mom["y0"]) - centre, 0.0)
+            # the stamp rotated by 180 degrees about its centroid (a sub-pixel Fourier shift
+            # of the flipped stamp): the point-symmetric partner of every pixel
+            mirror = fourier_shift(cube[:, ::-1, ::-1], 2 * dx, 2 * dy)
+            cube = np.where(mask, mirror, cube)
+        X = np.where(masked, 0.0, X)
+        X[rows] = cube.reshape(len(rows), -1)
         return X
 
     def _centre(self, X):
@@ -238,5 +296,5 @@ class StampNormalizer(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
 
     def __sklearn_tags__(self):
         tags = super().__sklearn_tags__()
-        tags.input_tags.allow_nan = False
+        tags.input_tags.allow_nan = True  # NaN pixels are masked pixels
         return tags
