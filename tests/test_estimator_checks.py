@@ -49,8 +49,8 @@ _MODEL_CHECKS = [
 EXPECTED_FAILURES = {
     "PSFModel": dict.fromkeys(_MODEL_CHECKS, _NOT_STAMPS),
     "StampNormalizer": dict.fromkeys(_STAMP_DATA_CHECKS, _NOT_SQUARE),
-    "StampPCA": {
-        **dict.fromkeys(_STAMP_DATA_CHECKS, _NOT_SQUARE),
+    "StampPCA": {  # its 1-sample error names n_samples, as the check wants
+        **dict.fromkeys(set(_STAMP_DATA_CHECKS) - {"check_fit2d_1sample"}, _NOT_SQUARE),
         "check_n_features_in_after_fitting": _NOT_SQUARE,
         "check_positive_only_tag_during_fit": _NOT_SQUARE,
     },
