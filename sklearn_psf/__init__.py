@@ -20,11 +20,19 @@ from .interpolate import (
 )
 from .measure import adaptive_moments
 from .model import PSFModel
-from .preprocessing import FixedBasis, IQROutlierDetector, StampNormalizer, cut_stamps
+from .preprocessing import (
+    ChiSquareOutlierDetector,
+    FixedBasis,
+    IQROutlierDetector,
+    StampNormalizer,
+    StampPCA,
+    cut_stamps,
+)
 from .simulate import make_psf_field
 
 __all__ = [
     "ChebyshevRegressor",
+    "ChiSquareOutlierDetector",
     "DelaunayRegressor",
     "FixedBasis",
     "IQROutlierDetector",
@@ -34,6 +42,7 @@ __all__ = [
     "RBFRegressor",
     "ShepardRegressor",
     "StampNormalizer",
+    "StampPCA",
     "adaptive_moments",
     "cut_stamps",
     "load_default_reference",
