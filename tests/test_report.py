@@ -378,3 +378,23 @@ def test_few_simulations_are_flagged_and_yardsticks_reported(tmp_path):
     assert row.endswith("| 2 | 2 | 2 | 2 | 2 |")
     assert "ell_max=5000" in text and "ell_max=50000" in text
     assert "bins below the line" in text
+    header = fits.getheader(tmp_path / "scores.fits", 1)
+    units = {header[f"TTYPE{i}"]: header.get(f"TUNIT{i}") for i in range(1, header["TFIELDS"] + 1)}
+    assert units["fit_seconds"] == "s" and units["e_rms"] is None
+
+
+def test_multipole_sensitivity_matches_sigma_sys2():
+    from sklearn_psf.metrics import shear_bias_bound, sigma_sys2
+    from sklearn_psf.study.report._yardsticks import multipole_sensitivity
+
+    theta = np.geomspace(0.5, 20, 6)
+    correlations = Table(rows=[("default", s, "kriging", "residual", (1 + s) * 1e-6
+                                * np.exp(-theta / 5), 0 * theta) for s in range(3)],
+                         names=["config", "simulation", "scheme", "kind", "xi", "xi_err"])
+    result = SimpleNamespace(correlations=correlations, theta=theta,
+                             scores=Table({"scheme": ["kriging"]}))
+    table = multipole_sensitivity(result, ell_max_values=(3e3, 2e4))
+    for lmax in (3e3, 2e4):  # the median simulation is the middle one (factor 2)
+        expected = sigma_sys2(theta, shear_bias_bound(2e-6 * np.exp(-theta / 5)), ell_max=lmax)
+        assert table[f"ell_max={lmax:g}"][0] == pytest.approx(expected, rel=5e-3)
+    assert table["ell_max=3000"][0] < table["ell_max=20000"][0]

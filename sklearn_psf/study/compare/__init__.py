@@ -20,6 +20,7 @@ hyperparameters by cross-validation (``_tuning``) and the optimal predictor on t
 (``_oracle``).
 """
 
+from .._names import DEFAULT_MODEL, ORACLE
 from ._configs import (
     SimulationConfig,
     density_study_configs,
@@ -32,8 +33,6 @@ from ._oracle import FieldOracle
 from ._run import StudyResult, combine_results, run_study
 from ._schemes import (
     ARCMIN,
-    DEFAULT_MODEL,
-    ORACLE,
     default_schemes,
     make_psf_model,
     paper_split,

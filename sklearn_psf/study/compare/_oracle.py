@@ -18,9 +18,15 @@ centring is not in the noise variance (10-30% of it at S/N 100).
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve
+from scipy.linalg import LinAlgError, cho_factor, cho_solve, eigh
 
 __all__ = ["FieldOracle"]
+
+
+def _nearest_psd(matrix):
+    """The matrix with its negative eigenvalues set to zero."""
+    values, vectors = eigh(matrix)
+    return (vectors * np.clip(values, 0.0, None)) @ vectors.T
 
 
 class FieldOracle:
@@ -62,17 +68,29 @@ class FieldOracle:
         coef = np.asarray(self.basis_.transform(y), float)
         noise = np.asarray(self.noise_var, float)
         cov = self.field.weight_covariance(X)
-        self.X_fit_, self.mean_, self.alpha_ = X, [], []
+        self.X_fit_, self.mean_, self.alpha_, self.projected_ = X, [], [], False
         for k in range(coef.shape[1]):
             # a relative jitter of 1e-10 keeps the factorisation of close stars stable
-            jitter = 1e-10 * float(np.mean(np.diag(cov[k])))
-            factor = cho_factor(cov[k] + np.diag(noise[:, k] + jitter))
+            jitter = 1e-10 * float(np.mean(np.diag(cov[k]))) * np.eye(len(X))
+            try:
+                factor = cho_factor(cov[k] + np.diag(noise[:, k]) + jitter)
+            except LinAlgError:
+                # the tabulated true covariance of many close stars can be slightly indefinite:
+                # use its nearest positive semi-definite matrix (same for every component)
+                cov = cov if self.projected_ else self._projected(cov)
+                factor = cho_factor(cov[k] + np.diag(noise[:, k]) + jitter)
             ones = cho_solve(factor, np.ones(len(X)))
             mean = float(ones @ coef[:, k] / ones.sum())  # generalised least-squares mean
             self.mean_.append(mean)
             self.alpha_.append(cho_solve(factor, coef[:, k] - mean))
         self.inlier_mask_ = np.ones(len(X), dtype=bool)
         return self
+
+    def _projected(self, cov):
+        std2 = np.asarray(self.field.reference.coeff_std, float) ** 2
+        ref = int(np.argmax(std2))
+        self.projected_ = True
+        return std2[:, None, None] * _nearest_psd(cov[ref] / std2[ref])[None]
 
     def predict_coefficients(self, X):
         cov = self.field.weight_covariance(np.asarray(X, float), self.X_fit_)

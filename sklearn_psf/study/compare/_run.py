@@ -14,10 +14,11 @@ from sklearn.base import clone
 from threadpoolctl import threadpool_limits
 
 from ...model import PSFModel
+from .._names import ORACLE
 from ._configs import SimulationConfig, field_scale_kwargs
 from ._evaluate import _evaluate, _local_density
 from ._oracle import FieldOracle
-from ._schemes import ARCMIN, ORACLE, default_schemes, make_psf_model
+from ._schemes import ARCMIN, default_schemes, make_psf_model
 
 
 @dataclass

@@ -21,10 +21,6 @@ from ...preprocessing import IQROutlierDetector, StampNormalizer
 
 
 ARCMIN = 60.0  # arcsec per arcmin
-#: Name of the optimal predictor on the same field (:class:`FieldOracle`) in the tables.
-ORACLE = "oracle"
-#: Name of ``PSFModel()`` with the library's defaults (basis, outliers, interpolator).
-DEFAULT_MODEL = "psfmodel-default"
 
 
 def default_schemes() -> dict:

@@ -36,8 +36,6 @@ METRIC_LABELS = {
     "rho1_mean_abs": r"mean $|D_1|$ (residual $\xi_+$)",
     "sigma_sys2": r"implied $\sigma^2_{sys}$",
 }
-#: The optimal predictor on the same field, in the tables of a study with ``oracle=True``.
-ORACLE = "oracle"
 
 
 class MissingDataError(ValueError):
@@ -195,12 +193,26 @@ def _map_rows(galaxies, schemes, config, simulation, layout):
     return out, simulation
 
 
+def _levels(values, tol=2.0):
+    """Distinct levels of ``values`` up to ``tol`` pixels (sub-pixel offsets of a grid), and
+    the level index of each value."""
+    order = np.argsort(values)
+    sorted_values = np.asarray(values, float)[order]
+    starts = np.r_[True, np.diff(sorted_values) > tol]
+    groups = np.cumsum(starts) - 1
+    index = np.empty(len(values), dtype=int)
+    index[order] = groups
+    centres = np.bincount(groups, sorted_values) / np.bincount(groups)
+    return centres, index
+
+
 def _lattice(x, y):
-    """Unique x, y of points on a full rectangular lattice, or None when they are not."""
-    ux, uy = np.unique(x), np.unique(y)
+    """Levels of x and y of points on a full rectangular lattice (to 2 pixels) and each point's
+    level indices ``(ux, uy, ix, iy)``, or None when they are not on a lattice."""
+    (ux, ix), (uy, iy) = _levels(x), _levels(y)
     if len(ux) * len(uy) > 1.5 * len(x) or len(ux) < 2 or len(uy) < 2:
         return None
-    return ux, uy
+    return ux, uy, ix, iy
 
 
 def _edges(centres):
@@ -212,7 +224,7 @@ def _edges(centres):
 def _grid_spacing(x, y):
     lattice = _lattice(x, y)
     if lattice is not None:
-        steps = np.concatenate([np.diff(lattice[0]), np.diff(lattice[1])])
+        steps = np.concatenate([np.diff(lattice[0]), np.diff(lattice[1])])  # level spacings
         return float(np.min(steps[steps > 0]))
     area = max(np.ptp(x), 1.0) * max(np.ptp(y), 1.0)
     return float(np.sqrt(area / max(len(x), 1)))

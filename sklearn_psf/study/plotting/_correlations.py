@@ -7,8 +7,8 @@ import re
 import numpy as np
 from matplotlib.figure import Figure
 
+from .._names import ORACLE
 from ._common import (
-    ORACLE,
     _as_list,
     _check_schemes,
     KIND_COLORS,
@@ -187,8 +187,8 @@ def plot_snr_study(result, scheme: str = "kriging", configs=None) -> Figure:
     correlation functions are drawn; the other configurations add their residual (blue, ...).
     When the correlations have the scheme ``oracle`` (the best linear unbiased predictor with
     the simulation's true covariance and noise, on the same fields), its residual at each S/N
-    is drawn dashed in the colour of that S/N with its 16-84% band over simulations: the
-    optimum a scheme can reach on these fields.
+    is drawn dashed in the colour of that S/N (with its 16-84% band over simulations for the
+    reference S/N): the optimum a scheme can reach on these fields.
 
     Parameters
     ----------
@@ -219,7 +219,7 @@ def plot_snr_study(result, scheme: str = "kriging", configs=None) -> Figure:
     configs = _snr_configs(correlations) if configs is None else _as_list(configs)
     if not configs:
         raise MissingDataError("no S/N configurations ('snr=...') in the correlations table.")
-    fig = Figure(figsize=(6.0, 4.6), layout="constrained")
+    fig = Figure(figsize=(6.4, 5.4), layout="constrained")
     ax = fig.add_subplot()
     for i, config in enumerate(configs):
         kinds = ("input", "model", "residual") if i == 0 else ("residual",)
@@ -234,8 +234,9 @@ def plot_snr_study(result, scheme: str = "kriging", configs=None) -> Figure:
             oracle = _xi_stack(correlations, config, ORACLE, "residual", len(theta))
         except MissingDataError:
             continue
+        # the oracle's band for the reference S/N only: more bands would hide the curves
         line = _draw_xi(ax, theta, oracle, color, f"oracle residual, {config}",
-                        f"oracle:{config}")
+                        f"oracle:{config}", band=i == 0)
         line.set_linestyle("--")
         line.set_gid(f"oracle:{config}")
     _draw_requirements(ax, theta, getattr(result, "requirements", None))
@@ -244,7 +245,7 @@ def plot_snr_study(result, scheme: str = "kriging", configs=None) -> Figure:
     _log_ylim(ax)
     ax.set_xlabel(r"$\theta$ [arcmin]")
     ax.set_ylabel(r"$|\xi_+(\theta)|$")
-    ax.legend(fontsize=7)
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncols=3, fontsize=6)
     ax.set_title(f"{scheme}: correlation functions vs star S/N")
     return fig
 

@@ -129,9 +129,9 @@ def plot_ellipticity_maps(galaxies, schemes, config: str = "default", simulation
 def _draw_map(ax, x, y, values, norm, cmap):
     lattice = _lattice(x, y)
     if lattice is not None:
-        ux, uy = lattice
+        ux, uy, ix, iy = lattice
         grid = np.full((len(uy), len(ux)), np.nan)
-        grid[np.searchsorted(uy, y), np.searchsorted(ux, x)] = values
+        grid[iy, ix] = values
         return ax.pcolormesh(_edges(ux), _edges(uy), np.ma.masked_invalid(grid), norm=norm,
                              cmap=cmap, shading="flat")
     return ax.scatter(x, y, c=values, norm=norm, cmap=cmap, s=8, marker="s", linewidths=0)

@@ -83,6 +83,6 @@ def plot_outlier_study(scores, schemes=None, metrics=("e_rms", "rho1_mean_abs"),
         ax.set_ylabel(f"{METRIC_LABELS.get(metric, metric)}\n(median over simulations)")
     handles = [Patch(facecolor="white", edgecolor="0.3", hatch=hatches[j % len(hatches)],
                      label=config) for j, config in enumerate(configs)]
-    axes[0][0].legend(handles=handles, fontsize="small")
+    fig.legend(handles=handles, fontsize="small", loc="outside lower center", ncols=len(configs))
     fig.suptitle("Outlying stars: residuals with and without the IQR cut")
     return fig

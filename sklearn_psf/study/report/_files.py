@@ -26,9 +26,17 @@ def _atomic(path: Path, write):
     return path
 
 
+#: Units of the result tables' dimensional columns (FITS TUNIT; the rest are dimensionless).
+UNITS = {"x": "pix", "y": "pix", "fit_seconds": "s", "local_density": "count"}
+
+
 def _plain(table):
+    """A shallow copy without metadata, with the units of :data:`UNITS`."""
     out = table.copy(copy_data=False)
     out.meta.clear()
+    for name, unit in UNITS.items():
+        if name in out.colnames:
+            out[name].unit = unit
     return out
 
 

@@ -93,13 +93,16 @@ def check_findings(result, config: str = "default") -> list[dict]:
     def med(cfg, scheme, metric):
         return _summary_value(summary, cfg, scheme, f"{metric}_median")
 
+    n_sims = {c: len(set(np.asarray(scores["simulation"])[np.asarray(scores["config"])
+                                                          .astype(str) == c])) for c in configs}
+    studies = [c for c in configs if c.startswith(("snr=", "n_stars="))] or [config]
     findings = []
     for group in (_scheme_findings, _study_findings, _survey_findings, _unchecked_findings):
-        findings += group(result, med, config, configs)
-    n_sims = [len(set(np.asarray(scores["simulation"])[np.asarray(scores["config"]).astype(str)
-                                                        == c])) for c in configs]
-    for f in findings:
-        f["power"] = "" if f["verdict"] == "not tested" else underpowered(min(n_sims))
+        # the power of a verdict: the fewest simulations among the configurations it reads
+        used = studies if group is _study_findings else [config]
+        power = underpowered(min(n_sims.get(c, 0) for c in used))
+        for f in group(result, med, config, configs):
+            findings.append({**f, "power": "" if f["verdict"] == "not tested" else power})
     return findings
 
 

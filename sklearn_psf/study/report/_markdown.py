@@ -7,8 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .._names import DEFAULT_MODEL
 from ..plotting._common import _unique_in_order
 from ._files import _jsonable
+from ._findings import check_findings
 from ._summary import PAPER_SURVEYS, _fmt, summarize, survey_verdicts
 from ._yardsticks import (
     METRICS,
@@ -18,7 +20,6 @@ from ._yardsticks import (
     oracle_ratios,
     underpowered,
 )
-from ._findings import check_findings
 
 
 def _md_table(header, rows):
@@ -48,6 +49,8 @@ def _markdown(result, config, schemes, figure_entries, notes, written):
               "galaxy-PSFs, where the true PSF is known. Residuals are model minus truth; "
               "statistics are over simulations (median and 16-84% range).", ""]
 
+    lines += _measured_section(result)
+
     # configuration
     lines += ["## Configuration", ""]
     study_config = getattr(result, "config", None) or {}
@@ -62,7 +65,6 @@ def _markdown(result, config, schemes, figure_entries, notes, written):
                             [(c.get("label", ""), *(json.dumps(_jsonable(c.get(k))) for k in keys))
                              for c in sim_configs]), ""]
     configs = _unique_in_order(scores["config"])
-    lines += _measured_section(result)
     lines += [f"- Configurations: {', '.join(configs)}",
               f"- Schemes: {', '.join(_unique_in_order(scores['scheme']))}",
               f"- Rows in the scores table: {len(scores)}", ""]
@@ -102,6 +104,7 @@ def _markdown(result, config, schemes, figure_entries, notes, written):
                             [f"{m} median [16%, 84%]" for m in cols], rows), ""]
 
     lines += _oracle_section(result, config)
+    lines += _defaults_section(summary, config)
 
     # surveys
     lines += ["## Survey requirements", ""]
@@ -177,7 +180,9 @@ def _measured_section(result):
               "is fitted on the stars, so its coeff_rms is n/a); `oracle`: see below.", ""]
     if config.get("reference"):
         lines += [f"Reference basis: `{config['reference']}`.", ""]
-    lines += [_md_table(["column", "unit", "definition"], METRICS), ""]
+    lines += [_md_table(["column", "unit", "definition"], METRICS), "",
+              "Positions `x`, `y` are in pixels (0-based, x = column), `local_density` counts "
+              "stars within 1 arcmin; the FITS tables carry these units (TUNIT).", ""]
     lines += ["Assumptions of the verdicts: sigma_sys^2 integrates over multipoles "
               f"{ELL_RANGE_TEXT} (sensitivity row below); the oracle is ordinary Kriging with "
               "the simulation's true covariance of the weight fields and each star's true "
@@ -201,13 +206,16 @@ def _oracle_section(result, config):
     lines += ["`oracle` is the best linear unbiased predictor of the coefficients given the "
               "stars, with the simulation's true covariance and each star's true noise: no "
               "scheme can beat it on average. Ratios > 1 measure how far a scheme is from "
-              "optimal; D1 ratio per theta bin is |mean D1| of the scheme over the oracle's.", ""]
+              "optimal; D1 ratio per theta bin is |mean D1| of the scheme over the oracle's, "
+              "in parentheses where either mean is within two standard errors of zero (the "
+              "ratio is then noise).", ""]
     header = ["scheme", "e_rms / oracle median [16%, 84%]"] + [f"D1 ratio {t:.2g}'" for t in theta]
     rows = []
     for r in table:
         rows.append([r["scheme"], f"{_fmt(r['e_rms_ratio_median'])} [{_fmt(r['e_rms_ratio_p16'])}, "
                      f"{_fmt(r['e_rms_ratio_p84'])}]{underpowered(r['n_simulations'])}"]
-                    + [_fmt(v) for v in r["d1_ratio"]])
+                    + [_fmt(v) if ok else f"({_fmt(v)})"
+                       for v, ok in zip(r["d1_ratio"], r["d1_significant"])])
     return lines + [_md_table(header, rows), ""]
 
 
@@ -229,4 +237,29 @@ def _assumption_sections(result, surveys, config):
         lines += [_md_table(["scheme", "survey", "bins below the line", "meets"],
                             [[r["scheme"], r["survey"], f"{r['bins_below']}/{r['bins']}",
                               "yes" if r["meets"] else "no"] for r in rule]), ""]
+    return lines
+
+
+def _defaults_section(summary, config):
+    """``PSFModel()`` with the library's defaults next to the paper's settings."""
+    base = summary[np.asarray(summary["config"]).astype(str) == config]
+    rows = {str(r["scheme"]): r for r in base}
+    if DEFAULT_MODEL not in rows:
+        return []
+    paper = [s for s in ("kriging", "delaunay", "polynomial") if s in rows]
+    lines = ["## The library's defaults against the paper's settings", "",
+             f"`{DEFAULT_MODEL}` is `PSFModel()` as a user gets it (its default basis, "
+             "outlier rejection and interpolator); the paper's settings are a fixed "
+             "reference basis, the IQR cut at 3.5 and each scheme's setting above.", ""]
+    cols = [m for m in ("e_rms", "e_rms_ratio", "rho1_mean_abs", "sigma_sys2")
+            if f"{m}_median" in base.colnames]
+    lines += [_md_table(["scheme", *[f"{m} median" for m in cols]],
+                        [[s, *[_fmt(rows[s][f"{m}_median"]) for m in cols]]
+                         for s in [DEFAULT_MODEL, *paper]]), ""]
+    if paper:
+        d, p = rows[DEFAULT_MODEL]["e_rms_median"], rows[paper[0]]["e_rms_median"]
+        change = 100 * (d - p) / p
+        lines += [f"What changed: the defaults' median e_rms is {_fmt(d)}, "
+                  f"{abs(change):.1f}% {'above' if change > 0 else 'below'} the paper's "
+                  f"{paper[0]} ({_fmt(p)}).", ""]
     return lines

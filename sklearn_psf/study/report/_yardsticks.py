@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 from astropy.table import Table
 
-from ..plotting._common import ORACLE, _mask, _unique_in_order
+from .._names import ORACLE
+from ..plotting._common import _mask, _unique_in_order
 
 #: Fewer simulations per configuration than this and a verdict is flagged as underpowered.
 MIN_SIMULATIONS = 10
@@ -56,6 +57,14 @@ def _mean_xi(correlations, config, scheme, kind="residual"):
     return np.asarray(rows["xi"], float).reshape(len(rows), -1)
 
 
+def _nonzero(xi_stack):
+    """Bins whose mean over simulations is more than two standard errors from zero."""
+    if len(xi_stack) < 2:
+        return np.zeros(xi_stack.shape[1], bool)
+    sem = xi_stack.std(0, ddof=1) / np.sqrt(len(xi_stack))
+    return np.abs(xi_stack.mean(0)) > 2 * sem
+
+
 def oracle_ratios(result, config: str = "default") -> Table | None:
     """Each scheme's e rms and D1 over the oracle's, on the simulations of ``config``.
 
@@ -63,8 +72,9 @@ def oracle_ratios(result, config: str = "default") -> Table | None:
     -------
     table : astropy.table.Table or None
         One row per scheme: ``e_rms_ratio`` median, 16th and 84th percentiles over
-        simulations, and ``d1_ratio`` (per theta bin: |mean D1| of the scheme over |mean D1| of
-        the oracle). None when the study has no oracle.
+        simulations, ``d1_ratio`` (per theta bin: |mean D1| of the scheme over |mean D1| of
+        the oracle) and ``d1_significant`` (both means more than two standard errors from
+        zero; elsewhere the ratio is noise). None when the study has no oracle.
     """
     scores = result.scores
     if "e_rms_ratio" not in scores.colnames:
@@ -79,39 +89,49 @@ def oracle_ratios(result, config: str = "default") -> Table | None:
         if not ratio.size:
             continue
         d1 = None if floor is None else _mean_xi(correlations, config, scheme)
-        d1_ratio = (np.abs(d1.mean(0)) / np.abs(floor.mean(0)) if d1 is not None
-                    else np.full(len(result.theta), np.nan))
+        nbins = len(result.theta)
+        if d1 is None:
+            d1_ratio, significant = np.full(nbins, np.nan), np.zeros(nbins, bool)
+        else:
+            d1_ratio = np.abs(d1.mean(0)) / np.abs(floor.mean(0))
+            significant = _nonzero(d1) & _nonzero(floor)
         rows.append((scheme, len(ratio), float(np.median(ratio)), *np.percentile(ratio, [16, 84]),
-                     d1_ratio))
+                     d1_ratio, significant))
     names = ["scheme", "n_simulations", "e_rms_ratio_median", "e_rms_ratio_p16",
-             "e_rms_ratio_p84", "d1_ratio"]
+             "e_rms_ratio_p84", "d1_ratio", "d1_significant"]
     return Table(rows=rows, names=names) if rows else None
 
 
 def multipole_sensitivity(result, config: str = "default",
                           ell_max_values=ELL_MAX_VALUES) -> Table | None:
-    """Median sigma_sys^2 over simulations for several upper multipoles of the integral."""
-    from ...metrics import shear_bias_bound, sigma_sys2
+    """Median sigma_sys^2 over simulations for several upper multipoles of the integral.
+
+    Each simulation's C_l of D1 is computed once (:func:`~sklearn_psf.metrics.hankel_xi_to_cl`
+    from l = 10 to the largest ``ell_max``, 155 points per decade as ``sigma_sys2``) and
+    integrated up to each ``ell_max``.
+    """
+    from ...metrics import hankel_xi_to_cl, shear_bias_bound, sigma_sys2_from_cl
 
     correlations = getattr(result, "correlations", None)
     if correlations is None or getattr(result, "theta", None) is None:
         return None
     theta = np.asarray(result.theta, float)
+    top = max(ell_max_values)
+    ell = np.geomspace(10.0, top, int(155 * np.log10(top / 10.0)) + 1)
     rows = []
     for scheme in _unique_in_order(result.scores["scheme"]):
         d1 = _mean_xi(correlations, config, scheme)
         if d1 is None:
             continue
-        values = []
-        for ell_max in ell_max_values:
-            per_sim = []
-            for xi in d1:
-                ok = np.isfinite(xi)
-                if ok.sum() >= 2:
-                    per_sim.append(sigma_sys2(theta[ok], shear_bias_bound(xi[ok]),
-                                              ell_max=float(ell_max)))
-            values.append(float(np.median(per_sim)) if per_sim else np.nan)
-        rows.append((scheme, *values))
+        per_sim = []
+        for xi in d1:
+            ok = np.isfinite(xi)
+            if ok.sum() >= 2:
+                cl = hankel_xi_to_cl(theta[ok], shear_bias_bound(xi[ok]), ell)
+                per_sim.append([sigma_sys2_from_cl(ell[ell <= lmax], cl[ell <= lmax])
+                                for lmax in ell_max_values])
+        values = np.median(per_sim, axis=0) if per_sim else np.full(len(ell_max_values), np.nan)
+        rows.append((scheme, *(float(v) for v in values)))
     names = ["scheme"] + [f"ell_max={v:g}" for v in ell_max_values]
     return Table(rows=rows, names=names) if rows else None
 
