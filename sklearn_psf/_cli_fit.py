@@ -424,4 +424,5 @@ def _check_output(path):
         with tempfile.NamedTemporaryFile(dir=path):
             pass
     except OSError as exc:
-        raise CLIInputError(f"cannot write to the output folder {path!r}: {exc.strerror or exc}") from None
+        raise CLIInputError(
+            f"cannot write to the output folder {path!r}: {exc.strerror or exc}") from None

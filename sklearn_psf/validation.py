@@ -126,9 +126,10 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
         ``n_outliers``, ``de1_mean``, ``de1_rms``, ``de2_mean``, ``de2_rms``, ``e_rms``
         (sqrt <de1^2 + de2^2>), ``dsigma_mean``, ``dsigma_rms``, ``sigma_mean`` (pixels),
         ``rho1`` to ``rho5`` (Jarvis et al. 2016, :func:`~sklearn_psf.metrics.rho_statistics`
-        with T = 2 sigma^2; each a dict of ``theta`` [pixels], ``xi``, ``sigma_xi``,
-        ``npairs``, or None with fewer than 10 measured stars), ``rho1_mean_abs`` and, with candidates, ``cv`` (list
-        of per-scheme mean/std scores) and ``scheme`` (the chosen one).
+        with T = 2 sigma^2; each a dict of ``theta`` [``rho_theta_units``: pixel, or arcmin
+        with a ``wcs``], ``xi``, ``sigma_xi``, ``npairs``, or None with fewer than 10
+        measured stars), ``rho_theta_units``, ``rho1_mean_abs`` and, with candidates,
+        ``cv`` (list of per-scheme mean/std scores) and ``scheme`` (the chosen one).
 
     Raises
     ------

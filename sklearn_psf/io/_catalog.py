@@ -226,7 +226,8 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
             raise ValueError(
                 "The catalogue has no position columns: expected x, y (0-based) or "
                 "X_IMAGE, Y_IMAGE / XWIN_IMAGE, YWIN_IMAGE (SExtractor, 1-based), or give "
-                f"x_col/y_col (--x-col/--y-col); columns found: {', '.join(table.colnames) or 'none'}."
+                "x_col/y_col (--x-col/--y-col); columns found: "
+                f"{', '.join(table.colnames) or 'none'}."
             )
     base = convention if one_based is None else bool(one_based)
     try:
