@@ -7,6 +7,7 @@ the user's path; the entry point prints them and exits with status 2.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import tempfile
 
@@ -140,6 +141,17 @@ def _check_output_file(path):
                             f"{(exc.strerror or str(exc)).lower()}") from None
 
 
+@contextlib.contextmanager
+def _about(path):
+    """Errors of the library about ``path``'s content name the user's path."""
+    try:
+        yield
+    except ValueError as exc:
+        if isinstance(exc, CLIInputError) or str(path) in str(exc):
+            raise
+        raise CLIInputError(f"{path}: {exc}") from None
+
+
 def _image_hdus(path):
     """Indices and names of the 2-D image HDUs of a FITS file (the CCDs)."""
     from astropy.io import fits
@@ -225,8 +237,9 @@ def _fit_one(args):
             image, weight, header = read_image(args.image, hdu=args.hdu,
                                                weight_hdu=args.weight_hdu)
         if args.stars:
-            catalog = read_catalog(args.stars, one_based=True if args.one_based else None,
-                                   x_col=args.x_col, y_col=args.y_col)
+            with _about(args.stars):
+                catalog = read_catalog(args.stars, one_based=True if args.one_based else None,
+                                       x_col=args.x_col, y_col=args.y_col)
             if image is None:
                 header = catalog.meta.get("image_header") or {}
         saturation = args.saturation
@@ -253,11 +266,13 @@ def _fit_one(args):
         bar.update()
         bar.set_description("cutting stamps")
         if args.image is None:
-            cut = extract_vignettes(catalog, args.stamp_size, saturation=saturation,
-                                    gain=header.get("GAIN"))
+            with _about(args.stars):
+                cut = extract_vignettes(catalog, args.stamp_size, saturation=saturation,
+                                        gain=header.get("GAIN"))
         else:
-            cut = extract_star_stamps(image, catalog, args.stamp_size or 25, weight=weight,
-                                      saturation=saturation)
+            with _about(args.stars or args.image):
+                cut = extract_star_stamps(image, catalog, args.stamp_size or 25,
+                                          weight=weight, saturation=saturation)
         skipped = {k: v for k, v in cut.counts.items() if k not in ("input", "used") and v}
         lines.append(f"stars used: {cut.counts['used']} of {cut.counts['input']}"
                      + (" (skipped: " + ", ".join(f"{k} {v}" for k, v in skipped.items()) + ")"
@@ -360,8 +375,9 @@ def _predict(args):
     wcs = celestial_wcs((read_model_validation(args.model)[1] or {}).get("wcs"))
     if args.radec and wcs is None:
         raise CLIInputError(f"--radec: the model {args.model!r} has no WCS (its image had none)")
-    catalog = read_catalog(args.positions, one_based=True if args.one_based else None,
-                           x_col=args.x_col, y_col=args.y_col, sky=args.radec)
+    with _about(args.positions):
+        catalog = read_catalog(args.positions, one_based=True if args.one_based else None,
+                               x_col=args.x_col, y_col=args.y_col, sky=args.radec)
     X = np.column_stack([np.asarray(catalog["x"]), np.asarray(catalog["y"])])
     if len(X) == 0:
         raise CLIInputError(f"the catalogue {args.positions} has no rows")
