@@ -40,7 +40,37 @@ Notes for real data:
   ``SATURATE`` level of the header (read automatically by the command line).
 - The weight HDU masks bad pixels (zero weight): stars with a masked pixel in their core are
   skipped; masked pixels in the wings are set to the background.
-- One model per CCD: PSF variations are not continuous across chip gaps.
+- One model per CCD: PSF variations are not continuous across chip gaps
+  (``sklearn-psf fit mef.fits --hdu all`` fits every CCD of a multi-extension file).
+- A non-standard FITS header (e.g. ESO's ``ESO-LOG`` cards) is read with a
+  :class:`FITSHeaderWarning`, never refused; a truncated file is.
+
+PSFEx's input: a catalogue with vignettes, no image
+---------------------------------------------------
+A SExtractor FITS_LDAC catalogue of every detection with ``VIGNET`` stamps is enough::
+
+    sklearn-psf fit --stars ccd01.ldac -o ccd01_psf.fits
+    sklearn-psf predict ccd01_psf.fits --positions galaxies.cat --centered -o psfs.fits
+
+or, in Python::
+
+    stars = read_catalog("ccd01.ldac")                  # header in meta["image_header"]
+    keep, counts = select_stars(stars, saturation=stars.meta["image_header"]["SATURATE"])
+    cut = extract_vignettes(stars[keep])                # -1e30 pixels -> weight 0
+    model, residuals, summary = fit_and_validate(cut.positions, cut.stamps,
+                                                 weights=cut.weights)
+    psf = draw_psf(model, [[1021.37, 88.62]], centered=True, oversampling=3)
+
+- :func:`select_stars` is the one star selector (:func:`find_stars` applies it to the
+  sources it measures): flags, S/N, saturation, ``SPREAD_MODEL``/``CLASS_STAR``, the
+  size-magnitude locus of ``FLUX_RADIUS``; every rejection is counted by reason.
+- Vignette centre: pixel ``round(X_IMAGE)`` (1-based), i.e. ``floor(x + 0.5)`` of the
+  0-based ``x``, the centre pixel of every stamp in the package (see
+  :func:`extract_vignettes`); :func:`draw_psf` shifts the model's PSF to the exact position.
+- With a celestial WCS in the image (or LDAC) header, ``fit`` measures rho1-rho5 in arcmin
+  and ``predict --radec`` takes (RA, Dec) (:func:`celestial_wcs`, :func:`sky_to_pixel`).
+- ``predict`` flags extrapolated rows (:func:`extrapolation_flags`: outside the stars'
+  convex hull, or farther from any star than 3 times their median spacing).
 """
 
 from ._catalog import read_catalog, write_ldac
