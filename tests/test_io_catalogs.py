@@ -202,3 +202,28 @@ def test_contaminants_cost_less_than_ten_percent(tmp_path):
     dirty = _truth_e_rms(tmp_path, n_galaxies=300, defects=True)
     clean = _truth_e_rms(tmp_path, n_galaxies=1, defects=False)
     assert dirty < 1.10 * clean, (dirty, clean)
+
+
+def test_fit_and_validate_passes_weights_only_where_accepted():
+    from sklearn_psf.model import PSFModel
+
+    seen = {}
+
+    class Recording(PSFModel):
+        def fit(self, X, y, weights=None):
+            seen["weights"] = weights
+            return super().fit(X, y, weights=weights)
+
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[-7:8, -7:8]
+    X = rng.uniform(0, 1000, (40, 2))
+    stamps = np.exp(-(xx**2 + yy**2) / 6.0).ravel() * rng.uniform(900, 1100, (40, 1))
+    stamps = stamps + rng.normal(0, 1.0, stamps.shape)
+    weights = np.ones_like(stamps)
+    weights[:, 0] = 0.0
+    fit_and_validate(X, stamps, Recording(), reserve=0.25, random_state=0, weights=weights)
+    assert seen["weights"].shape == (30, 225) and (seen["weights"][:, 0] == 0).all()
+    with pytest.raises(ValueError, match="weights must have the stamps' shape"):
+        fit_and_validate(X, stamps, weights=weights[:, :10])
+    with pytest.raises(ValueError, match="finite and >= 0"):
+        fit_and_validate(X, stamps, weights=-weights)
