@@ -7,12 +7,16 @@ from ._defaults import (
     make_paper_interpolator,
 )
 from ._file import MODEL_FORMAT, MODEL_FORMAT_VERSION, read_model_validation, save_model
+from ._pooled import FocalPlaneMapper, PerExposurePSFModel, PooledPSFModel
 from ._psf_model import PSFModel, UnusableStarsWarning, load_model
 
 __all__ = [
+    "FocalPlaneMapper",
     "MODEL_FORMAT",
     "MODEL_FORMAT_VERSION",
     "PSFModel",
+    "PerExposurePSFModel",
+    "PooledPSFModel",
     "UnusableStarsWarning",
     "load_model",
     "make_default_basis",

@@ -99,17 +99,20 @@ Relation to :mod:`sklearn_psf.datasets`: the reference bases are data
 """
 
 from ..datasets import ReferenceBasis, read_fits_image
+from ._exposures import ExposureSet, make_exposures
 from ._field import PSFField, core_mask, realistic_snr
 from ._make import make_psf_field
 from ._random_field import RandomFieldSampler, as_generator, gaussian_random_field, random_field_power
 
 __all__ = [
+    "ExposureSet",
     "PSFField",
     "RandomFieldSampler",
     "ReferenceBasis",
     "as_generator",
     "core_mask",
     "gaussian_random_field",
+    "make_exposures",
     "make_psf_field",
     "random_field_power",
     "read_fits_image",

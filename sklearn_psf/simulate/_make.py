@@ -176,6 +176,8 @@ def make_psf_field(
     gain: float | None = None,
     mask_value: float = 0.0,
     grid_size: int | None = None,
+    galaxy_positions=None,
+    weight_fields=None,
 ) -> PSFField:
     """Simulate a PSF field image with stars and galaxy-PSFs (Berge et al. 2012, sect. 3).
 
@@ -245,6 +247,14 @@ def make_psf_field(
         weight map; ``numpy.nan`` makes them NaN).
     grid_size : int, optional
         Deprecated (use ``smallest_scale``): random-field nodes along the longer side.
+    galaxy_positions : array-like of shape (n, 2), optional
+        (x, y) galaxy-PSF positions kept as given (``n_galaxies`` and ``galaxy_layout`` are
+        then ignored); stars avoid them. Used by :func:`make_exposures` (dithered galaxies).
+    weight_fields : callable, optional
+        ``weight_fields(positions)`` -> (n, n_components) unit-variance fields ``g_i`` of the
+        weights, replacing the random fields drawn from the seed (e.g. a static plus an
+        atmospheric pattern, :func:`make_exposures`); ``weight_covariance`` then no longer
+        describes the field.
 
     Returns
     -------
@@ -370,7 +380,10 @@ def make_psf_field(
     # stays out of the other stars' stamps: the clean stars stay clean)
     gap = s + _CONTAMINANT_REACH if any(fractions.values()) else s
     grid = None
-    if galaxy_layout == "grid" and n_galaxies:
+    if galaxy_positions is not None:
+        grid = np.array(galaxy_positions, dtype=np.float64, copy=True).reshape(-1, 2)
+        n_galaxies = len(grid)
+    elif galaxy_layout == "grid" and n_galaxies:
         grid = _grid_positions(n_galaxies, lo, hi_x, hi_y, gap)
         if fixed_stars is not None:
             d, _ = cKDTree(fixed_stars).query(grid, p=np.inf)
@@ -392,10 +405,11 @@ def make_psf_field(
     if subpixel:  # uniform within the pixel (the nearest pixel stays the drawn one)
         if fixed_stars is None:
             star_pos = star_pos + sub_rng.uniform(-0.5, 0.5, star_pos.shape)
-        gal_pos = gal_pos + sub_rng.uniform(-0.5, 0.5, gal_pos.shape)
+        if galaxy_positions is None:
+            gal_pos = gal_pos + sub_rng.uniform(-0.5, 0.5, gal_pos.shape)
 
-    sampler = RandomFieldSampler((ny, nx), reference.n_components, slope, cell=cell,
-                                 random_state=field_rng)
+    sampler = weight_fields if weight_fields is not None else RandomFieldSampler(
+        (ny, nx), reference.n_components, slope, cell=cell, random_state=field_rng)
     normalizer = StampNormalizer(flux=True, center=True).fit(reference.mean.reshape(1, -1))
     basis = reference.as_transformer(normalize=False)
     star_stamps, star_coeffs, star_mom = _truth(reference, star_pos, sampler, normalizer, basis)

@@ -1,0 +1,380 @@
+"""PSF models across exposures (exposure index as a column of X) and focal-plane positions.
+
+:class:`PerExposurePSFModel` fits one :class:`PSFModel` per exposure (the paper's way);
+:class:`PooledPSFModel` fits a mean pattern on the stars of every exposure plus a residual
+interpolation per exposure (the mean-field approach of PIFF, MCCD-like models);
+:class:`FocalPlaneMapper` maps (x, y, ccd) to focal-plane positions so that the CCDs of one
+exposure share one model. Save and load these with ``joblib.dump`` / ``joblib.load``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from sklearn.base import BaseEstimator, RegressorMixin, TransformerMixin, clone
+from sklearn.metrics import r2_score
+from sklearn.utils.validation import check_is_fitted, validate_data
+
+from ..preprocessing import StampNormalizer
+from ._defaults import make_default_interpolator
+from ._noise import fit_interpolator
+from ._psf_model import PSFModel
+
+__all__ = ["FocalPlaneMapper", "PerExposurePSFModel", "PooledPSFModel"]
+
+
+class _ExposureModel(RegressorMixin, BaseEstimator):
+    """Shared parts: the exposure column, stamp targets, routing by exposure, R^2 score."""
+
+    def _split_X(self, X, y=None, reset=True):
+        if reset:
+            if y is None:
+                raise ValueError(f"{type(self).__name__} requires y to be passed, but the "
+                                 "target y is None: pass the star stamps.")
+            y = np.asarray(y)
+            y = y.reshape(y.shape[0], -1) if y.ndim == 3 else y
+            X, y = validate_data(self, X, y, multi_output=True, dtype=np.float64,
+                                 ensure_all_finite="allow-nan" if np.isnan(y).any() else True)
+            if not np.isfinite(X).all():
+                raise ValueError("X holds NaN or infinite values: give finite positions and "
+                                 "exposure indices.")
+        else:
+            check_is_fitted(self)
+            X = validate_data(self, X, dtype=np.float64, reset=False)
+        if X.shape[1] < 2:
+            raise ValueError(f"X must hold positions and an exposure column, got "
+                             f"{X.shape[1]} column(s).")
+        col = self.exposure_column % X.shape[1]
+        exposure = X[:, col]
+        if not np.array_equal(exposure, np.round(exposure)):
+            raise ValueError(f"Column {col} of X (exposure_column) must hold integer exposure "
+                             "indices.")
+        return np.delete(X, col, axis=1), exposure.astype(np.int64), y
+
+    def _groups(self, exposure, reset=False):
+        if not reset:
+            unknown = np.setdiff1d(exposure, self.exposures_)
+            if len(unknown):
+                raise ValueError(f"Exposures {unknown.tolist()} were not in the fit (fitted: "
+                                 f"{self.exposures_.tolist()}): a model predicts only the "
+                                 "exposures its stars came from.")
+        for e in np.unique(exposure):
+            yield e, np.flatnonzero(exposure == e)
+
+    def score(self, X, y, sample_weight=None):
+        """R^2 of predicted stamps against the normalised true stamps (as
+        :meth:`PSFModel.score`).
+
+        Parameters
+        ----------
+        X : array-like of shape (m, n_features)
+        y : array-like of shape (m, s*s) or (m, s, s)
+        sample_weight : array-like of shape (m,), optional
+
+        Returns
+        -------
+        score : float
+        """
+        y = np.asarray(y, dtype=np.float64)
+        y = y.reshape(y.shape[0], -1) if y.ndim == 3 else y
+        truth = StampNormalizer().fit_transform(y)
+        return float(r2_score(truth, self.predict(X), sample_weight=sample_weight,
+                              multioutput="variance_weighted"))
+
+    def __sklearn_tags__(self):
+        tags = super().__sklearn_tags__()
+        tags.target_tags.multi_output = True
+        tags.target_tags.single_output = False
+        return tags
+
+
+class PerExposurePSFModel(_ExposureModel):
+    """One PSF model per exposure, the exposure given as a column of X (the paper's way).
+
+    Parameters
+    ----------
+    model : PSFModel, optional
+        Template cloned and fitted on the stars of each exposure; default ``PSFModel()``.
+    exposure_column : int, default=-1
+        Column of X holding the integer exposure index; the other columns (e.g. x, y) are the
+        positions given to each exposure's model.
+
+    Attributes
+    ----------
+    exposures_ : ndarray of int
+        Exposure indices seen in ``fit``.
+    models_ : list of PSFModel
+        The fitted model of each of ``exposures_``.
+    inlier_mask_ : ndarray of shape (n_stars,), bool
+        Stars kept by their exposure's model.
+    n_features_in_ : int
+
+    Examples
+    --------
+    >>> from sklearn_psf.model import PerExposurePSFModel
+    >>> from sklearn_psf.simulate import make_exposures
+    >>> exp = make_exposures(2, n_stars=40, n_galaxies=5, image_shape=(600, 600),
+    ...                      random_state=0)
+    >>> X, stamps = exp.star_data()
+    >>> model = PerExposurePSFModel().fit(X, stamps)
+    >>> model.exposures_.tolist(), model.predict(X[:3]).shape
+    ([0, 1], (3, 625))
+    """
+
+    def __init__(self, model=None, exposure_column=-1):
+        self.model = model
+        self.exposure_column = exposure_column
+
+    def fit(self, X, y, weights=None):
+        """Fit one model per exposure.
+
+        Parameters
+        ----------
+        X : array-like of shape (n_stars, n_features)
+            Positions and the exposure column.
+        y : array-like of shape (n_stars, s*s) or (n_stars, s, s)
+            Raw star stamps.
+        weights : array-like of the shape of y, optional
+            Pixel weights (inverse variance, 0 = masked).
+
+        Returns
+        -------
+        self
+        """
+        pos, exposure, y = self._split_X(X, y)
+        w = None if weights is None else np.asarray(weights, dtype=np.float64).reshape(y.shape)
+        template = PSFModel() if self.model is None else self.model
+        self.exposures_, self.models_ = np.unique(exposure), []
+        self.inlier_mask_ = np.zeros(len(pos), dtype=bool)
+        for e, idx in self._groups(exposure, reset=True):
+            model = clone(template).fit(pos[idx], y[idx], None if w is None else w[idx])
+            self.models_.append(model)
+            self.inlier_mask_[idx] = model.inlier_mask_
+        return self
+
+    def predict(self, X):
+        """Normalised PSF stamps, each from its exposure's model.
+
+        Parameters
+        ----------
+        X : array-like of shape (m, n_features)
+
+        Returns
+        -------
+        stamps : ndarray of shape (m, s*s)
+        """
+        pos, exposure, _ = self._split_X(X, reset=False)
+        out = None
+        for e, idx in self._groups(exposure):
+            pred = self.models_[int(np.searchsorted(self.exposures_, e))].predict(pos[idx])
+            out = np.empty((len(pos), pred.shape[1])) if out is None else out
+            out[idx] = pred
+        return out
+
+
+class PooledPSFModel(_ExposureModel):
+    """A mean PSF pattern fitted on the stars of all exposures plus a residual per exposure.
+
+    1. ``model`` (a :class:`PSFModel`) is fitted on the stars of every exposure together at
+       their chip positions: the basis, the outlier rejection and the mean (static, optical)
+       pattern, from all the stars at once;
+    2. for each exposure, ``residual_interpolator`` is fitted on its inlier stars'
+       coefficients minus the mean pattern there, with their coefficient noise: the
+       exposure's own (atmospheric) pattern.
+
+    ``predict`` adds the mean pattern and the exposure's residual and rebuilds the stamps
+    with the shared basis. With one exposure the static and atmospheric parts cannot be told
+    apart: the model is then ``model`` fitted on that exposure (no residual step), identical to
+    a single :class:`PSFModel`.
+
+    Parameters
+    ----------
+    model : PSFModel, optional
+        Template of the mean model; default ``PSFModel()``.
+    residual_interpolator : regressor, optional
+        Template of the per-exposure residual interpolator; default
+        :func:`make_default_interpolator` (Kriging with maximum-likelihood hyperparameters).
+    exposure_column : int, default=-1
+        Column of X holding the integer exposure index.
+
+    Attributes
+    ----------
+    mean_model_ : PSFModel
+    residual_interpolators_ : list
+        Fitted residual interpolator of each of ``exposures_`` (empty with one exposure).
+    exposures_ : ndarray of int
+    inlier_mask_ : ndarray of shape (n_stars,), bool
+    n_components_ : int
+    n_features_in_ : int
+
+    Examples
+    --------
+    >>> from sklearn_psf.model import PooledPSFModel
+    >>> from sklearn_psf.simulate import make_exposures
+    >>> exp = make_exposures(2, n_stars=40, n_galaxies=5, image_shape=(600, 600),
+    ...                      random_state=0)
+    >>> X, stamps = exp.star_data()
+    >>> model = PooledPSFModel().fit(X, stamps)
+    >>> len(model.residual_interpolators_), model.predict(X[:3]).shape
+    (2, (3, 625))
+    """
+
+    def __init__(self, model=None, residual_interpolator=None, exposure_column=-1):
+        self.model = model
+        self.residual_interpolator = residual_interpolator
+        self.exposure_column = exposure_column
+
+    def fit(self, X, y, weights=None):
+        """Fit the mean pattern on all the stars, then each exposure's residual.
+
+        Parameters
+        ----------
+        X : array-like of shape (n_stars, n_features)
+            Positions and the exposure column.
+        y : array-like of shape (n_stars, s*s) or (n_stars, s, s)
+            Raw star stamps.
+        weights : array-like of the shape of y, optional
+            Pixel weights (inverse variance, 0 = masked).
+
+        Returns
+        -------
+        self
+
+        Raises
+        ------
+        ValueError
+            When an exposure keeps fewer than 3 inlier stars for its residual.
+        """
+        pos, exposure, y = self._split_X(X, y)
+        mean = clone(PSFModel() if self.model is None else self.model)
+        self.mean_model_ = mean.fit(pos, y, weights)
+        self.exposures_ = np.unique(exposure)
+        self.inlier_mask_ = mean.inlier_mask_
+        self.n_components_ = mean.n_components_
+        self.residual_interpolators_ = []
+        if len(self.exposures_) < 2:
+            return self
+        template = (make_default_interpolator() if self.residual_interpolator is None
+                    else self.residual_interpolator)
+        resid = mean.coefficients_ - mean.predict_coefficients(pos)
+        var = mean.coefficient_var_
+        for e, idx in self._groups(exposure, reset=True):
+            idx = idx[mean.inlier_mask_[idx]]
+            if len(idx) < 3:
+                raise ValueError(f"Exposure {e} keeps {len(idx)} inlier stars: at least 3 are "
+                                 "needed to fit its residual pattern.")
+            self.residual_interpolators_.append(fit_interpolator(
+                clone(template), pos[idx], resid[idx], None if var is None else var[idx]))
+        return self
+
+    def predict_coefficients(self, X):
+        """Mean pattern plus the exposure's residual: coefficients in ``mean_model_``'s basis.
+
+        Parameters
+        ----------
+        X : array-like of shape (m, n_features)
+
+        Returns
+        -------
+        coefficients : ndarray of shape (m, n_components_)
+        """
+        pos, exposure, _ = self._split_X(X, reset=False)
+        coef = self.mean_model_.predict_coefficients(pos)
+        if self.residual_interpolators_:
+            for e, idx in self._groups(exposure):
+                interp = self.residual_interpolators_[int(np.searchsorted(self.exposures_, e))]
+                coef[idx] += np.asarray(interp.predict(pos[idx])).reshape(len(idx), -1)
+        else:
+            list(self._groups(exposure))  # unknown exposures still fail
+        return coef
+
+    def predict(self, X):
+        """Normalised PSF stamps at X.
+
+        Parameters
+        ----------
+        X : array-like of shape (m, n_features)
+
+        Returns
+        -------
+        stamps : ndarray of shape (m, s*s)
+        """
+        coef = self.predict_coefficients(X)
+        return np.asarray(self.mean_model_.basis_.inverse_transform(coef), dtype=np.float64)
+
+
+class FocalPlaneMapper(TransformerMixin, BaseEstimator):
+    """Map chip positions (x, y, ccd) to focal-plane positions, for one model over many CCDs.
+
+    Focal-plane position = ``ccd_origins[ccd] + R(ccd_angles[ccd]) @ (x, y)`` (pixels, angle
+    in degrees counter-clockwise). Put it first in a PSF model's interpolator, e.g.
+    ``PSFModel(interpolator=make_pipeline(FocalPlaneMapper(origins), MinMaxScaler(),
+    KrigingRegressor(...)))`` fitted on X = (x, y, ccd).
+
+    Parameters
+    ----------
+    ccd_origins : array-like of shape (n_ccds, 2)
+        Focal-plane position of each CCD's pixel (0, 0).
+    ccd_angles : array-like of shape (n_ccds,), optional
+        Rotation of each CCD, degrees; default 0.
+    ccd_column : int, default=2
+        Column of X holding the integer CCD index; columns 0 and 1 are x and y.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from sklearn_psf.model import FocalPlaneMapper
+    >>> m = FocalPlaneMapper([[0, 0], [2100, 0]])
+    >>> m.fit_transform(np.array([[10.0, 20.0, 0], [10.0, 20.0, 1]]))
+    array([[  10.,   20.],
+           [2110.,   20.]])
+    """
+
+    def __init__(self, ccd_origins, ccd_angles=None, ccd_column=2):
+        self.ccd_origins = ccd_origins
+        self.ccd_angles = ccd_angles
+        self.ccd_column = ccd_column
+
+    def fit(self, X, y=None):
+        """Check X and the layout.
+
+        Returns
+        -------
+        self
+        """
+        X = validate_data(self, X, dtype=np.float64)
+        self._layout()
+        if X.shape[1] < 3:
+            raise ValueError(f"X must hold x, y and a CCD column, got {X.shape[1]} columns.")
+        return self
+
+    def _layout(self):
+        origins = np.asarray(self.ccd_origins, dtype=np.float64)
+        if origins.ndim != 2 or origins.shape[1] != 2:
+            raise ValueError(f"ccd_origins must have shape (n_ccds, 2), got {origins.shape}.")
+        angles = (np.zeros(len(origins)) if self.ccd_angles is None
+                  else np.asarray(self.ccd_angles, dtype=np.float64))
+        if angles.shape != (len(origins),):
+            raise ValueError(f"ccd_angles must hold {len(origins)} angles, got {angles.shape}.")
+        return origins, np.deg2rad(angles)
+
+    def transform(self, X):
+        """Focal-plane (x, y), then the columns of X other than x, y and the CCD.
+
+        Returns
+        -------
+        X_focal : ndarray of shape (n, n_features - 1)
+        """
+        check_is_fitted(self)
+        X = validate_data(self, X, dtype=np.float64, reset=False)
+        origins, angles = self._layout()
+        ccd = X[:, self.ccd_column]
+        if not (np.array_equal(ccd, np.round(ccd)) and ccd.min() >= 0
+                and ccd.max() < len(origins)):
+            raise ValueError(f"Column {self.ccd_column} of X must hold CCD indices in "
+                             f"0..{len(origins) - 1}.")
+        i = ccd.astype(np.int64)
+        c, s = np.cos(angles[i]), np.sin(angles[i])
+        fx = origins[i, 0] + c * X[:, 0] - s * X[:, 1]
+        fy = origins[i, 1] + s * X[:, 0] + c * X[:, 1]
+        rest = np.delete(X, [0, 1, self.ccd_column], axis=1)
+        return np.column_stack([fx, fy, rest])
