@@ -88,13 +88,17 @@ def snr_mix(seeds):
         X, stamps, weights, flags = star_data(f)
         keep = flags == 0
         bright = keep & (np.asarray(f.stars["snr"]) >= 100)
+        paper = fit(paper_model(), X, stamps, None, keep)
         both.append((e_rms(fit(PSFModel(), X, stamps, weights, keep), f),
-                     e_rms(fit(PSFModel(), X, stamps, weights, bright), f), int(bright.sum())))
-    all_, bright_, nb = np.array(both).T
+                     e_rms(fit(PSFModel(), X, stamps, weights, bright), f), int(bright.sum()),
+                     e_rms(paper, f), paper.inlier_mask_.mean()))
+    all_, bright_, nb, paper_, kept = np.array(both).T
     print("\n2. realistic S/N mix (20-1000): model - truth e rms (target: all <= S/N>=100 only)")
     print(f"   all stars           {all_.mean():.5f}   per seed {np.round(all_, 5).tolist()}")
     print(f"   S/N >= 100 only     {bright_.mean():.5f}   per seed {np.round(bright_, 5).tolist()}"
           f"   ({nb.mean():.0f} stars)")
+    print(f"   paper's model, all  {paper_.mean():.5f}   per seed {np.round(paper_, 5).tolist()}"
+          f"   (IQR keeps {kept.mean():.0%} of the stars)")
 
 
 def components(seed):

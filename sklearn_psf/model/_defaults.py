@@ -54,15 +54,19 @@ def make_paper_basis():
 
 
 def make_default_interpolator():
-    """The default interpolator: positions scaled to the unit square, then Kriging fitted to
-    the data.
+    """The default interpolator: positions scaled to the unit square, then Kriging whose range
+    and sills are fitted to the data, with each star's coefficient noise.
 
-    ``make_pipeline(MinMaxScaler(), KrigingRegressor(range="auto", nugget="auto",
-    noise_scale="auto"))``: range, nugget, sills and a scale factor on the stars' coefficient
-    noise by maximum likelihood over all coefficients at once; each star's coefficient noise
-    enters the Kriging system as a measurement error (:class:`~sklearn_psf.model.PSFModel`
-    passes it), so that faint stars count less than bright ones. Pass it explicitly to
-    ``PSFModel(interpolator=...)`` to tune its nested parameters
+    ``make_pipeline(MinMaxScaler(), KrigingRegressor(range="auto"))``: the range and each
+    coefficient's sill by maximum likelihood over all coefficients at once; each star's
+    coefficient noise (propagated from its pixel weights by the basis and passed by
+    :class:`~sklearn_psf.model.PSFModel`) enters the Kriging system as a measurement error,
+    so that faint stars count less than bright ones and the model does not pass through
+    noisy stars. The nugget stays 0 and the noise is taken as propagated (``noise_scale=1``):
+    on the package's simulations (400 stars, S/N 100 or the realistic 20-1000 mix) fitting
+    them as well (``nugget="auto", noise_scale="auto"``) gave a 1-3% larger ellipticity
+    error at the galaxies; both remain available. Pass the pipeline explicitly to
+    ``PSFModel(interpolator=...)`` to tune nested parameters
     (``interpolator__krigingregressor__range``).
 
     Returns
@@ -72,11 +76,10 @@ def make_default_interpolator():
     Examples
     --------
     >>> from sklearn_psf.model import make_default_interpolator
-    >>> list(make_default_interpolator().named_steps)
-    ['minmaxscaler', 'krigingregressor']
+    >>> make_default_interpolator()[-1]
+    KrigingRegressor(range='auto')
     """
-    return make_pipeline(MinMaxScaler(), KrigingRegressor(range="auto", nugget="auto",
-                                                          noise_scale="auto"))
+    return make_pipeline(MinMaxScaler(), KrigingRegressor(range="auto"))
 
 
 def make_paper_interpolator():

@@ -41,8 +41,11 @@ class _ExposureModel(RegressorMixin, BaseEstimator):
             check_is_fitted(self)
             X = validate_data(self, X, dtype=np.float64, reset=False)
         if X.shape[1] < 2:
-            raise ValueError(f"X must hold positions and an exposure column, got "
-                             f"{X.shape[1]} column(s).")
+            raise ValueError("X must hold positions and an exposure column, got "
+                             f"n_features = {X.shape[1]}.")
+        if reset and X.shape[0] < 3:
+            raise ValueError(f"{type(self).__name__} needs at least 3 stars, got "
+                             f"n_samples = {X.shape[0]}.")
         col = self.exposure_column % X.shape[1]
         exposure = X[:, col]
         if not np.array_equal(exposure, np.round(exposure)):
@@ -344,7 +347,7 @@ class FocalPlaneMapper(TransformerMixin, BaseEstimator):
         X = validate_data(self, X, dtype=np.float64)
         self._layout()
         if X.shape[1] < 3:
-            raise ValueError(f"X must hold x, y and a CCD column, got {X.shape[1]} columns.")
+            raise ValueError(f"X must hold x, y and a CCD column, got n_features = {X.shape[1]}.")
         return self
 
     def _layout(self):
