@@ -1,6 +1,7 @@
 """``sklearn-psf fit`` and ``sklearn-psf predict`` end to end on a simulated exposure."""
 
 import os
+import warnings
 
 import numpy as np
 import pytest
@@ -9,7 +10,12 @@ from astropy.table import Table
 from numpy.testing import assert_allclose
 
 from sklearn_psf.cli import main
-from sklearn_psf.io import load_model, read_model_validation, write_example_exposure
+from sklearn_psf.io import (
+    FITSHeaderWarning,
+    load_model,
+    read_model_validation,
+    write_example_exposure,
+)
 from sklearn_psf.measure import adaptive_moments
 
 
@@ -317,8 +323,12 @@ def test_non_standard_header_image_is_read(tmp_path, exposure, capsys):
     raw[end:end + 160] = (b"ESO-LOG 1 = 'non-standard keyword'".ljust(80)
                           + b"END".ljust(80))
     (tmp_path / "eso.fits").write_bytes(bytes(raw))
-    with pytest.warns(UserWarning, match="non-standard FITS header"):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         code, out, err = _run(["fit", tmp_path / "eso.fits", "--stars", exposure["stars"],
                                "-o", tmp_path / "m.fits", "--no-plots", "--reserve", "0",
                                "--interpolator", "polynomial"], capsys)
     assert code == 0, err
+    header_warnings = [w for w in caught if "non-standard" in str(w.message)]
+    assert len(header_warnings) == 1   # one clear warning, not astropy's raw ones
+    assert issubclass(header_warnings[0].category, FITSHeaderWarning)

@@ -39,7 +39,8 @@ def celestial_wcs(header):
     True
     """
     from astropy.io import fits
-    from astropy.wcs import WCS, FITSFixedWarning
+    from astropy.utils.exceptions import AstropyWarning
+    from astropy.wcs import WCS
 
     if header is None:
         return None
@@ -48,7 +49,8 @@ def celestial_wcs(header):
     elif not isinstance(header, fits.Header):
         header = fits.Header(dict(header))
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FITSFixedWarning)
+        # WCS fixes and non-standard cards (reported once, when the file was read)
+        warnings.simplefilter("ignore", AstropyWarning)
         try:
             wcs = WCS(header, naxis=2)
         except Exception:  # astropy raises many types for broken WCS keywords
