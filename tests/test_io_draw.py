@@ -33,7 +33,7 @@ def test_centered_psf_matches_galsim_offset(model, x, y):
     psf = draw_psf(model, [[x, y]], centered=True)[0]
     offset = (x - np.floor(x + 0.5), y - np.floor(y + 0.5))
     ref = _galsim(offset)
-    assert np.abs(psf - ref).max() < 0.01 * ref.max()
+    assert np.abs(psf - ref).max() < 0.005 * ref.max()   # measured 0.10-0.17%
     mom = adaptive_moments(psf[None])
     assert_allclose([mom["x0"][0] - S // 2, mom["y0"][0] - S // 2], offset, atol=0.01)
     # the uncentred PSF is the model's own stamp, on the centre pixel
