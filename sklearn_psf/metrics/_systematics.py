@@ -47,9 +47,12 @@ __all__ = [
 ]
 
 ARCMIN = np.pi / (180.0 * 60.0)
+#: Default multipole range ``(l_min, l_max)`` of the sigma_sys^2 integral.
 ELL_RANGE = (10.0, 20000.0)
 N_ELL = 512
 
+#: Parameters of ``pyccl.Cosmology`` for the LCDM shear power spectrum of the requirement
+#: lines (:func:`shear_cl`): flat, Eisenstein & Hu transfer function, halofit.
 DEFAULT_COSMOLOGY = {
     "Omega_c": 0.25,
     "Omega_b": 0.05,
