@@ -1,0 +1,229 @@
+"""Multi-exposure simulations, per-exposure and pooled PSF models, focal-plane positions."""
+
+import pickle
+import warnings
+
+import joblib
+import numpy as np
+import pytest
+from sklearn.base import clone
+from sklearn.model_selection import GridSearchCV, KFold
+from sklearn.pipeline import make_pipeline
+from sklearn.preprocessing import MinMaxScaler
+from sklearn.utils.estimator_checks import parametrize_with_checks
+
+from sklearn_psf.interpolate import PolynomialRegressor
+from sklearn_psf.measure import adaptive_moments
+from sklearn_psf.model import (
+    FocalPlaneMapper,
+    PerExposurePSFModel,
+    PooledPSFModel,
+    PSFModel,
+    make_default_interpolator,
+)
+from sklearn_psf.simulate import make_exposures, make_psf_field
+
+SMALL = dict(n_stars=60, n_galaxies=40, image_shape=(700, 700), dither=40.0)
+
+
+@pytest.fixture(scope="module")
+def exposures():
+    return make_exposures(3, random_state=1, **SMALL)
+
+
+# ---------------------------------------------------------------- simulations
+def test_static_pattern_shared_and_atmosphere_varies():
+    ref_kw = dict(n_stars=30, n_galaxies=200, image_shape=(800, 800), random_state=3)
+    static = make_exposures(2, atmosphere_ratio=0.0, dither=0.0, **ref_kw)
+    w = [np.asarray(f.galaxies["coeffs"]) for f in static.exposures]
+    np.testing.assert_allclose(w[0], w[1], rtol=0, atol=1e-12)  # same optics, same place
+    a = 1.0
+    moving = make_exposures(2, atmosphere_ratio=a, dither=0.0, **ref_kw)
+    std = moving.exposures[0].reference.coeff_std
+    d = [np.asarray(f.galaxies["coeffs"]) for f in moving.exposures]
+    # Var(w0 - w1) / coeff_std^2 = 2 a^2 / (1 + a^2) for independent unit-variance atmospheres
+    ratio = np.var(d[0] - d[1], axis=0) / std ** 2
+    assert 0.6 < np.median(ratio) < 1.4
+
+
+def test_dithers_move_galaxies_and_seeds_nest(exposures):
+    sky = np.column_stack([exposures.galaxies["x"], exposures.galaxies["y"]])
+    for f, d in zip(exposures.exposures, exposures.dithers):
+        chip = np.column_stack([f.galaxies["x"], f.galaxies["y"]])
+        np.testing.assert_allclose(chip, sky - d)
+        assert np.all(np.abs(d) <= SMALL["dither"])
+    assert len({tuple(d) for d in exposures.dithers}) == 3
+    two = make_exposures(2, random_state=1, **SMALL)
+    for a, b in zip(two.exposures, exposures.exposures):
+        np.testing.assert_array_equal(a.image, b.image)
+    X, stamps, weights = exposures.star_data(return_weights=True)
+    assert X.shape == (len(stamps), 3) and weights.shape == stamps.shape
+    assert set(np.unique(X[:, 2])) == {0.0, 1.0, 2.0}
+
+
+def test_make_exposures_bad_input():
+    with pytest.raises(ValueError, match="n_exposures"):
+        make_exposures(0, **SMALL)
+    with pytest.raises(ValueError, match="too small for dithers"):
+        make_exposures(2, n_stars=10, image_shape=(300, 300), dither=200.0)
+    with pytest.raises(ValueError, match="atmosphere_ratio"):
+        make_exposures(2, atmosphere_ratio=-1, **SMALL)
+
+
+# ---------------------------------------------------------------- models
+def test_one_exposure_equals_psf_model(exposures):
+    X, stamps = exposures.star_data([0])
+    single = PSFModel().fit(X[:, :2], stamps)
+    X_gal, _ = exposures.galaxy_data([0])
+    for model in (PooledPSFModel(), PerExposurePSFModel()):
+        model.fit(X, stamps)
+        np.testing.assert_allclose(model.predict(X_gal), single.predict(X_gal[:, :2]),
+                                   rtol=0, atol=1e-14)
+
+
+def test_per_exposure_is_one_model_each(exposures):
+    X, stamps = exposures.star_data()
+    model = PerExposurePSFModel().fit(X, stamps)
+    X_gal, truth = exposures.galaxy_data()
+    pred = model.predict(X_gal)
+    for e in range(3):
+        own = PSFModel().fit(X[X[:, 2] == e, :2], stamps[X[:, 2] == e])
+        sel = X_gal[:, 2] == e
+        np.testing.assert_allclose(pred[sel], own.predict(X_gal[sel, :2]), rtol=0, atol=1e-14)
+
+
+def _e_residual(model, exp):
+    X_gal, truth = exp.galaxy_data()
+    mom = adaptive_moments(model.predict(X_gal))
+    return np.sqrt(np.mean((np.asarray(mom["e1"]) - truth["e1"]) ** 2
+                           + (np.asarray(mom["e2"]) - truth["e2"]) ** 2))
+
+
+def test_pooled_beats_per_exposure_on_a_static_pattern():
+    # strong static optics (atmosphere 0.2 of its rms), 4 exposures, paired over 3 seeds
+    wins = []
+    for seed in range(3):
+        exp = make_exposures(4, n_stars=40, n_galaxies=60, image_shape=(800, 800), dither=60.0,
+                             atmosphere_ratio=0.2, random_state=seed)
+        X, stamps = exp.star_data()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            pooled = _e_residual(PooledPSFModel().fit(X, stamps), exp)
+            per = _e_residual(PerExposurePSFModel().fit(X, stamps), exp)
+        wins.append(pooled < per)
+    assert all(wins)
+
+
+def test_clone_pickle_joblib_and_grid_search(exposures, tmp_path):
+    X, stamps = exposures.star_data()
+    model = PooledPSFModel().fit(X, stamps)
+    assert clone(model).get_params()["exposure_column"] == -1
+    again = pickle.loads(pickle.dumps(model))
+    np.testing.assert_array_equal(again.predict(X[:5]), model.predict(X[:5]))
+    joblib.dump(model, tmp_path / "pooled.joblib")
+    np.testing.assert_array_equal(joblib.load(tmp_path / "pooled.joblib").predict(X[:5]),
+                                  model.predict(X[:5]))
+    poly = make_pipeline(MinMaxScaler(), PolynomialRegressor(degree=1))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        search = GridSearchCV(PooledPSFModel(model=PSFModel(outliers=None)),
+                              {"residual_interpolator": [poly, make_default_interpolator()]},
+                              cv=KFold(2, shuffle=True, random_state=0),
+                              error_score="raise").fit(X, stamps)
+    assert len(search.cv_results_["mean_test_score"]) == 2
+    assert np.all(np.isfinite(search.cv_results_["mean_test_score"]))
+    assert search.best_estimator_.predict(X[:2]).shape == (2, stamps.shape[1])
+
+
+def test_bad_input(exposures):
+    X, stamps = exposures.star_data()
+    model = PooledPSFModel().fit(X, stamps)
+    with pytest.raises(ValueError, match=r"Exposures \[7\] were not in the fit"):
+        model.predict(np.array([[100.0, 100.0, 7.0]]))
+    bad = X.copy()
+    bad[0, 2] = 0.5
+    with pytest.raises(ValueError, match="integer exposure indices"):
+        PerExposurePSFModel().fit(bad, stamps)
+    with pytest.raises(ValueError, match="requires y"):
+        PooledPSFModel().fit(X, None)
+    few = X[:, 2] == 0
+    X_few = np.vstack([X[few], X[~few][:2]])
+    with pytest.raises(ValueError, match="at least 3"):
+        PooledPSFModel(model=PSFModel(outliers=None)).fit(
+            X_few, np.vstack([stamps[few], stamps[~few][:2]]))
+    before = X.copy()
+    PerExposurePSFModel().fit(X, stamps)
+    np.testing.assert_array_equal(X, before)
+
+
+# ---------------------------------------------------------------- focal plane
+def test_focal_plane_one_model_over_ccds():
+    # one exposure over a 2 x 1 mosaic of 500 x 900 pixel CCDs with a 40 pixel gap
+    field = make_psf_field(n_stars=120, n_galaxies=30, image_shape=(900, 1040), random_state=4)
+    origins = np.array([[0.0, 0.0], [540.0, 0.0]])
+    X = np.column_stack([field.stars["x"], field.stars["y"]])
+    stamps, _ = field.star_stamps()
+    ccd = (X[:, 0] >= 520).astype(float)
+    keep = (X[:, 0] < 480) | (X[:, 0] >= 560)  # stars in the gap fall off both CCDs
+    local = np.column_stack([X[:, 0] - origins[ccd.astype(int), 0], X[:, 1], ccd])[keep]
+    mapper = FocalPlaneMapper(origins)
+    np.testing.assert_array_equal(mapper.fit_transform(local), X[keep])
+    interp = make_pipeline(FocalPlaneMapper(origins), *[s for _, s in make_default_interpolator().steps])
+    focal = PSFModel(interpolator=interp).fit(local, stamps[keep])
+    plain = PSFModel().fit(X[keep], stamps[keep])
+    G = np.column_stack([field.galaxies["x"], field.galaxies["y"]])
+    G_local = np.column_stack([G[:, 0] - origins[(G[:, 0] >= 520).astype(int), 0], G[:, 1],
+                               (G[:, 0] >= 520).astype(float)])
+    np.testing.assert_allclose(focal.predict(G_local), plain.predict(G), rtol=0, atol=1e-12)
+
+
+def test_focal_plane_rotation_and_errors():
+    m = FocalPlaneMapper([[100.0, 50.0]], ccd_angles=[90.0]).fit(np.zeros((1, 3)))
+    np.testing.assert_allclose(m.transform([[10.0, 0.0, 0.0]]), [[100.0, 60.0]], atol=1e-12)
+    with pytest.raises(ValueError, match="CCD indices"):
+        m.transform([[1.0, 2.0, 3.0]])
+    with pytest.raises(ValueError, match="ccd_origins"):
+        FocalPlaneMapper([1.0, 2.0]).fit(np.zeros((2, 3)))
+
+
+# ---------------------------------------------------------------- estimator checks
+_RANDOM_X = ("the check's X has no integer exposure column: the exposure index is data, "
+             "and a random float column is no index")
+_CCD = "the check's X has no CCD index column"
+_MODEL_FAILS = [
+    "check_fit_score_takes_y", "check_estimators_overwrite_params",
+    "check_dont_overwrite_parameters", "check_estimators_fit_returns_self",
+    "check_readonly_memmap_input", "check_n_features_in_after_fitting",
+    "check_positive_only_tag_during_fit", "check_estimators_dtypes", "check_dtype_object",
+    "check_pipeline_consistency", "check_estimators_nan_inf", "check_estimators_pickle",
+    "check_f_contiguous_array_estimator", "check_regressors_train",
+    "check_regressor_data_not_an_array", "check_regressor_multioutput",
+    "check_regressors_no_decision_function", "check_regressors_int",
+    "check_methods_sample_order_invariance", "check_methods_subset_invariance",
+    "check_dict_unchanged", "check_fit_idempotent", "check_fit_check_is_fitted",
+    "check_n_features_in", "check_fit2d_predict1d",
+]
+_MAPPER_FAILS = [
+    "check_fit_score_takes_y", "check_estimators_overwrite_params",
+    "check_estimators_fit_returns_self", "check_readonly_memmap_input",
+    "check_estimators_dtypes", "check_dtype_object", "check_pipeline_consistency",
+    "check_estimators_pickle", "check_f_contiguous_array_estimator",
+    "check_transformer_data_not_an_array", "check_transformer_general",
+    "check_transformer_preserve_dtypes", "check_methods_sample_order_invariance",
+    "check_methods_subset_invariance", "check_dict_unchanged", "check_fit_idempotent",
+    "check_fit_check_is_fitted", "check_n_features_in",
+]
+
+
+def _expected(estimator):
+    if isinstance(estimator, FocalPlaneMapper):
+        return dict.fromkeys(_MAPPER_FAILS, _CCD)
+    return dict.fromkeys(_MODEL_FAILS, _RANDOM_X)
+
+
+@parametrize_with_checks(
+    [PooledPSFModel(), PerExposurePSFModel(), FocalPlaneMapper([[0.0, 0.0], [100.0, 0.0]])],
+    expected_failed_checks=_expected,
+)
+def test_sklearn_compatible(estimator, check):
+    check(estimator)
