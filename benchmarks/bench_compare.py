@@ -1,6 +1,6 @@
 """Benchmark: the paper's comparison study (run_study) serial, n_jobs=2 and on Dask.
 
-Times ``sklearn_psf.compare.run_study`` (every default scheme on the paper's configuration:
+Times ``sklearn_psf.study.compare.run_study`` (every default scheme on the paper's configuration:
 1000 stars, 2000 galaxy-PSFs, 10,032 x 7,769 pixels) for a few simulations with
 
 - ``n_jobs=1``,
@@ -34,7 +34,7 @@ import joblib
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from sklearn_psf.compare import SimulationConfig, run_study
+from sklearn_psf.study.compare import SimulationConfig, run_study
 
 FULL_STUDY = 50
 

@@ -5,7 +5,7 @@ Compare interpolation schemes with cross_validate
 
 The paper's comparison is a cross-validation with a predefined split: the model is trained on
 the stars and tested on the galaxy-PSFs, where the simulation knows the true PSF.
-:func:`sklearn_psf.compare.paper_split` builds that split, so scikit-learn's
+:func:`sklearn_psf.study.compare.paper_split` builds that split, so scikit-learn's
 :func:`~sklearn.model_selection.cross_validate` scores any number of schemes with the
 package's scorers (:mod:`sklearn_psf.metrics`): the RMS of the ellipticity residuals, the
 residual ellipticity correlation rho1 and the RMS of the PCA-coefficient residuals.
@@ -22,13 +22,13 @@ from astropy.table import Table
 from sklearn.model_selection import cross_validate
 
 from sklearn_psf import make_psf_field
-from sklearn_psf.compare import default_schemes, make_psf_model, paper_split
+from sklearn_psf.study.compare import default_schemes, make_psf_model, paper_split
 from sklearn_psf.metrics import (
     make_coefficient_rms_scorer,
     make_ellipticity_rms_scorer,
     make_rho1_scorer,
 )
-from sklearn_psf.plotting import scheme_color
+from sklearn_psf.study.plotting import scheme_color
 
 SIZE = os.environ.get("SKLEARN_PSF_EXAMPLE_SIZE", "full")
 if SIZE == "small":
@@ -60,8 +60,8 @@ scoring = {
 # %%
 # Cross-validate three schemes
 # ----------------------------
-# Each scheme of :func:`~sklearn_psf.compare.default_schemes` is a ``MinMaxScaler`` and a
-# regressor; :func:`~sklearn_psf.compare.make_psf_model` wraps it in the paper's
+# Each scheme of :func:`~sklearn_psf.study.compare.default_schemes` is a ``MinMaxScaler`` and a
+# regressor; :func:`~sklearn_psf.study.compare.make_psf_model` wraps it in the paper's
 # :class:`~sklearn_psf.model.PSFModel`, forcing the simulation's basis as the paper does.
 schemes = default_schemes()
 rows = []

@@ -25,7 +25,7 @@ import numpy as np
 from astropy.table import Table
 
 from sklearn_psf import adaptive_moments, make_psf_field
-from sklearn_psf.compare import default_schemes, make_psf_model
+from sklearn_psf.study.compare import default_schemes, make_psf_model
 from sklearn_psf.metrics import (
     ellipticity_correlation,
     requirement_curves,
@@ -34,7 +34,7 @@ from sklearn_psf.metrics import (
     sigma_sys2,
     survey_table,
 )
-from sklearn_psf.plotting import KIND_COLORS
+from sklearn_psf.study.plotting import KIND_COLORS
 
 SIZE = os.environ.get("SKLEARN_PSF_EXAMPLE_SIZE", "full")
 if SIZE == "small":

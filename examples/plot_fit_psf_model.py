@@ -77,10 +77,10 @@ print(f"ellipticity residual rms: e1 {np.sqrt(np.mean(de1[ok] ** 2)):.4f}, "
 
 # %%
 # The paper forces the simulation's own basis on the model, so that PCA coefficients can be
-# compared with the truth: :func:`sklearn_psf.compare.make_psf_model` does that with
+# compared with the truth: :func:`sklearn_psf.study.compare.make_psf_model` does that with
 # ``reference=field.reference`` (5 components instead of the many fitted above). The
 # ellipticity residuals barely change: they come from the interpolation of noisy stars.
-from sklearn_psf.compare import default_schemes, make_psf_model
+from sklearn_psf.study.compare import default_schemes, make_psf_model
 
 forced = make_psf_model(default_schemes()["kriging"], reference=field.reference)
 forced.fit(X_stars, stamps)

@@ -39,7 +39,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from astropy.table import Table
 
-from sklearn_psf.compare import default_schemes, make_psf_model
+from sklearn_psf.study.compare import default_schemes, make_psf_model
 from sklearn_psf.io import (
     extract_star_stamps,
     find_stars,

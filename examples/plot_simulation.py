@@ -23,7 +23,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from sklearn_psf import load_default_reference, make_psf_field
-from sklearn_psf.plotting import plot_psf_examples
+from sklearn_psf.study.plotting import plot_psf_examples
 
 SIZE = os.environ.get("SKLEARN_PSF_EXAMPLE_SIZE", "full")
 if SIZE == "small":
@@ -70,7 +70,7 @@ chosen = order[np.linspace(0, len(order) - 1, 9).astype(int)]
 positions = np.column_stack([field.stars["x"][chosen], field.stars["y"][chosen]])
 fig = plot_psf_examples(field.stars["stamp"][chosen], positions=positions,
                         pixel_scale=field.pixel_scale)
-plt.figure(fig)  # sklearn_psf.plotting returns figures outside pyplot: hand it to pyplot
+plt.figure(fig)  # sklearn_psf.study.plotting returns figures outside pyplot: hand it to pyplot
 plt.show()
 
 # %%

@@ -14,7 +14,7 @@ from scipy.spatial import cKDTree
 from sklearn.base import BaseEstimator, RegressorMixin
 from sklearn.neighbors import KNeighborsRegressor
 
-from sklearn_psf.compare import SimulationConfig, default_schemes, make_psf_model, run_study
+from sklearn_psf.study.compare import SimulationConfig, default_schemes, make_psf_model, run_study
 from sklearn_psf.io import (
     MODEL_FORMAT_VERSION,
     extract_star_stamps,

@@ -1,4 +1,4 @@
-"""Tests of sklearn_psf.plotting: the plotted data must equal independent computations."""
+"""Tests of sklearn_psf.study.plotting: the plotted data must equal independent computations."""
 
 import itertools
 

@@ -1,4 +1,4 @@
-"""Tests of sklearn_psf.report: summaries, verdicts from the numbers, files written."""
+"""Tests of sklearn_psf.study.report: summaries, verdicts from the numbers, files written."""
 
 import itertools
 import re

@@ -14,7 +14,7 @@ import argparse
 import os
 import sys
 
-from .._cli_fit import CLIInputError, _add_fit_parsers, _fit, _predict
+from ._fit import CLIInputError, _add_fit_parsers, _fit, _predict
 from ._compare import PRESETS, STUDIES, STUDY_SCHEMES, add_compare_parser, run_compare
 
 __all__ = ["PRESETS", "STUDIES", "STUDY_SCHEMES", "build_parser", "main"]

@@ -6,7 +6,7 @@ import argparse
 import contextlib
 from dataclasses import replace
 
-from .._cli_fit import CLIInputError, _check_output, _positive_int
+from ._fit import CLIInputError, _check_output, _positive_int
 
 PRESETS = {
     # The paper: 50 simulations of 1000 stars and 2000 galaxy-PSFs on a Subaru-sized image.

@@ -12,7 +12,4 @@ used by the command line (:mod:`sklearn_psf.cli`); imports flow that way only.
 - :mod:`sklearn_psf.study.report`: the report's sections (summaries, survey verdicts, the
   paper's findings, files, ``report.md``).
 - :mod:`sklearn_psf.study.plotting`: the figures, by family.
-
-The historical paths :mod:`sklearn_psf.compare`, :mod:`sklearn_psf.report` and
-:mod:`sklearn_psf.plotting` re-export the same names.
 """

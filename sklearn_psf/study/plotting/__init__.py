@@ -3,7 +3,7 @@
 Every function builds a :class:`matplotlib.figure.Figure` with the object-oriented API (no
 ``pyplot`` state is created or changed), returns it and never shows it: save it with
 ``fig.savefig(path)``. The functions read the tables of
-:class:`sklearn_psf.compare.StudyResult` (``scores``, ``correlations``, ``galaxies``) or any
+:class:`sklearn_psf.study.compare.StudyResult` (``scores``, ``correlations``, ``galaxies``) or any
 object with the same attributes, so they also work on tables read back from disk.
 
 Conventions shared by all figures
@@ -16,7 +16,7 @@ Conventions shared by all figures
   ``"coeff3"`` (PCA coefficients, columns ``coeffs_true`` / ``coeffs_model``).
 - When the data a figure needs are absent (no grid galaxy-PSFs, no S/N configurations, ...)
   the function raises :class:`MissingDataError`, a ``ValueError`` saying what is missing;
-  :func:`sklearn_psf.report.write_report` catches it and notes the skipped figure.
+  :func:`sklearn_psf.study.report.write_report` catches it and notes the skipped figure.
 - Correlation functions are drawn as ``|xi|`` on log-log axes; where the value (the mean over
   simulations) is negative the point is marked with an open circle, so that a sign change is
   never hidden by the absolute value.

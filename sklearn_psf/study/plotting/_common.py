@@ -79,7 +79,7 @@ def _require_columns(table, columns, what):
     if missing:
         raise ValueError(
             f"{what} lacks the column(s) {missing}; it has {table.colnames}. Pass a table "
-            "with the StudyResult schema (see sklearn_psf.compare.StudyResult)."
+            "with the StudyResult schema (see sklearn_psf.study.compare.StudyResult)."
         )
 
 

@@ -1,8 +1,8 @@
 """Tables, figures and a Markdown report of a PSF interpolation study.
 
-:func:`write_report` turns a :class:`sklearn_psf.compare.StudyResult` (or any object with the
+:func:`write_report` turns a :class:`sklearn_psf.study.compare.StudyResult` (or any object with the
 same attributes) into a directory a person can read: the result tables (CSV and FITS), the
-paper's figures as PNG files (see :mod:`sklearn_psf.plotting`) and ``report.md``. The report
+paper's figures as PNG files (see :mod:`sklearn_psf.study.plotting`) and ``report.md``. The report
 checks the findings of Bergé et al. (2012) against the numbers of this study: every verdict
 ("agrees" / "disagrees") is computed from the tables, never written in advance.
 

@@ -67,7 +67,7 @@ def check_findings(result, config: str = "default") -> list[dict]:
     - Ordering of schemes: median ``e_rms`` over the simulations of ``config``.
     - Variogram: scheme ``kriging`` is taken to use the exponential variogram and
       ``kriging-spherical`` the spherical one (the names of
-      :func:`sklearn_psf.compare.default_schemes`); judged on the per-simulation differences of
+      :func:`sklearn_psf.study.compare.default_schemes`); judged on the per-simulation differences of
       ``e_rms`` (same simulations): inconclusive within two standard errors of zero.
     - S/N: median ``rho1_mean_abs`` of Kriging at ``snr=700`` vs ``snr=100`` (or ``default``).
     - Global density: relative decrease of the median ``e_rms`` from the configuration with

@@ -15,7 +15,7 @@ def synthetic_study_result(schemes=("polynomial", "delaunay", "kriging", "krigin
 
     The numbers are **not** simulations: smooth ellipticity fields plus Gaussian residuals
     whose scale per scheme, S/N and star number mimic the paper's ordering. Use it to try the
-    plotting and report functions; use :func:`sklearn_psf.compare.run_study` for real results.
+    plotting and report functions; use :func:`sklearn_psf.study.compare.run_study` for real results.
 
     Parameters
     ----------

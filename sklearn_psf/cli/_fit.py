@@ -156,7 +156,7 @@ def _image_hdus(path):
     """Indices and names of the 2-D image HDUs of a FITS file (the CCDs)."""
     from astropy.io import fits
 
-    from .io._image import _tolerant_fits
+    from ..io._image import _tolerant_fits
 
     try:
         with _tolerant_fits(path), fits.open(path, memmap=False) as hdul:
@@ -194,7 +194,7 @@ def _fit(args):
 
 def _select(args, catalog, saturation, image_shape, lines):
     """The star/galaxy selection of a catalogue given with --stars."""
-    from .io import select_stars
+    from ..io import select_stars
 
     lines.append(f"sources in the catalogue: {len(catalog)}"
                  f" ({'1' if catalog.meta['one_based'] else '0'}-based "
@@ -224,10 +224,10 @@ def _select(args, catalog, saturation, image_shape, lines):
 def _fit_one(args):
     from tqdm.auto import tqdm
 
-    from .study.compare import default_schemes, make_psf_model
-    from .io import (celestial_wcs, extract_star_stamps, extract_vignettes, find_stars,
+    from ..study.compare import default_schemes, make_psf_model
+    from ..io import (celestial_wcs, extract_star_stamps, extract_vignettes, find_stars,
                      read_catalog, read_image, save_model)
-    from .validation import fit_and_validate
+    from ..validation import fit_and_validate
 
     schemes = default_schemes()
     lines = []
@@ -340,7 +340,7 @@ def _fit_figures(residuals, summary, output, model, shape):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .validation import plot_psf_maps, plot_rho_statistics, plot_stamp_residuals, \
+    from ..validation import plot_psf_maps, plot_rho_statistics, plot_stamp_residuals, \
         plot_whiskers
 
     paths = _figure_paths(output)
@@ -363,10 +363,10 @@ def _predict(args):
     from astropy.table import Table
     from tqdm.auto import tqdm
 
-    from .io import (celestial_wcs, draw_psf, extrapolation_flags, load_model, pixel_to_sky,
+    from ..io import (celestial_wcs, draw_psf, extrapolation_flags, load_model, pixel_to_sky,
                      read_catalog, read_model_validation, sky_to_pixel)
-    from ._files import write_fits_atomic
-    from .measure import adaptive_moments
+    from .._files import write_fits_atomic
+    from ..measure import adaptive_moments
 
     _check_output_file(args.output)
     if (args.x_col is None) != (args.y_col is None):

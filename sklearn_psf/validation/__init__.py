@@ -1,0 +1,24 @@
+"""Validating a PSF model on reserved stars, as PIFF does, and its diagnostic figures.
+
+:func:`fit_and_validate` keeps a random (seeded) fraction of the stars out of the fit,
+predicts the PSF at their positions and compares the shapes (adaptive-moment e1, e2, size)
+of the observed, normalised reserved stars with the model's, summarises the residuals (mean,
+rms) and measures rho1 to rho5 (Jarvis et al. 2016, :func:`sklearn_psf.metrics.rho_statistics`)
+on them.
+Optionally the interpolation scheme is chosen first by K-fold cross-validation on the fitted
+stars with the correlation scorers. The figures (:func:`plot_stamp_residuals`,
+:func:`plot_whiskers`, :func:`plot_rho_statistics`, :func:`plot_psf_maps`) are what
+``sklearn-psf fit`` writes next to the model.
+"""
+
+from ._figures import (
+    plot_psf_maps,
+    plot_rho1,
+    plot_rho_statistics,
+    plot_stamp_residuals,
+    plot_whiskers,
+)
+from ._fit import fit_and_validate
+
+__all__ = ["fit_and_validate", "plot_stamp_residuals", "plot_whiskers", "plot_rho1",
+           "plot_rho_statistics", "plot_psf_maps"]

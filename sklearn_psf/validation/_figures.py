@@ -1,0 +1,292 @@
+"""The diagnostic figures of a PSF model's validation (what ``sklearn-psf fit`` writes)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._validation import as_stamps
+from ..measure import adaptive_moments
+
+__all__ = ["plot_stamp_residuals", "plot_whiskers", "plot_rho1", "plot_rho_statistics",
+           "plot_psf_maps"]
+
+
+def plot_stamp_residuals(residuals, n: int = 5, pixel_scale: float | None = None):
+    """Reserved stars, model PSFs at their positions and residuals (one column per star).
+
+    Parameters
+    ----------
+    residuals : astropy.table.Table
+        From :func:`fit_and_validate` (``stamp_star``, ``stamp_model``, ``x``, ``y``).
+    n : int, default=5
+        Stars shown (spread over the table).
+    pixel_scale : float, optional
+        Arcsec per pixel for the axes; pixels when None.
+
+    Returns
+    -------
+    fig : matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astropy.table import Table
+    >>> from sklearn_psf.validation import plot_stamp_residuals
+    >>> yy, xx = np.mgrid[-4:5, -4:5]
+    >>> g = np.exp(-(xx**2 + yy**2) / 4.0).ravel(); g /= g.sum()
+    >>> t = Table({"x": [1.0, 2.0], "y": [3.0, 4.0], "stamp_star": [g, g],
+    ...            "stamp_model": [g * 0.99, g]})
+    >>> len(plot_stamp_residuals(t).axes)  # 3 rows x 2 stars, 3 colour bars
+    9
+    """
+    import matplotlib.pyplot as plt
+
+    if len(residuals) == 0:
+        raise ValueError("No reserved stars to plot.")
+    idx = np.unique(np.linspace(0, len(residuals) - 1, min(n, len(residuals))).astype(int))
+    star = as_stamps(np.asarray(residuals["stamp_star"])[idx])
+    model = as_stamps(np.asarray(residuals["stamp_model"])[idx])
+    s = star.shape[1]
+    half = s / 2 * (pixel_scale or 1.0)
+    extent = (-half, half, -half, half)
+    m = len(idx)
+    fig, axes = plt.subplots(3, m, figsize=(2.1 * m + 0.8, 6.4), squeeze=False,
+                             layout="constrained")
+    vmax = float(max(star.max(), model.max()))
+    rmax = float(np.abs(star - model).max()) or 1.0
+    for j in range(m):
+        for i, (img, kw) in enumerate((
+                (star[j], {"cmap": "magma", "vmin": 0, "vmax": vmax}),
+                (model[j], {"cmap": "magma", "vmin": 0, "vmax": vmax}),
+                (star[j] - model[j], {"cmap": "RdBu_r", "vmin": -rmax, "vmax": rmax}))):
+            im = axes[i, j].imshow(img, origin="lower", extent=extent,
+                                   interpolation="nearest", **kw)
+            axes[i, j].tick_params(labelsize=6)
+            if j == m - 1:
+                fig.colorbar(im, ax=axes[i, :], shrink=0.8)
+        axes[0, j].set_title(f"({residuals['x'][idx[j]]:.0f}, {residuals['y'][idx[j]]:.0f})",
+                             fontsize=8)
+    for i, label in enumerate(("reserved star", "model", "star - model")):
+        axes[i, 0].set_ylabel(label)
+    fig.suptitle("Reserved stars, model and residuals (unit flux)")
+    return fig
+
+
+def _whisker(ax, x, y, e1, e2, scale, color, label):
+    mod = np.hypot(e1, e2)
+    ang = 0.5 * np.arctan2(e2, e1)
+    ax.quiver(x, y, mod * np.cos(ang), mod * np.sin(ang), angles="xy", scale_units="xy",
+              scale=1.0 / scale, headwidth=0, headlength=0, headaxislength=0, pivot="middle",
+              color=color, label=label, width=0.004)
+
+
+def plot_whiskers(residuals, amplify: float = 5.0, length: float | None = None):
+    """Whisker plots of the ellipticity over the field: stars, model, amplified residual.
+
+    Parameters
+    ----------
+    residuals : astropy.table.Table
+        From :func:`fit_and_validate`.
+    amplify : float, default=5
+        Residual whiskers are drawn ``amplify`` times longer.
+    length : float, optional
+        Pixels of whisker per unit ellipticity; default: 1/12 of the field for the largest
+        ellipticity.
+
+    Returns
+    -------
+    fig : matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> from astropy.table import Table
+    >>> from sklearn_psf.validation import plot_whiskers
+    >>> t = Table({"x": [0.0, 100.0], "y": [0.0, 50.0], "e1_star": [0.05, 0.0],
+    ...            "e2_star": [0.0, 0.05], "e1_model": [0.04, 0.0], "e2_model": [0.0, 0.06],
+    ...            "flag": [0, 0]})
+    >>> len(plot_whiskers(t).axes)
+    3
+    """
+    import matplotlib.pyplot as plt
+
+    ok = np.asarray(residuals["flag"]) == 0
+    if not ok.any():
+        raise ValueError("No measured reserved stars to plot.")
+    t = residuals[ok]
+    x, y = np.asarray(t["x"]), np.asarray(t["y"])
+    e1s, e2s = np.asarray(t["e1_star"]), np.asarray(t["e2_star"])
+    e1m, e2m = np.asarray(t["e1_model"]), np.asarray(t["e2_model"])
+    span = max(np.ptp(x), np.ptp(y), 1.0)
+    emax = float(max(np.hypot(e1s, e2s).max(), np.hypot(e1m, e2m).max(), 1e-3))
+    scale = length or span / 12.0 / emax
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4.4), sharex=True, sharey=True,
+                             layout="constrained")
+    _whisker(axes[0], x, y, e1s, e2s, scale, "k", "stars")
+    _whisker(axes[1], x, y, e1m, e2m, scale, "C0", "model")
+    _whisker(axes[2], x, y, e1s - e1m, e2s - e2m, scale * amplify, "C3", "residual")
+    titles = ("reserved stars", "model at the stars", f"star - model (x{amplify:g})")
+    for ax, title in zip(axes, titles):
+        ax.set_title(title)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [pixel]")
+        ax.margins(0.05)
+    axes[0].set_ylabel("y [pixel]")
+    fig.suptitle(f"PSF ellipticity (whisker of e = 0.05: {0.05 * scale:.0f} pixels)")
+    return fig
+
+
+def plot_rho1(summary):
+    """rho1 (D1) of the reserved stars' residuals against separation.
+
+    Parameters
+    ----------
+    summary : dict
+        From :func:`fit_and_validate` (its ``rho1`` entry).
+
+    Returns
+    -------
+    fig : matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> from sklearn_psf.validation import plot_rho1
+    >>> s = {"rho1": {"theta": [10.0, 100.0], "xi": [1e-5, -2e-6], "sigma_xi": [1e-6, 1e-6]}}
+    >>> len(plot_rho1(s).axes)
+    1
+    """
+    import matplotlib.pyplot as plt
+
+    r = summary.get("rho1")
+    if not r:
+        raise ValueError("The summary has no rho1 (fewer than 10 measured reserved stars).")
+    theta, xi = np.asarray(r["theta"], float), np.asarray(r["xi"], float)
+    err = np.asarray(r["sigma_xi"], float)
+    fig, ax = plt.subplots(figsize=(5.5, 4), layout="constrained")
+    pos = xi > 0
+    ax.errorbar(theta[pos], xi[pos], yerr=err[pos], fmt="o", color="C0", label=r"$\rho_1 > 0$")
+    ax.errorbar(theta[~pos], -xi[~pos], yerr=err[~pos], fmt="o", mfc="none", color="C0",
+                label=r"$-\rho_1$ ($\rho_1 < 0$)")
+    ax.set_xscale("log")
+    if np.any(np.abs(xi[np.isfinite(xi)]) > 0):
+        ax.set_yscale("log")
+    ax.set_xlabel(r"separation $\theta$ [pixel]")
+    ax.set_ylabel(r"$|\rho_1(\theta)|$")
+    ax.set_title("rho1 of the reserved stars (star - model)")
+    ax.legend(fontsize=8)
+    return fig
+
+
+def plot_rho_statistics(summary):
+    """rho1 to rho5 of the reserved stars against separation, as PIFF plots them.
+
+    Left: rho1, rho3, rho4 (the residual terms); right: rho2, rho5. Negative values are
+    drawn as open symbols at their absolute value.
+
+    Parameters
+    ----------
+    summary : dict
+        From :func:`fit_and_validate` (its ``rho1`` ... ``rho5`` entries).
+
+    Returns
+    -------
+    fig : matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> from sklearn_psf.validation import plot_rho_statistics
+    >>> r = {"theta": [10.0, 100.0], "xi": [1e-5, -2e-6], "sigma_xi": [1e-6, 1e-6]}
+    >>> len(plot_rho_statistics({f"rho{k}": r for k in range(1, 6)}).axes)
+    2
+    """
+    import matplotlib.pyplot as plt
+
+    if not summary.get("rho1"):
+        raise ValueError("The summary has no rho statistics (fewer than 10 measured reserved "
+                         "stars).")
+    from matplotlib.ticker import NullFormatter
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4), layout="constrained")
+    panels = ((axes[0], ("rho1", "rho3", "rho4")), (axes[1], ("rho2", "rho5")))
+    for ax, names in panels:
+        for k, name in enumerate(names):
+            r = summary.get(name)
+            if not r:
+                continue
+            theta, xi = np.asarray(r["theta"], float), np.asarray(r["xi"], float)
+            err = np.asarray(r["sigma_xi"], float)
+            theta = theta * (1 + 0.03 * (k - 1))  # side by side
+            pos = xi > 0
+            color = f"C{int(name[-1]) - 1}"
+            ax.errorbar(theta[pos], xi[pos], yerr=err[pos], fmt="o", color=color,
+                        label=rf"$\rho_{name[-1]}$")
+            ax.errorbar(theta[~pos], -xi[~pos], yerr=err[~pos], fmt="o", mfc="none",
+                        color=color)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.set_xlabel(rf"separation $\theta$ [{summary.get('rho_theta_units', 'pixel')}]")
+        ax.set_ylabel(r"$|\rho(\theta)|$ (open: negative)")
+        ax.legend(fontsize=8)
+    fig.suptitle("rho statistics of the reserved stars (Jarvis et al. 2016)")
+    return fig
+
+
+def plot_psf_maps(model, shape, n_grid: int = 20):
+    """The model's PSF across the chip: ellipticity whiskers and size (sigma) on a grid.
+
+    Parameters
+    ----------
+    model : fitted PSFModel
+    shape : tuple (ny, nx)
+        Image shape in pixels; the grid spans it.
+    n_grid : int, default=20
+        Grid points along the longer side.
+
+    Returns
+    -------
+    fig : matplotlib.figure.Figure
+        Left: whiskers of e (length |e|, angle of the major axis); right: sigma [pixels], with
+        the fitted stars as dots.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from sklearn_psf.validation import plot_psf_maps
+    >>> class Round:                            # any model with predict and X_fit_
+    ...     X_fit_ = np.array([[10.0, 10.0], [90.0, 50.0]])
+    ...     def predict(self, X):
+    ...         yy, xx = np.mgrid[-5:6, -5:6]
+    ...         g = np.exp(-(xx**2 + 0.8 * yy**2) / 6.0).ravel()
+    ...         return np.tile(g / g.sum(), (len(X), 1))
+    >>> len(plot_psf_maps(Round(), (60, 100), n_grid=6).axes)
+    3
+    """
+    import matplotlib.pyplot as plt
+
+    ny, nx = (int(v) for v in shape)
+    step = max(ny, nx) / int(n_grid)
+    xs = np.arange(step / 2, nx, step)
+    ys = np.arange(step / 2, ny, step)
+    gx, gy = np.meshgrid(xs, ys)
+    mom = adaptive_moments(model.predict(np.column_stack([gx.ravel(), gy.ravel()])))
+    e1 = np.asarray(mom["e1"], float).reshape(gx.shape)
+    e2 = np.asarray(mom["e2"], float).reshape(gx.shape)
+    sigma = np.asarray(mom["sigma"], float).reshape(gx.shape)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), layout="constrained")
+    emax = float(np.nanmax(np.hypot(e1, e2))) or 1e-3
+    _whisker(axes[0], gx.ravel(), gy.ravel(), e1.ravel(), e2.ravel(), 0.9 * step / emax, "k",
+             "model")
+    axes[0].set_title(f"model ellipticity (longest whisker: |e| = {emax:.3f})")
+    im = axes[1].imshow(sigma, origin="lower", extent=(0, nx, 0, ny), cmap="viridis",
+                        aspect="equal")
+    fig.colorbar(im, ax=axes[1], label=r"$\sigma$ [pixel]")
+    stars = np.asarray(getattr(model, "X_fit_", np.zeros((0, 2))))
+    axes[1].plot(stars[:, 0], stars[:, 1], ".", color="w", ms=2, label="fitted stars")
+    axes[1].set_title("model size (adaptive-moment sigma)")
+    for ax in axes:
+        ax.set_xlim(0, nx)
+        ax.set_ylim(0, ny)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [pixel]")
+    axes[0].set_ylabel("y [pixel]")
+    return fig
