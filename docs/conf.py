@@ -93,6 +93,7 @@ sphinx_gallery_conf = {
         "plot_real_data_workflow.py",
         "plot_simulation.py",
         "plot_tune_kriging.py",
+        "plot_multi_exposure.py",
         "plot_compare_schemes.py",
         "plot_correlation_diagnostics.py",
         "plot_paper_comparison.py",
@@ -192,6 +193,18 @@ def _skip_member(app, what, name, obj, skip, options):
     return None
 
 
+def _fit_width(text, width=84):
+    """Wrap the lines of a command's output that would not fit a code block of the page."""
+    import textwrap
+
+    lines = []
+    for line in text.splitlines():
+        indent = " " * (len(line) - len(line.lstrip()) + 2)
+        lines += textwrap.wrap(line, width, subsequent_indent=indent, break_long_words=False,
+                               break_on_hyphens=False) if len(line) > width else [line]
+    return "\n".join(lines) + "\n"
+
+
 def _write_cli_help(app):
     """The --help text of every ``sklearn-psf`` subcommand, for cli.rst (always current)."""
     import argparse
@@ -208,7 +221,7 @@ def _write_cli_help(app):
             if isinstance(action, argparse._SubParsersAction):
                 for name, sub in action.choices.items():
                     with open(os.path.join(folder, f"cli_{name}.txt"), "w") as f:
-                        f.write(sub.format_help())
+                        f.write(_fit_width(sub.format_help()))
     finally:
         if columns is None:
             del os.environ["COLUMNS"]
@@ -224,7 +237,7 @@ def _run_tutorial(app):
     work = tempfile.mkdtemp()
     env = dict(os.environ, COLUMNS="80")
     commands = {
-        "exposure": [sys.executable, "-c",
+        "exposure": [sys.executable, "-c",  # (prints nothing)
                      "from sklearn_psf.io import write_example_exposure; "
                      "write_example_exposure('.', compress=True)"],
         "fit": ["sklearn-psf", "fit", "exposure.fits.fz", "--hdu", "SCI", "--weight-hdu", "WGT",
@@ -239,7 +252,7 @@ def _run_tutorial(app):
             out = subprocess.run(command, cwd=work, env=env, capture_output=True, text=True,
                                  check=True).stdout
             with open(os.path.join(folder, f"{name}.txt"), "w") as f:
-                f.write(out)
+                f.write(_fit_width(out))
         for png in ("psf_stamps.png", "psf_whiskers.png", "psf_rho.png", "psf_maps.png"):
             shutil.copy(os.path.join(work, png), folder)
     finally:
