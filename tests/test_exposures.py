@@ -168,7 +168,8 @@ def test_focal_plane_one_model_over_ccds():
     local = np.column_stack([X[:, 0] - origins[ccd.astype(int), 0], X[:, 1], ccd])[keep]
     mapper = FocalPlaneMapper(origins)
     np.testing.assert_array_equal(mapper.fit_transform(local), X[keep])
-    interp = make_pipeline(FocalPlaneMapper(origins), *[s for _, s in make_default_interpolator().steps])
+    steps = [step for _, step in make_default_interpolator().steps]
+    interp = make_pipeline(FocalPlaneMapper(origins), *steps)
     focal = PSFModel(interpolator=interp).fit(local, stamps[keep])
     plain = PSFModel().fit(X[keep], stamps[keep])
     G = np.column_stack([field.galaxies["x"], field.galaxies["y"]])
@@ -227,3 +228,21 @@ def _expected(estimator):
 )
 def test_sklearn_compatible(estimator, check):
     check(estimator)
+
+
+def test_pooled_on_realistic_exposures_rejects_contaminants():
+    # masked pixels and cosmic rays on 10% of the stars of each exposure, weights given
+    exp = make_exposures(2, n_stars=80, n_galaxies=20, image_shape=(900, 900), dither=40.0,
+                         contaminants={"cosmic_ray": 0.1}, masked_fraction=0.002,
+                         random_state=7)
+    X, stamps, weights = exp.star_data(return_weights=True)
+    assert np.any(weights == 0)
+    kinds = np.concatenate([np.asarray(f.stars["contaminant"])[f.star_stamps()[1] == 0]
+                            for f in exp.exposures])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = PooledPSFModel().fit(X, stamps, weights)
+    hit = kinds == "cosmic_ray"
+    assert hit.sum() >= 10
+    assert np.mean(~model.inlier_mask_[hit]) > 0.7  # most cosmic rays rejected
+    assert np.mean(model.inlier_mask_[~hit]) > 0.9  # clean stars kept

@@ -13,7 +13,7 @@ import numpy as np
 from astropy.table import Table, vstack
 
 from ..datasets import ReferenceBasis, load_default_reference
-from ._field import PSFField, realistic_snr
+from ._field import realistic_snr
 from ._make import DEFAULT_SMALLEST_SCALE, make_psf_field
 from ._random_field import RandomFieldSampler
 

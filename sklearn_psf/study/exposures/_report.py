@@ -144,8 +144,10 @@ def exposure_report_section(result, figure: str | None = "sigma_sys_vs_exposures
     paired = _paired(result.scores) if "simulation" in result.scores.colnames else []
     if paired:
         lines += ["", "Pooled against per-exposure models, paired over simulations:", ""]
-        lines += [f"- {m} stars/exposure, {n} exposures: pooled lower in {100 * f:.0f}% of the "
-                  f"simulations, median ratio {r:.2f}" for m, n, f, r in paired]
+        lines += [f"- {m} stars/exposure, {n} exposure{'s' * (n > 1)}: " + (
+            "the same model (one exposure)" if n == 1 and r == 1 else
+            f"pooled lower in {100 * f:.0f}% of the simulations, median ratio pooled / "
+            f"per-exposure {r:.2f}") for m, n, f, r in paired]
     req = verdict["requirement"]
     lines.append("")
     if verdict["met"]:
