@@ -105,6 +105,7 @@ sphinx_gallery_conf = {
     "plot_gallery": "True",
     "show_memory": False,
     "min_reported_time": 1,
+    "capture_repr": (),  # show what examples print, not the repr of a cell's last value
 }
 
 # Links to the libraries we build on. Their inventories (objects.inv) come from their sites
