@@ -8,7 +8,6 @@ pipelines, fit/transform consistency, untouched input) are tested on real stamps
 tests/test_preprocessing.py and tests/test_model.py.
 """
 
-import numpy as np
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
 from sklearn_psf import FixedBasis, PSFModel, StampNormalizer
