@@ -17,12 +17,7 @@ from ..preprocessing import (
     StampNormalizer,
 )
 from .._validation import rows_text
-from ._defaults import (
-    make_default_basis,
-    make_default_interpolator,
-    make_paper_basis,
-    make_paper_interpolator,
-)
+from ._defaults import make_default_basis, make_default_interpolator
 from ._file import read_model, save_model
 from ._noise import (
     coefficient_residuals,

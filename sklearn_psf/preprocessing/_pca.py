@@ -356,13 +356,10 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         mean = None
         comps = np.zeros((0, p))
         a = None
+        model = np.zeros((n, p))  # the stars' current model: fills their masked pixels
         for _ in range(int(self.n_iter)):
             safe = np.where(usable, flux, 1.0)
-            if a is None:  # first round: masked pixels from the masked mean of the others
-                fill = np.zeros((n, p))
-            else:
-                fill = model
-            x = self._centred(np.where(w > 0, d, fill), offsets, s) / safe[:, None]
+            x = self._centred(np.where(w > 0, d, model), offsets, s) / safe[:, None]
             # per-pixel noise variance of each normalised stamp (0 on filled pixels)
             v = np.where(w > 0, 1.0 / np.where(w > 0, w, 1.0), 0.0).mean(axis=1) / safe**2
             u = np.where(usable, 1.0 / np.maximum(v, 1e-300), 0.0)
