@@ -416,7 +416,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
 
     @classmethod
     def load(cls, path) -> "PSFModel":
-        """Read a model written by :meth:`save` (see :func:`sklearn_psf.io.load_model`).
+        """Read a model written by :meth:`save`: :func:`load_model` as a class method.
 
         Parameters
         ----------
@@ -425,13 +425,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
         Returns
         -------
         model : PSFModel
-            Fitted; predictions are identical to the saved model's.
-
-        Raises
-        ------
-        ValueError
-            For a missing, corrupt or truncated file, a file that is not a model, or a model
-            file of an unknown (e.g. newer) format version.
+            Fitted (errors as :func:`load_model`'s).
         """
         return read_model(path, cls)
 
