@@ -29,9 +29,7 @@ from sklearn_psf.metrics import (
     sigma_sys2_from_cl,
     survey_requirement,
     survey_table,
-    wiener_filter_baseline,
 )
-from sklearn_psf.metrics._wiener import _field_covariance
 
 ARCMIN = np.pi / 180 / 60
 STAMP = 15
@@ -374,43 +372,3 @@ def test_scorers_in_cross_validate_and_grid_search(psf_data):
     ranks = dict(zip(search.cv_results_["param_interpolator__n_neighbors"],
                      search.cv_results_["rank_test_score"]))
     assert ranks[4] < ranks[50] < ranks[200]
-
-
-# ------------------------------------------------------------------------------------------
-# Wiener-filter baseline
-# ------------------------------------------------------------------------------------------
-def test_field_covariance_matches_the_generator():
-    from sklearn_psf.simulate import gaussian_random_field
-
-    shape = (24, 30)
-    rng = np.random.default_rng(7)
-    fields = np.stack([gaussian_random_field(shape, 11 / 4, rng, normalize=False)
-                       for _ in range(3000)])
-    cov = _field_covariance(shape, 11 / 4)
-    for dy, dx in [(0, 0), (0, 3), (5, 0), (4, 7)]:
-        empirical = np.mean(fields[:, : shape[0] - dy, : shape[1] - dx]
-                            * fields[:, dy:, dx:])
-        assert empirical == pytest.approx(cov[dy, dx], rel=0.05), (dy, dx)
-
-
-def test_wiener_baseline_is_optimal():
-    kwargs = dict(n_galaxies=600, field_size=(20.0, 20.0), grid_spacing=0.2, e_rms=0.02,
-                  noise_sigma=0.01, n_realisations=3, min_sep=0.3, max_sep=8.0, nbins=6)
-    dense = wiener_filter_baseline(n_stars=400, interpolator=KNeighborsRegressor(1),
-                                   random_state=0, **kwargs)
-    sparse = wiener_filter_baseline(n_stars=50, random_state=0, **kwargs)
-    assert dense.xi_residual.shape == dense.xi_input.shape == (3, 6)
-    # residuals below the input field, and lower with more stars
-    assert np.all(dense.residual_variance < dense.input_variance)
-    assert dense.residual_variance.mean() < sparse.residual_variance.mean()
-    # the optimum beats nearest-neighbour interpolation of the same noisy stars
-    assert np.all(dense.residual_variance < dense.interpolator_residual_variance)
-    assert np.mean(np.abs(dense.xi_residual)) < np.mean(np.abs(dense.xi_interpolator))
-    mean, low, high = dense.residual_band
-    assert np.all(low <= mean) and np.all(mean <= high)
-    assert np.all(dense.input_band[0][:2] > mean[:2])
-    # reproducible
-    again = wiener_filter_baseline(n_stars=50, random_state=0, **kwargs)
-    np.testing.assert_array_equal(again.xi_residual, sparse.xi_residual)
-    with pytest.raises(ValueError, match="do not fit"):
-        wiener_filter_baseline(n_stars=1000, n_galaxies=1000, field_size=(1.0, 1.0))

@@ -28,7 +28,6 @@ from ._systematics import (
     survey_requirement,
     survey_table,
 )
-from ._wiener import WienerBaseline, wiener_filter_baseline
 
 __all__ = [
     "CoefficientRMSScorer",
@@ -36,13 +35,11 @@ __all__ = [
     "FlaggedStampsWarning",
     "Rho1Scorer",
     "SigmaSysScorer",
-    "WienerBaseline",
     "ellipticity_residuals",
     "make_coefficient_rms_scorer",
     "make_ellipticity_rms_scorer",
     "make_rho1_scorer",
     "make_sigma_sys_scorer",
-    "wiener_filter_baseline",
     "CorrelationResult",
     "DEFAULT_COSMOLOGY",
     "ELL_RANGE",
