@@ -234,3 +234,12 @@ def test_grid_search_reaches_the_default_interpolator_and_basis(data):
     # the same values set by hand give the same model
     by_hand = PSFModel().set_params(**search.best_params_).fit(X, y)
     np.testing.assert_allclose(by_hand.predict(X[:5]), best.predict(X[:5]))
+
+
+def test_named_interpolators_match_the_command_line():
+    from sklearn_psf.cli._fit import FIT_INTERPOLATORS
+    from sklearn_psf.model import INTERPOLATORS, make_interpolator
+
+    assert set(FIT_INTERPOLATORS) == set(INTERPOLATORS)
+    with pytest.raises(ValueError, match="Unknown interpolator 'idw'"):
+        make_interpolator("idw")

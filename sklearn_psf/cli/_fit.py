@@ -28,7 +28,9 @@ def _positive_int(text):
     return value
 
 
-FIT_INTERPOLATORS = ("kriging", "polynomial", "delaunay", "shepard", "rbf", "chebyshev")
+#: The schemes ``fit --interpolator`` takes (sklearn_psf.model.INTERPOLATORS, listed here so
+#: that building the parser imports no library module).
+FIT_INTERPOLATORS = ("kriging", "polynomial", "chebyshev", "delaunay", "shepard", "rbf")
 
 
 def _fraction(text):
@@ -80,8 +82,9 @@ def _add_fit_parsers(sub):
     fit.add_argument("--no-select", action="store_true",
                      help="use every catalogue row as a star (no star/galaxy selection)")
     fit.add_argument("--interpolator", default="kriging", choices=FIT_INTERPOLATORS + ("auto",),
-                     help="interpolation scheme, or 'auto' to choose it by 5-fold "
-                     "cross-validation [kriging]")
+                     help="interpolation scheme (each in the noise-aware PSFModel: "
+                     "StampPCA basis, chi^2 outlier rejection), or 'auto' to choose it by "
+                     "5-fold cross-validation [kriging: range fitted by maximum likelihood]")
     fit.add_argument("--reserve", type=_fraction, default=0.2,
                      help="fraction of stars reserved for validation [0.2]")
     fit.add_argument("--stamp-size", type=_odd_size,
@@ -224,12 +227,11 @@ def _select(args, catalog, saturation, image_shape, lines):
 def _fit_one(args):
     from tqdm.auto import tqdm
 
-    from ..study.compare import default_schemes, make_psf_model
     from ..io import (celestial_wcs, extract_star_stamps, extract_vignettes, find_stars,
                      read_catalog, read_image, save_model)
+    from ..model import PSFModel, make_interpolator
     from ..validation import fit_and_validate
 
-    schemes = default_schemes()
     lines = []
     with tqdm(total=6, desc="reading", unit="step") as bar:
         header, image, weight, catalog = {}, None, None, None
@@ -283,13 +285,14 @@ def _fit_one(args):
         options = {"reserve": args.reserve, "random_state": args.seed, "weights": cut.weights,
                    "wcs": wcs}
         if args.interpolator == "auto":
-            candidates = {n: make_psf_model(schemes[n]) for n in FIT_INTERPOLATORS}
+            candidates = {n: PSFModel(interpolator=make_interpolator(n))
+                          for n in FIT_INTERPOLATORS}
             model, residuals, summary = fit_and_validate(
                 cut.positions, cut.stamps, candidates=candidates, **options)
         else:
             model, residuals, summary = fit_and_validate(
-                cut.positions, cut.stamps, make_psf_model(schemes[args.interpolator]),
-                **options)
+                cut.positions, cut.stamps,
+                PSFModel(interpolator=make_interpolator(args.interpolator)), **options)
         summary["selection"] = dict(cut.counts)
         summary["image"] = os.path.abspath(args.image or args.stars)
         summary["interpolator"] = summary.get("scheme", args.interpolator)

@@ -1,7 +1,9 @@
 """The PSF model: a stamp basis, outlier rejection and an interpolator of coefficients."""
 
 from ._defaults import (
+    INTERPOLATORS,
     make_default_basis,
+    make_interpolator,
     make_default_interpolator,
     make_paper_basis,
     make_paper_interpolator,
@@ -21,6 +23,7 @@ __all__ = [
     "load_model",
     "make_default_basis",
     "make_default_interpolator",
+    "make_interpolator",
     "make_paper_basis",
     "make_paper_interpolator",
     "read_model_validation",

@@ -6,11 +6,18 @@ from sklearn.decomposition import PCA
 from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import MinMaxScaler
 
-from ..interpolate import KrigingRegressor
+from ..interpolate import (
+    ChebyshevRegressor,
+    DelaunayRegressor,
+    KrigingRegressor,
+    PolynomialRegressor,
+    RBFRegressor,
+    ShepardRegressor,
+)
 from ..preprocessing import StampNormalizer, StampPCA
 
 __all__ = ["make_default_basis", "make_default_interpolator", "make_paper_basis",
-           "make_paper_interpolator"]
+           "make_paper_interpolator", "make_interpolator", "INTERPOLATORS"]
 
 
 def make_default_basis():
@@ -97,3 +104,45 @@ def make_paper_interpolator():
     """
     return make_pipeline(MinMaxScaler(),
                          KrigingRegressor(variogram="exponential", range=0.5, nugget=0.0))
+
+
+#: Interpolation schemes by name for real data (:func:`make_interpolator`), each behind a
+#: ``MinMaxScaler``: Kriging as :func:`make_default_interpolator`; the polynomial with its
+#: degree chosen from the data (BIC, at most 8); Chebyshev polynomials of degree 5 (the paper's
+#: best); Delaunay; Shepard with p = 3; a thin-plate spline RBF, smoothed by each star's noise.
+INTERPOLATORS = ("kriging", "polynomial", "chebyshev", "delaunay", "shepard", "rbf")
+
+
+def make_interpolator(name: str = "kriging"):
+    """An unfitted interpolator for real data, by scheme name.
+
+    The schemes of the paper with settings that suit noisy stars (see :data:`INTERPOLATORS`);
+    ``PSFModel(interpolator=make_interpolator(name))`` is what ``sklearn-psf fit
+    --interpolator NAME`` fits. The paper's own settings are in
+    :func:`sklearn_psf.study.compare.default_schemes`.
+
+    Parameters
+    ----------
+    name : {"kriging", "polynomial", "chebyshev", "delaunay", "shepard", "rbf"}
+
+    Returns
+    -------
+    interpolator : sklearn.pipeline.Pipeline
+
+    Examples
+    --------
+    >>> from sklearn_psf.model import make_interpolator
+    >>> make_interpolator("polynomial")[-1]
+    PolynomialRegressor(degree='auto')
+    """
+    makers = {
+        "kriging": make_default_interpolator,
+        "polynomial": lambda: make_pipeline(MinMaxScaler(), PolynomialRegressor(degree="auto")),
+        "chebyshev": lambda: make_pipeline(MinMaxScaler(), ChebyshevRegressor(degree=5)),
+        "delaunay": lambda: make_pipeline(MinMaxScaler(), DelaunayRegressor()),
+        "shepard": lambda: make_pipeline(MinMaxScaler(), ShepardRegressor(power=3.0)),
+        "rbf": lambda: make_pipeline(MinMaxScaler(), RBFRegressor(kernel="thin_plate_spline")),
+    }
+    if name not in makers:
+        raise ValueError(f"Unknown interpolator {name!r}: choose one of {list(INTERPOLATORS)}.")
+    return makers[name]()

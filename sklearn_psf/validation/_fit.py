@@ -76,7 +76,8 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
         Background-subtracted star stamps (e.g. :func:`sklearn_psf.io.extract_star_stamps`).
         Not modified.
     model : PSFModel, optional
-        Unfitted model (cloned); default ``PSFModel()`` (PCA 90% + Kriging).
+        Unfitted model (cloned); default ``PSFModel()`` (noise-aware: StampPCA basis,
+        chi^2 outlier rejection, Kriging with its range fitted by maximum likelihood).
     reserve : float, default=0.2
         Fraction of stars reserved, in [0, 1). 0 fits every star and returns an empty table.
     random_state : int, RandomState or None
