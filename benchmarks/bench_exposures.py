@@ -1,7 +1,7 @@
 """Benchmark: the multi-exposure study (run_exposure_study) at its default size.
 
 Target: the default study (N = 1, 2, 5, 10, 20 exposures; 120 and 240 stars per exposure;
-8 simulations of 10 x 10 arcmin chips) in under 15 minutes on a 2-core machine
+6 simulations of 10 x 10 arcmin chips) in under 15 minutes on a 2-core machine
 (``n_jobs=2``, BLAS pinned to one thread per worker). There is no peer library running this
 study: the script prints our time against the target, the pooled / per-exposure gain at the
 largest N, the verdict against Stage IV, and writes the figure and report section to

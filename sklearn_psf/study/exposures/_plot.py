@@ -50,7 +50,7 @@ def plot_sigma_sys_vs_exposures(result, ax=None, surveys=None):
     """
     import matplotlib.pyplot as plt
 
-    fig, ax = (plt.subplots(figsize=(6.4, 4.6)) if ax is None else (ax.figure, ax))
+    fig, ax = (plt.subplots(figsize=(8.6, 4.6)) if ax is None else (ax.figure, ax))
     scores = result.scores
     styles = {"per-exposure": ("C0", "o"), "pooled": ("C3", "s")}
     stars = np.unique(np.asarray(scores["n_stars"]))
@@ -73,6 +73,7 @@ def plot_sigma_sys_vs_exposures(result, ax=None, surveys=None):
     ax.set_xscale("log")
     ax.set_yscale("log")
     counts = np.unique(np.asarray(scores["n_exposures"]))
+    ax.set_xlim(counts.min() / 1.15, counts.max() * 2.2)  # room for the survey labels
     ax.set_xticks(counts)
     ax.set_xticklabels([str(int(n)) for n in counts])
     ax.minorticks_off()
@@ -80,6 +81,6 @@ def plot_sigma_sys_vs_exposures(result, ax=None, surveys=None):
     ax.set_ylabel(r"$\sigma^2_{\rm sys}$ of the exposure-averaged residual")
     ax.set_title("PSF systematics against the number of exposures\n"
                  "(median over simulations, 16-84% band)", fontsize=10)
-    ax.legend(fontsize=8, loc="lower left")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     fig.tight_layout()
     return fig

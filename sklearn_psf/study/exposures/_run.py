@@ -137,7 +137,7 @@ def _run_one(sim, seed, n_stars, schemes, settings):
 def run_exposure_study(
     n_exposures=DEFAULTS["n_exposures"],
     n_stars=DEFAULTS["n_stars"],
-    n_simulations: int = 8,
+    n_simulations: int = 6,
     schemes: dict | None = None,
     random_state: int = 0,
     *,
@@ -167,7 +167,7 @@ def run_exposure_study(
     n_exposures : sequence of int, default=(1, 2, 5, 10, 20)
     n_stars : sequence of int, default=(120, 240)
         Stars per exposure (120 on the default 10 x 10 arcmin chip is the paper's density).
-    n_simulations : int, default=8
+    n_simulations : int, default=6
     schemes : dict, optional
         Name -> multi-exposure model (X = x, y, exposure); default
         :func:`default_exposure_schemes`.
