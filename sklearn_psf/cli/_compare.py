@@ -8,6 +8,8 @@ from dataclasses import replace
 
 from ._fit import CLIInputError, _check_output, _positive_int
 
+#: Sizes of ``sklearn-psf compare``: ``"paper"`` (the default) and ``"quick"`` (``--quick``);
+#: explicit options override them.
 PRESETS = {
     # The paper: 50 simulations of 1000 stars and 2000 galaxy-PSFs on a Subaru-sized image.
     "paper": {"n_simulations": 50, "study_simulations": 10, "n_stars": 1000, "n_galaxies": 2000,
@@ -17,8 +19,9 @@ PRESETS = {
     "quick": {"n_simulations": 4, "study_simulations": 2, "n_stars": 1000, "n_galaxies": 2000,
               "image_shape": (7769, 10032)},
 }
+#: Side studies of ``sklearn-psf compare`` (``--studies``).
 STUDIES = ("maps", "snr", "density", "outliers", "tuning", "scale")
-# The paper's figures of the discussion show these three schemes.
+#: Schemes of the side studies: the paper's figures of the discussion show these three.
 STUDY_SCHEMES = ("polynomial", "delaunay", "kriging")
 # Embedded reference bases: the default (5 components, 90% of the variance) and one the size of
 # the paper's Subaru basis (13 components).
