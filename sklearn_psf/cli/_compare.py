@@ -20,7 +20,7 @@ PRESETS = {
               "image_shape": (7769, 10032)},
 }
 #: Side studies of ``sklearn-psf compare`` (``--studies``).
-STUDIES = ("maps", "snr", "density", "outliers", "tuning", "scale")
+STUDIES = ("maps", "snr", "density", "outliers", "tuning", "scale", "exposures")
 #: Schemes of the side studies: the paper's figures of the discussion show these three.
 STUDY_SCHEMES = ("polynomial", "delaunay", "kriging")
 # Embedded reference bases: the default (5 components, 90% of the variance) and one the size of
@@ -28,6 +28,9 @@ STUDY_SCHEMES = ("polynomial", "delaunay", "kriging")
 REFERENCES = {"default": 5, "paper13": 13}
 # The smallest scale of the simulated PSF variation (arcsec) tried by the "scale" study.
 SCALE_STUDY = (4.0, 8.0, 16.0)
+# The "exposures" study under --quick (otherwise run_exposure_study's defaults: 6 simulations,
+# 1-20 exposures of 120 and 240 stars, about 10 minutes on 2 cores).
+EXPOSURES_QUICK = {"n_exposures": (1, 2, 5), "n_stars": (120,), "n_simulations": 2}
 
 
 def _snr(text):
@@ -215,9 +218,33 @@ def run_compare(args) -> int:
     result.config["reference"] = args.reference
     stamps, positions = compare.example_stars(base, result.config["seeds"][0], reference)
     paths = write_report(result, args.output, stamps=stamps, positions=positions)
+    if "exposures" in studies:
+        paths = [*paths, *_run_exposures(args)]
     print(_summary_text(result))
     print(f"\nWrote {len(paths)} files to {args.output}/ (report: {args.output}/report.md)")
     return 0
+
+
+def _run_exposures(args):
+    """The multi-exposure study: its table, figure and exposures.md, its section in report.md."""
+    from pathlib import Path
+
+    from tqdm.auto import tqdm
+
+    from ..study.exposures import (
+        exposure_report_section,
+        run_exposure_study,
+        write_exposure_report,
+    )
+
+    with _backend(args.scheduler), tqdm(desc="exposures study", unit="sim") as bar:
+        result = run_exposure_study(random_state=args.seed, n_jobs=args.n_jobs,
+                                    progress=bar.update,
+                                    **(EXPOSURES_QUICK if args.quick else {}))
+    md = write_exposure_report(result, args.output)
+    with open(Path(args.output) / "report.md", "a", encoding="utf-8") as fh:
+        fh.write("\n" + exposure_report_section(result))
+    return [md, md.with_name("sigma_sys_vs_exposures.png"), md.with_name("exposure_scores.csv")]
 
 
 def _summary_text(result):
