@@ -1,7 +1,7 @@
 """
-=================================================
+==================================================
 Many exposures: pooled and per-exposure PSF models
-=================================================
+==================================================
 
 The paper ends by proposing to combine exposures. Here several dithered exposures of one
 field share a static optical PSF pattern, and each has its own atmospheric pattern
