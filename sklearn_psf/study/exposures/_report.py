@@ -145,9 +145,10 @@ def exposure_report_section(result, figure: str | None = "sigma_sys_vs_exposures
     if paired:
         lines += ["", "Pooled against per-exposure models, paired over simulations:", ""]
         lines += [f"- {m} stars/exposure, {n} exposure{'s' * (n > 1)}: " + (
-            "the same model (one exposure)" if n == 1 and r == 1 else
             f"pooled lower in {100 * f:.0f}% of the simulations, median ratio pooled / "
-            f"per-exposure {r:.2f}") for m, n, f, r in paired]
+            f"per-exposure {r:.2f}" + (" (one exposure: nothing to pool, both are one PSFModel, "
+                                       "differing only by their interpolators)" if n == 1
+                                       else "")) for m, n, f, r in paired]
     req = verdict["requirement"]
     lines.append("")
     if verdict["met"]:
