@@ -21,6 +21,7 @@ diagnostics, on one simulation, for Kriging and a degree-5 polynomial:
 import os
 
 import matplotlib.pyplot as plt
+from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
 import numpy as np
 from astropy.table import Table
 
@@ -119,12 +120,16 @@ for ax, name in zip(axes, model_e):
         ax.scatter(theta[~pos], -xi[~pos], facecolors="white", edgecolors=color, s=16, zorder=3)
     for level, limit in zip(curves.levels, curves.d1_limit):
         ax.plot(theta, limit, ":", color="gray")
-        ax.annotate(f"{level:.0e}", (theta[-1], limit[-1]), fontsize=8, color="gray",
-                    xytext=(3, 0), textcoords="offset points", va="center")
+        ax.annotate(rf"$\sigma_\mathrm{{sys}}^2 = 10^{{{np.log10(level):.0f}}}$",
+                    (theta[0], limit[0]), fontsize=9, color="0.35", xytext=(0, 3),
+                    textcoords="offset points", va="bottom")
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlabel("theta (arcmin)")
-    ax.set_title(f"{name}: sigma_sys^2 = {implied[name]:.1e}")
-axes[0].set_ylabel("|xi(theta)|")
+    ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+    ax.xaxis.set_major_formatter(ScalarFormatter())
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.set_xlabel(r"$\theta$ [arcmin]")
+    ax.set_title(rf"{name}: $\sigma_\mathrm{{sys}}^2$ = {implied[name]:.1e}")
+axes[0].set_ylabel(r"$|\xi(\theta)|$")
 axes[0].legend(loc="lower left")
 plt.show()

@@ -4,9 +4,9 @@ Fit a PSF model and predict galaxy-PSFs
 =======================================
 
 The basic workflow of sklearn_psf on one simulated field: cut the stars from the image,
-fit a :class:`~sklearn_psf.model.PSFModel` (stamp normalisation, PCA keeping 90% of the variance,
-the interquartile-range cut of outlying stars, and ordinary Kriging of the PCA coefficients),
-then predict the PSF at the positions of galaxies, where the simulation knows the true PSF.
+fit a :class:`~sklearn_psf.model.PSFModel` (a PCA basis of the noisy stamps with as many
+components as stand above the noise, a chi^2 test of outlying stars, and Kriging of the PCA
+coefficients with each star's noise), then predict the PSF at the positions of galaxies, where the simulation knows the true PSF.
 """
 
 # %%
@@ -47,12 +47,12 @@ print(f"{len(X_stars)} star stamps of {field.stamp_size} x {field.stamp_size} pi
 # %%
 # Fit the PSF model
 # -----------------
-# The default :class:`~sklearn_psf.model.PSFModel` is the paper's pipeline. PCA keeps 90% of the
-# variance of the *noisy* stamps, so it keeps many components; ``inlier_mask_`` tells which
-# stars survived the IQR cut.
+# The default :class:`~sklearn_psf.model.PSFModel` keeps the principal components whose
+# variance stands above the noise edge (the paper's 90% of the variance of *noisy* stamps would
+# keep many more); ``inlier_mask_`` tells which stars passed the chi^2 outlier test.
 model = PSFModel().fit(X_stars, stamps)
 print(f"PCA components: {model.n_components_}, "
-      f"stars kept by the IQR cut: {model.inlier_mask_.sum()} of {len(X_stars)}")
+      f"stars kept by the outlier test: {model.inlier_mask_.sum()} of {len(X_stars)}")
 
 # %%
 # Predict at the galaxy positions

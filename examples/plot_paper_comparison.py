@@ -23,6 +23,7 @@ import tempfile
 from pathlib import Path
 
 import matplotlib.pyplot as plt
+from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
 import numpy as np
 
 from sklearn_psf.metrics import requirement_curves, survey_table
@@ -70,6 +71,12 @@ curves = requirement_curves(result.theta)
 result.requirements = dict(zip(curves.levels, curves.d1_limit))
 result.surveys = survey_table()
 fig = plot_correlation_functions(result, list(names))
+for ax in fig.axes:  # legible at page width: ticks at 1, 2, 5 x 10^k, larger level labels
+    ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+    ax.xaxis.set_major_formatter(ScalarFormatter())
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    for text in ax.texts:
+        text.set_fontsize(8)
 plt.figure(fig)  # the study's figures are built outside pyplot: hand it to pyplot
 plt.show()
 

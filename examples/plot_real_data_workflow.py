@@ -25,6 +25,7 @@ the command line does the same in two commands::
 
 Set ``SKLEARN_PSF_EXAMPLE_SIZE=small`` for a quick run (a smaller image, fewer stars).
 """
+# sphinx_gallery_multi_image = "single"
 
 # %%
 # A simulated exposure written as survey files
