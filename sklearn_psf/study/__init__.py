@@ -12,4 +12,6 @@ used by the command line (:mod:`sklearn_psf.cli`); imports flow that way only.
 - :mod:`sklearn_psf.study.report`: the report's sections (summaries, survey verdicts, the
   paper's findings, files, ``report.md``).
 - :mod:`sklearn_psf.study.plotting`: the figures, by family.
+- :mod:`sklearn_psf.study.exposures`: the multi-exposure study (per-exposure vs pooled models,
+  sigma_sys^2 against the number of exposures, the Stage IV verdict).
 """
