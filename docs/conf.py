@@ -239,7 +239,7 @@ def _run_tutorial(app):
     env = dict(os.environ, COLUMNS="80")
     commands = {
         "exposure": [sys.executable, "-c",  # (prints nothing)
-                     "from sklearn_psf.io import write_example_exposure; "
+                     "from sklearn_psf.simulate import write_example_exposure; "
                      "write_example_exposure('.', compress=True)"],
         "fit": ["sklearn-psf", "fit", "exposure.fits.fz", "--hdu", "SCI", "--weight-hdu", "WGT",
                 "-o", "psf.fits"],

@@ -13,7 +13,7 @@ The Monday-morning workflow of PIFF and PSFEx users, with sklearn_psf:
    stamps and no image: select the stars, fit, and draw the PSF at sub-pixel positions.
 
 The exposure is simulated by the package itself
-(:func:`sklearn_psf.io.write_example_exposure`, built on
+(:func:`sklearn_psf.simulate.write_example_exposure`, built on
 :func:`sklearn_psf.simulate.make_psf_field`), so the example needs no download and we can
 compare with the true PSF. On a real CCD, replace the file names (see :mod:`sklearn_psf.io`);
 the command line does the same in two commands::
@@ -40,13 +40,12 @@ import matplotlib.pyplot as plt
 import numpy as np
 from astropy.table import Table
 
-from sklearn_psf.study.compare import default_schemes, make_psf_model
 from sklearn_psf.io import (
     extract_star_stamps,
     find_stars,
     read_image,
-    write_example_exposure,
 )
+from sklearn_psf.simulate import write_example_exposure, write_example_ldac
 from sklearn_psf.measure import adaptive_moments
 from sklearn_psf.model import PSFModel
 from sklearn_psf.validation import fit_and_validate, plot_stamp_residuals, plot_whiskers
@@ -76,11 +75,12 @@ print(cut)
 # %%
 # Fit and validate on reserved stars
 # ----------------------------------
-# 20% of the stars (seeded) are kept out of the fit; the model (PCA basis, IQR outlier
-# rejection, Kriging of the coefficients) is compared with them.
-model, residuals, summary = fit_and_validate(
-    cut.positions, cut.stamps, make_psf_model(default_schemes()["kriging"]), reserve=0.2,
-    random_state=0)
+# 20% of the stars (seeded) are kept out of the fit; the model, ``PSFModel()`` with its
+# noise-aware defaults (a basis of the components above the noise, chi^2 outlier rejection,
+# Kriging with each star's noise), fitted with the weight map's pixel weights, is compared
+# with them.
+model, residuals, summary = fit_and_validate(cut.positions, cut.stamps, reserve=0.2,
+                                             random_state=0, weights=cut.weights)
 print(f"fitted on {summary['n_fit']} stars ({summary['n_outliers']} outliers), "
       f"validated on {summary['n_measured']}: e rms {summary['e_rms']:.4f}, "
       f"size rms {summary['dsigma_rms']:.4f} px, |rho1| {summary['rho1_mean_abs']:.1e}")
@@ -137,7 +137,6 @@ from sklearn_psf.io import (
     extract_vignettes,
     read_catalog,
     select_stars,
-    write_example_ldac,
 )
 from sklearn_psf.simulate import realistic_snr
 from sklearn_psf.validation import plot_psf_maps, plot_rho_statistics

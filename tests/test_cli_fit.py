@@ -14,8 +14,8 @@ from sklearn_psf.io import (
     FITSHeaderWarning,
     load_model,
     read_model_validation,
-    write_example_exposure,
 )
+from sklearn_psf.simulate import write_example_exposure
 from sklearn_psf.measure import adaptive_moments
 
 
@@ -160,7 +160,7 @@ def test_some_positions_outside_are_skipped_and_counted(tmp_path, exposure, caps
 # ------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def ldac(tmp_path_factory):
-    from sklearn_psf.io import write_example_ldac
+    from sklearn_psf.simulate import write_example_ldac
 
     return write_example_ldac(tmp_path_factory.mktemp("ldac"), n_stars=200, n_galaxies=200,
                               image_shape=(2400, 2400), random_state=5)

@@ -24,8 +24,8 @@ from sklearn_psf.io import (
     read_image,
     read_model_validation,
     save_model,
-    write_example_exposure,
 )
+from sklearn_psf.simulate import write_example_exposure
 from sklearn_psf.measure import adaptive_moments
 from sklearn_psf.model import PSFModel
 from sklearn_psf.simulate import ReferenceBasis, make_psf_field

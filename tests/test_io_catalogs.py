@@ -16,9 +16,9 @@ from sklearn_psf.io import (
     read_catalog,
     read_image,
     select_stars,
-    write_example_ldac,
     write_ldac,
 )
+from sklearn_psf.simulate import write_example_ldac
 from sklearn_psf.measure import adaptive_moments
 from sklearn_psf.validation import fit_and_validate
 

@@ -1,7 +1,8 @@
 """Real data in and out: FITS images and star catalogues, star selection, model files.
 
-To try the workflow without data, :func:`write_example_exposure` writes a simulated exposure
-(image, weight HDU, SExtractor-like catalogue, galaxy positions, truth) to a folder.
+To try the workflow without data, :func:`sklearn_psf.simulate.write_example_exposure` writes a
+simulated exposure (image, weight HDU, SExtractor-like catalogue, galaxy positions, truth) to a
+folder, and :func:`sklearn_psf.simulate.write_example_ldac` a FITS_LDAC catalogue with vignettes.
 
 Running on a survey exposure
 ----------------------------
@@ -75,7 +76,6 @@ or, in Python::
 
 from ._catalog import read_catalog, write_ldac
 from ._draw import draw_psf, extrapolation_flags
-from ._example import write_example_exposure, write_example_ldac
 from ._image import FITSHeaderWarning, read_image
 from ._select import SELECTION_REASONS, select_stars
 from ._stars import REJECTION_REASONS, StarStamps, extract_star_stamps, find_stars
@@ -113,7 +113,5 @@ __all__ = [
     "save_model",
     "select_stars",
     "sky_to_pixel",
-    "write_example_exposure",
-    "write_example_ldac",
     "write_ldac",
 ]

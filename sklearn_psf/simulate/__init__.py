@@ -99,6 +99,7 @@ Relation to :mod:`sklearn_psf.datasets`: the reference bases are data
 """
 
 from ..datasets import ReferenceBasis, read_fits_image
+from ._example import write_example_exposure, write_example_ldac
 from ._exposures import ExposureSet, make_exposures
 from ._field import PSFField, core_mask, realistic_snr
 from ._make import make_psf_field
@@ -117,4 +118,6 @@ __all__ = [
     "random_field_power",
     "read_fits_image",
     "realistic_snr",
+    "write_example_exposure",
+    "write_example_ldac",
 ]

@@ -53,14 +53,15 @@ def write_example_exposure(folder, *, n_stars: int = 300, image_shape=(2000, 200
     Examples
     --------
     >>> import tempfile
-    >>> from sklearn_psf.io import read_image, write_example_exposure
+    >>> from sklearn_psf.io import read_image
+    >>> from sklearn_psf.simulate import write_example_exposure
     >>> paths = write_example_exposure(tempfile.mkdtemp(), n_stars=20,
     ...                                image_shape=(400, 500), n_galaxies=5)
     >>> image, weight, header = read_image(paths["image"], hdu="SCI", weight_hdu="WGT")
     >>> image.shape, int((weight == 0).sum()), "SATURATE" in header
     ((400, 500), 9, True)
     """
-    from ..simulate import make_psf_field
+    from ._make import make_psf_field
 
     folder = os.fspath(folder)
     field = make_psf_field(n_stars=n_stars, n_galaxies=n_galaxies, image_shape=image_shape,
@@ -194,7 +195,8 @@ def write_example_ldac(folder, *, n_stars: int = 300, n_galaxies: int = 300,
     Examples
     --------
     >>> import tempfile
-    >>> from sklearn_psf.io import read_catalog, write_example_ldac
+    >>> from sklearn_psf.io import read_catalog
+    >>> from sklearn_psf.simulate import write_example_ldac
     >>> out = write_example_ldac(tempfile.mkdtemp(), n_stars=20, n_galaxies=10,
     ...                          image_shape=(800, 800))
     >>> cat = read_catalog(out["catalog"])
@@ -204,8 +206,8 @@ def write_example_ldac(folder, *, n_stars: int = 300, n_galaxies: int = 300,
     from scipy.ndimage import gaussian_filter
 
     from ..preprocessing import cut_stamps
-    from ..simulate import make_psf_field
-    from ._catalog import write_ldac
+    from ._make import make_psf_field
+    from ..io import write_ldac
 
     rng = np.random.default_rng(random_state)
     field = make_psf_field(n_stars=n_stars, n_galaxies=n_galaxies, image_shape=image_shape,
