@@ -23,7 +23,6 @@ import os
 import matplotlib.pyplot as plt
 from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
 import numpy as np
-from astropy.table import Table
 
 from sklearn_psf import adaptive_moments, make_psf_field
 from sklearn_psf.study.compare import default_schemes, make_psf_model

@@ -24,7 +24,6 @@ from pathlib import Path
 
 import matplotlib.pyplot as plt
 from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
-import numpy as np
 
 from sklearn_psf.metrics import requirement_curves, survey_table
 from sklearn_psf.study.compare import SimulationConfig, default_schemes, run_study

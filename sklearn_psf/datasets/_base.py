@@ -46,7 +46,8 @@ def load_default_reference(n_components: int = 5) -> ReferenceBasis:
     optical PSF whose defocus, astigmatism and coma vary smoothly over the field, extracted
     with :meth:`ReferenceBasis.from_image`. It was tuned so that the default simulation has
     PSF ellipticities of mean |e| ~ 0.05 and spread ~ 0.02 (Berge et al. 2012). How it was
-    made, and the script that regenerates it: :mod:`sklearn_psf.datasets._make_default_reference`.
+    made: the script ``sklearn_psf/datasets/_make_default_reference.py`` of the source tree
+    regenerates it (``python -m sklearn_psf.datasets._make_default_reference``).
 
     ``n_components=13`` selects the basis of the first 13 principal components of the same
     stars, the size of the paper's Subaru basis (13 components at 90% of the variance): its

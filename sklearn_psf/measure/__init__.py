@@ -17,4 +17,5 @@ __all__ = [
     "FLAG_NO_FLUX",
     "FLAG_DIVERGED",
     "FLAG_MAX_ITER",
+    "FLAG_MASKED",
 ]

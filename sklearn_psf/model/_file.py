@@ -232,7 +232,7 @@ def _rebuild_basis(kind, normalizer_params, mean, comps, params, state):
 def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = False) -> None:
     """Write a fitted :class:`~sklearn_psf.model.PSFModel` to a FITS file.
 
-    The file format is described in :mod:`sklearn_psf.io._model_io` (and the user guide):
+    The file format is described in :mod:`sklearn_psf.model` (module ``_file``; and the user guide):
     primary header with ``SKPSFFMT = 'SKPSF-MODEL'`` and ``FORMAT`` (version), a ``SPEC``
     table of JSON parameter descriptions, the basis (``BASIS_MEAN``, ``BASIS_COMPONENTS``),
     the fitted stars (``STARS``: positions, coefficients, inlier flag) and, optionally, the

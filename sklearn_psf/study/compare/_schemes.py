@@ -67,8 +67,9 @@ def make_psf_model(interpolator, reference=None, iqr: bool = True, alpha: float 
         Maps positions to PCA coefficients (e.g. an entry of :func:`default_schemes`).
     reference : ReferenceBasis, optional
         When given, the basis is the reference's fixed basis (the paper forces the
-        simulation's basis so that coefficients can be compared with the truth); otherwise a
-        PCA keeping 90% of the variance is fitted on the stars.
+        simulation's basis so that coefficients can be compared with the truth); otherwise
+        the library's default basis (:class:`~sklearn_psf.preprocessing.StampPCA`) is fitted
+        on the stars.
     iqr : bool
         Reject outlying stars with the interquartile-range test.
     alpha : float

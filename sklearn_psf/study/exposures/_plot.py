@@ -41,7 +41,7 @@ def plot_sigma_sys_vs_exposures(result, ax=None, surveys=None):
     >>> matplotlib.use("Agg")
     >>> from astropy.table import Table
     >>> from sklearn_psf.study.exposures import plot_sigma_sys_vs_exposures
-    >>> from sklearn_psf.study.exposures._run import ExposureStudyResult
+    >>> from sklearn_psf.study.exposures import ExposureStudyResult
     >>> scores = Table({"scheme": ["pooled"] * 2, "n_stars": [100, 100],
     ...                 "n_exposures": [1, 10], "sigma_sys2": [5e-6, 3e-7]})
     >>> fig = plot_sigma_sys_vs_exposures(ExposureStudyResult(scores, Table(), None))

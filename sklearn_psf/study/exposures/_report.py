@@ -49,7 +49,7 @@ def cheapest_configuration(result, requirement: float = STAGE_IV) -> dict:
     --------
     >>> from astropy.table import Table
     >>> from sklearn_psf.study.exposures import cheapest_configuration
-    >>> from sklearn_psf.study.exposures._run import ExposureStudyResult
+    >>> from sklearn_psf.study.exposures import ExposureStudyResult
     >>> scores = Table({"scheme": ["pooled"] * 3, "n_stars": [100] * 3,
     ...                 "n_exposures": [1, 2, 4], "sigma_sys2": [4e-6, 2e-6, 1e-6]})
     >>> v = cheapest_configuration(ExposureStudyResult(scores, Table(), None))
@@ -123,7 +123,7 @@ def exposure_report_section(result, figure: str | None = "sigma_sys_vs_exposures
     --------
     >>> from astropy.table import Table
     >>> from sklearn_psf.study.exposures import exposure_report_section
-    >>> from sklearn_psf.study.exposures._run import ExposureStudyResult
+    >>> from sklearn_psf.study.exposures import ExposureStudyResult
     >>> scores = Table({"scheme": ["pooled"] * 2, "n_stars": [100] * 2, "simulation": [0, 0],
     ...                 "n_exposures": [1, 10], "sigma_sys2": [5e-6, 1e-7]})
     >>> text = exposure_report_section(ExposureStudyResult(scores, Table(), None))

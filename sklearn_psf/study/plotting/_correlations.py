@@ -82,7 +82,7 @@ def _draw_requirements(ax, theta, requirements):
             k = good[-1]
             # labelled in the right margin, clear of the curves
             ax.annotate(rf"$\sigma^2_{{sys}}$={float(level):.0e}", (1.01, shown[k]),
-                        xycoords=("axes fraction", "data"), fontsize=6, color="0.3",
+                        xycoords=("axes fraction", "data"), fontsize=8, color="0.3",
                         ha="left", va="center", annotation_clip=False)
 
 
