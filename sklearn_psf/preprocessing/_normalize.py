@@ -43,16 +43,24 @@ def fourier_shift(cube, dx, dy):
     """
     cube = np.asarray(cube, dtype=np.float64)
     s = cube.shape[-1]
-    dx = np.asarray(dx, dtype=np.float64)[:, None, None]
-    dy = np.asarray(dy, dtype=np.float64)[:, None, None]
-    kx = np.fft.fftfreq(s)[None, None, :]
-    ky = np.fft.fftfreq(s)[None, :, None]
+    dx = np.asarray(dx, dtype=np.float64).reshape(-1)
+    dy = np.asarray(dy, dtype=np.float64).reshape(-1)
+    return np.fft.irfft2(np.fft.rfft2(cube) * phase_ramp(s, dx, dy), s=(s, s))
+
+
+def phase_ramp(s, dx, dy):
+    """Half-plane Fourier phase ramps (n, s, s//2+1) moving s x s images by (+dx, +dy) pixels.
+
+    Multiply an ``rfft2`` by it and invert with ``irfft2``. For even ``s`` the Nyquist
+    frequency cannot carry a real shift: its phase is dropped (kept symmetric).
+    """
+    ky = np.fft.fftfreq(s)
+    kx = np.fft.rfftfreq(s)
     if s % 2 == 0:
-        # The Nyquist frequency cannot carry a real shift: drop its phase (keep it symmetric).
-        kx = np.where(np.abs(kx) == 0.5, 0.0, kx)
         ky = np.where(np.abs(ky) == 0.5, 0.0, ky)
-    phase = np.exp(-2j * np.pi * (kx * dx + ky * dy))
-    return np.fft.ifft2(np.fft.fft2(cube) * phase).real
+        kx = np.where(np.abs(kx) == 0.5, 0.0, kx)
+    return np.exp(-2j * np.pi * (kx[None, None, :] * np.asarray(dx)[:, None, None]
+                                 + ky[None, :, None] * np.asarray(dy)[:, None, None]))
 
 
 class StampNormalizer(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):

@@ -12,7 +12,7 @@ from sklearn.base import BaseEstimator, ClassNamePrefixFeaturesOutMixin, Transfo
 from sklearn.utils.validation import check_is_fitted, validate_data
 
 from ..measure import adaptive_moments
-from ._normalize import fourier_shift
+from ._normalize import fourier_shift, phase_ramp
 from .._validation import rows_text
 from ._noise import check_pixel_weights, estimate_pixel_weights
 
@@ -55,17 +55,6 @@ class StampFit(NamedTuple):
     weights: np.ndarray
     #: ndarray (n,): ``FIT_OK`` (0), ``FIT_NO_CENTROID`` (1), ``FIT_NO_FLUX`` (2).
     flag: np.ndarray
-
-
-def _phase(s, dx, dy):
-    """Half-plane Fourier phase ramps (n, s, s//2+1) moving content by (+dx, +dy) pixels."""
-    ky = np.fft.fftfreq(s)
-    kx = np.fft.rfftfreq(s)
-    if s % 2 == 0:  # the Nyquist frequency cannot carry a real shift (see fourier_shift)
-        ky = np.where(np.abs(ky) == 0.5, 0.0, ky)
-        kx = np.where(np.abs(kx) == 0.5, 0.0, kx)
-    return np.exp(-2j * np.pi * (kx[None, None, :] * dx[:, None, None]
-                                 + ky[None, :, None] * dy[:, None, None]))
 
 
 def _shifted(images_fft, phase):
@@ -267,7 +256,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
             sl = slice(start, min(start + _CHUNK, n))
             refine = masked[sl]
             for step in range(1 + _REFINE_STEPS * bool(refine.any())):
-                phase = _phase(s, offsets[sl, 0], offsets[sl, 1])
+                phase = phase_ramp(s, offsets[sl, 0], offsets[sl, 1])
                 A = _shifted(basis_fft, phase)  # (b, m, p)
                 if step > 0:
                     # d(model)/d(offset): minus the spatial derivative of the shifted model
@@ -283,7 +272,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
                                     np.einsum("bip,bp->bi", Gw, resid))
                     move = np.clip(sol[:, m:], -0.5, 0.5) * refine[:, None]
                     offsets[sl] += move
-                    phase = _phase(s, offsets[sl, 0], offsets[sl, 1])
+                    phase = phase_ramp(s, offsets[sl, 0], offsets[sl, 1])
                     A = _shifted(basis_fft, phase)
                 Aw = A * w[sl, None, :]
                 normal = np.einsum("bip,bjp->bij", Aw, A)
