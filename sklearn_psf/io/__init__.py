@@ -77,6 +77,7 @@ or, in Python::
 from ._catalog import read_catalog, write_ldac
 from ._draw import draw_psf, extrapolation_flags
 from ._image import FITSHeaderWarning, read_image
+from ._psf_stamps import read_psf_stamps, write_psf_stamps
 from ._select import SELECTION_REASONS, select_stars
 from ._stars import REJECTION_REASONS, StarStamps, extract_star_stamps, find_stars
 from ._vignettes import VIGNET_MASKED, extract_vignettes
@@ -110,8 +111,10 @@ __all__ = [
     "read_catalog",
     "read_image",
     "read_model_validation",
+    "read_psf_stamps",
     "save_model",
     "select_stars",
     "sky_to_pixel",
     "write_ldac",
+    "write_psf_stamps",
 ]

@@ -9,6 +9,7 @@ from ._defaults import (
     make_paper_interpolator,
 )
 from ._file import MODEL_FORMAT, MODEL_FORMAT_VERSION, read_model_validation, save_model
+from ._galsim import to_galsim
 from ._pooled import FocalPlaneMapper, PerExposurePSFModel, PooledPSFModel
 from ._psf_model import PSFModel, UnusableStarsWarning, load_model
 
@@ -28,4 +29,5 @@ __all__ = [
     "make_paper_interpolator",
     "read_model_validation",
     "save_model",
+    "to_galsim",
 ]

@@ -19,6 +19,7 @@ from ..preprocessing import (
 from .._validation import rows_text
 from ._defaults import make_default_basis, make_default_interpolator
 from ._file import read_model, save_model
+from ._galsim import to_galsim
 from ._noise import (
     coefficient_residuals,
     fit_interpolator,
@@ -462,6 +463,13 @@ class PSFModel(RegressorMixin, BaseEstimator):
         """
         coef = self.predict_coefficients(X)
         return np.asarray(self.basis_.inverse_transform(coef), dtype=np.float64)
+
+    def to_galsim(self, x: float, y: float, *, wcs=None, **kwargs):
+        """The PSF at 0-based pixel (x, y) as a ``galsim.InterpolatedImage`` (needs GalSim).
+
+        See :func:`sklearn_psf.model.to_galsim` (parameters, centring, ``method='no_pixel'``).
+        """
+        return to_galsim(self, x, y, wcs=wcs, **kwargs)
 
     def transform_stamps(self, y):
         """Coefficients of given stamps through the fitted basis (e.g. for scorers).

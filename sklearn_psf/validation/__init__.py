@@ -9,6 +9,14 @@ Optionally the interpolation scheme is chosen first by K-fold cross-validation o
 stars with the correlation scorers. The figures (:func:`plot_stamp_residuals`,
 :func:`plot_whiskers`, :func:`plot_rho_statistics`, :func:`plot_psf_maps`) are what
 ``sklearn-psf fit`` writes next to the model.
+
+Models of other tools on the same stars: :func:`validate_models` measures the same residuals
+(:func:`measure_residuals`: e1, e2, size, chi^2 in the stars' noise, rho1 to rho5) of this
+package's models, PSFEx ``.psf`` files (:class:`PSFExModel`, read with GalSim's
+``galsim.des.DES_PSFEx``) and PIFF files (:class:`PiffModel`, read with ``piff.read``) on one
+set of reserved stars, in one table and one set of figures (:func:`plot_model_comparison`);
+``sklearn-psf validate`` on the command line. GalSim and PIFF are optional:
+``pip install 'sklearn-psf[galsim]'`` or ``'sklearn-psf[piff]'``.
 """
 
 from ._figures import (
@@ -19,6 +27,14 @@ from ._figures import (
     plot_whiskers,
 )
 from ._fit import fit_and_validate
+from ._compare import COMPARISON_COLUMNS, validate_models
+from ._compare_figures import plot_model_comparison
+from ._external import PiffModel, PSFExModel, load_psf_model, model_kind
+from ._psfex import psfex_terms, write_psfex
+from ._residuals import measure_residuals, rho_bins
 
 __all__ = ["fit_and_validate", "plot_stamp_residuals", "plot_whiskers", "plot_rho1",
-           "plot_rho_statistics", "plot_psf_maps"]
+           "plot_rho_statistics", "plot_psf_maps", "COMPARISON_COLUMNS", "PSFExModel",
+           "PiffModel", "load_psf_model", "measure_residuals", "model_kind",
+           "plot_model_comparison", "psfex_terms", "rho_bins", "validate_models",
+           "write_psfex"]

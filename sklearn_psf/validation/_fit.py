@@ -6,18 +6,15 @@ import inspect
 import warnings
 
 import numpy as np
-from astropy.table import Table
 from sklearn.base import clone
 from sklearn.model_selection import KFold, cross_validate
 from sklearn.utils import check_random_state
 
 from .._validation import as_stamps
-from ..measure import adaptive_moments
-from ..metrics import RHO_NAMES, make_ellipticity_rms_scorer, make_rho1_scorer, rho_statistics
+from ..metrics import make_ellipticity_rms_scorer, make_rho1_scorer
 from ..metrics._correlation import EmptyBinsWarning
 from ..model import PSFModel
-from ..io import pixel_to_sky
-from ..preprocessing import StampNormalizer
+from ._residuals import measure_residuals, rho_bins
 
 __all__ = ["fit_and_validate"]
 
@@ -35,17 +32,6 @@ def _accepted(model, fit_params):
     """The fit parameters ``model.fit`` accepts (pixel weights only where supported)."""
     accepted = inspect.signature(model.fit).parameters
     return {k: v for k, v in fit_params.items() if k in accepted}
-
-
-def _rho1_bins(X, stamp_size):
-    span = np.ptp(X, axis=0)
-    max_sep = 0.5 * float(np.hypot(*span))
-    min_sep = max(float(stamp_size), max_sep / 100.0)
-    return min_sep, max(max_sep, 2.0 * min_sep)
-
-
-def _rms(a):
-    return float(np.sqrt(np.mean(np.square(a)))) if len(a) else float("nan")
 
 
 def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=None, *,
@@ -108,16 +94,18 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
         One row per reserved star: ``index`` (row in X), ``x``, ``y``, ``e1_star``,
         ``e2_star``, ``sigma_star``, ``e1_model``, ``e2_model``, ``sigma_model``, ``de1``,
         ``de2``, ``dsigma`` (star - model), ``resid_rms`` (pixel rms of the unit-flux
-        residual stamp), ``flag`` (0: both measured; 1: star's moments failed; 2: model's),
-        ``stamp_star``, ``stamp_model`` (normalised).
+        residual stamp), ``chi2``, ``dof`` (raw stamp against the model, in the star's
+        noise), ``flag`` (0: both measured; 1: star's moments failed; 2: model's),
+        ``stamp_star``, ``stamp_model`` (normalised); see :func:`measure_residuals`.
     summary : dict
         ``n_stars``, ``n_fit``, ``n_reserved``, ``n_measured``, ``n_inliers``,
         ``n_outliers``, ``de1_mean``, ``de1_rms``, ``de2_mean``, ``de2_rms``, ``e_rms``
         (sqrt <de1^2 + de2^2>), ``dsigma_mean``, ``dsigma_rms``, ``sigma_mean`` (pixels),
-        ``rho1`` to ``rho5`` (Jarvis et al. 2016, :func:`~sklearn_psf.metrics.rho_statistics`
-        with T = 2 sigma^2; each a dict of ``theta`` [``rho_theta_units``: pixel, or arcmin
-        with a ``wcs``], ``xi``, ``sigma_xi``, ``npairs``, or None with fewer than 10
-        measured stars), ``rho_theta_units``, ``rho1_mean_abs`` and, with candidates,
+        ``chi2_dof``, ``chi2_dof_median``, ``rho1`` to ``rho5`` (Jarvis et al. 2016,
+        :func:`~sklearn_psf.metrics.rho_statistics` with T = 2 sigma^2; each a dict of
+        ``theta`` [``rho_theta_units``: pixel, or arcmin with a ``wcs``], ``xi``,
+        ``sigma_xi``, ``npairs``, or None with fewer than 10 measured stars),
+        ``rho_theta_units``, ``rho1_mean_abs`` and, with candidates,
         ``cv`` (list of per-scheme mean/std scores) and ``scheme`` (the chosen one).
 
     Raises
@@ -171,7 +159,7 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
         if (w < 0).any() or not np.isfinite(w).all():
             raise ValueError("weights must be finite and >= 0 (0 = masked pixel).")
         fit_params = {"weights": w[fit_rows]}
-    min_sep, max_sep = _rho1_bins(X, s)
+    min_sep, max_sep = rho_bins(X, s)
 
     summary = {}
     if candidates:
@@ -205,67 +193,9 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
     summary.update({"n_stars": n, "n_fit": len(fit_rows), "n_reserved": k,
                     "n_inliers": int(np.sum(model.inlier_mask_)),
                     "n_outliers": int(np.sum(~model.inlier_mask_))})
-    columns = ("e1_star", "e2_star", "sigma_star", "e1_model", "e2_model", "sigma_model",
-               "de1", "de2", "dsigma", "resid_rms")
-    table = Table({"index": reserved, "x": X[reserved, 0], "y": X[reserved, 1]})
-    for c in columns:
-        table[c] = np.full(k, np.nan)
-    table["flag"] = np.zeros(k, dtype=np.int64)
-    table["stamp_star"] = np.zeros((k, s * s))
-    table["stamp_model"] = np.zeros((k, s * s))
-    if k:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # uncentrable stars show up as flagged rows
-            star = StampNormalizer().fit_transform(y[reserved])
-        pred = model.predict(X[reserved])
-        ms, mm = adaptive_moments(star), adaptive_moments(pred)
-        flag = (np.asarray(ms["flag"]) != 0).astype(np.int64) \
-            | 2 * (np.asarray(mm["flag"]) != 0)
-        ok = flag == 0
-        table["flag"] = flag
-        table["stamp_star"], table["stamp_model"] = star, pred
-        for side, mom in (("star", ms), ("model", mm)):
-            for q in ("e1", "e2", "sigma"):
-                table[f"{q}_{side}"] = np.where(ok, np.asarray(mom[q], dtype=np.float64), np.nan)
-        table["de1"] = table["e1_star"] - table["e1_model"]
-        table["de2"] = table["e2_star"] - table["e2_model"]
-        table["dsigma"] = table["sigma_star"] - table["sigma_model"]
-        table["resid_rms"] = np.sqrt(np.mean((star - pred) ** 2, axis=1))
-    ok = np.asarray(table["flag"]) == 0
-    de1, de2 = np.asarray(table["de1"])[ok], np.asarray(table["de2"])[ok]
-    ds = np.asarray(table["dsigma"])[ok]
-    summary.update({
-        "n_measured": int(ok.sum()),
-        "de1_mean": float(np.mean(de1)) if ok.any() else np.nan, "de1_rms": _rms(de1),
-        "de2_mean": float(np.mean(de2)) if ok.any() else np.nan, "de2_rms": _rms(de2),
-        "e_rms": _rms(np.hypot(de1, de2)),
-        "dsigma_mean": float(np.mean(ds)) if ok.any() else np.nan, "dsigma_rms": _rms(ds),
-        "sigma_mean": float(np.mean(np.asarray(table["sigma_star"])[ok])) if ok.any()
-        else np.nan,
-        "rho1": None, "rho1_mean_abs": np.nan,
-    })
-    summary.update(dict.fromkeys(RHO_NAMES[1:]))
-    if ok.sum() >= 10:
-        t = table[ok]
-        where, sky = X[reserved][ok], {}
-        if wcs is not None:  # xi+ ignores the uniform rotation of e from pixels to sky
-            arcmin = 60.0 * float(np.sqrt(np.abs(np.linalg.det(wcs.pixel_scale_matrix))))
-            where = pixel_to_sky(wcs, where)
-            sky = {"sky": True, "min_sep": min_sep * arcmin, "max_sep": max_sep * arcmin}
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", EmptyBinsWarning)
-            rho = rho_statistics(where, t["e1_star"], t["e2_star"],
-                                 2 * np.asarray(t["sigma_star"]) ** 2, t["e1_model"],
-                                 t["e2_model"], 2 * np.asarray(t["sigma_model"]) ** 2,
-                                 **{"min_sep": min_sep, "max_sep": max_sep, **sky},
-                                 nbins=rho1_nbins, num_threads=1)
-        summary["rho_theta_units"] = "arcmin" if sky else "pixel"
-        for name, r in rho.items():
-            summary[name] = {"theta": np.asarray(r.theta_nominal, dtype=float).tolist(),
-                             "xi": np.asarray(r.xi, dtype=float).tolist(),
-                             "sigma_xi": np.asarray(r.sigma_xi, dtype=float).tolist(),
-                             "npairs": np.asarray(r.npairs, dtype=float).tolist()}
-        xi = np.asarray(rho["rho1"].xi, dtype=float)
-        if np.isfinite(xi).any():
-            summary["rho1_mean_abs"] = float(np.nanmean(np.abs(xi)))
+    pred = model.predict(X[reserved]) if k else np.zeros((0, s * s))
+    table, measured = measure_residuals(
+        X[reserved], y[reserved], pred, weights=None if weights is None else w[reserved],
+        wcs=wcs, min_sep=min_sep, max_sep=max_sep, nbins=rho1_nbins, index=reserved)
+    summary.update(measured)
     return model, table, summary

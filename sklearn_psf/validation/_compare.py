@@ -1,0 +1,184 @@
+"""Several PSF models (this package's, PSFEx, PIFF) validated on the same reserved stars."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+from astropy.table import Table
+
+from .._validation import as_stamps
+from ..metrics import RHO_NAMES
+from ._external import PiffModel, PSFExModel, load_psf_model, model_kind
+from ._residuals import measure_residuals, rho_bins
+
+__all__ = ["validate_models", "COMPARISON_COLUMNS"]
+
+#: Columns of the comparison table, after ``model`` and ``kind`` (see :func:`validate_models`).
+COMPARISON_COLUMNS = ("rank", "n_measured", "chi2_dof", "chi2_dof_median", "e_rms", "de1_mean",
+                      "de1_rms", "de2_mean", "de2_rms", "dsigma_mean", "dsigma_rms",
+                      "resid_rms") + tuple(f"{r}_mean_abs" for r in RHO_NAMES)
+
+
+def _fit_size(stamps, s):
+    """Model stamps cropped or zero-padded about their centre pixel to s x s, unit sum."""
+    cube = as_stamps(stamps)
+    m = cube.shape[1]
+    if m == s:
+        return cube.reshape(len(cube), -1)
+    if (m - s) % 2:
+        raise ValueError(f"The model's stamps are {m} pixels wide and the stars' {s}: both "
+                         "must be odd (or both even) to share a centre pixel.")
+    if m > s:
+        k = (m - s) // 2
+        cube = cube[:, k:k + s, k:k + s]
+    else:
+        k = (s - m) // 2
+        cube = np.pad(cube, ((0, 0), (k, k), (k, k)))
+    cube = cube / cube.sum(axis=(1, 2), keepdims=True)
+    return cube.reshape(len(cube), -1)
+
+
+def _named_models(models, stamp_size, origin, chipnum):
+    """{name: (model, kind)} from a dict, or a list of paths/models."""
+    if isinstance(models, dict):
+        items = list(models.items())
+    else:
+        items = []
+        for i, m in enumerate(models):
+            name = os.path.basename(os.fspath(m)) if isinstance(m, (str, os.PathLike)) \
+                else type(m).__name__
+            items.append((name, m))
+    if not items:
+        raise ValueError("Give at least one model to validate.")
+    names = [str(n) for n, _ in items]
+    out = {}
+    for (name, m), label in zip(items, names):
+        if names.count(label) > 1:  # same file name in two folders, or two instances
+            label = f"{label} [{len(out) + 1}]"
+        if isinstance(m, (str, os.PathLike)):
+            kind = model_kind(m)
+            out[label] = (load_psf_model(m, stamp_size, origin=origin, chipnum=chipnum), kind)
+        elif hasattr(m, "predict"):
+            kind = "psfex" if isinstance(m, PSFExModel) else \
+                "piff" if isinstance(m, PiffModel) else "sklearn_psf"
+            out[label] = (m, kind)
+        else:
+            raise TypeError(f"Model {name!r}: expected a file name or an object with predict, "
+                            f"got {type(m).__name__}.")
+    return out
+
+
+def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6,
+                    origin: int = 1, chipnum=None):
+    """Validate several PSF models on the same reserved stars, side by side.
+
+    Each model predicts the PSF at the stars (PSFEx and PIFF files through their own
+    readers, :class:`PSFExModel` and :class:`PiffModel`; stamps cropped or zero-padded to
+    the stars' size) and :func:`measure_residuals` measures the same residuals for all: the
+    stars' and the models' adaptive-moment e1, e2 and size, the pixel chi^2 of each raw star
+    against the model in the star's noise, and rho1 to rho5 in the same separation bins.
+    Give stars that none of the models was fitted on (reserved stars), otherwise the models
+    that saw them are favoured.
+
+    How to read the table: a model as good as the noise allows has ``chi2_dof`` near 1
+    (with correct weights); ``e_rms`` and ``dsigma_rms`` include the stars' own measurement
+    noise, the same for every model, so differences between rows are the models'. ``rank``
+    orders the models by ``chi2_dof`` (1 = closest to the stars).
+
+    Parameters
+    ----------
+    X : array-like of shape (n, 2)
+        Star positions (x, y), 0-based pixels.
+    stamps : array-like of shape (n, s*s) or (n, s, s)
+        Raw, background-subtracted star stamps (e.g. :func:`sklearn_psf.io.extract_vignettes`
+        or :func:`~sklearn_psf.io.extract_star_stamps`), NaN = masked. Not modified.
+    models : dict or list
+        ``{name: model}`` or a list of models (named by file name); each a fitted
+        :class:`~sklearn_psf.model.PSFModel` (or any object with ``predict`` giving
+        unit-sum centred stamps) or a model file: this package's, a PSFEx ``.psf`` (needs
+        GalSim) or a PIFF file (needs PIFF), see :func:`load_psf_model`.
+    weights : array-like of the stamps' shape, optional
+        Pixel inverse variance (0 = masked); default estimated from the stamps' borders.
+    wcs : astropy.wcs.WCS, optional
+        Celestial WCS: rho statistics on the sky (arcmin).
+    nbins : int, default=6
+        Logarithmic separation bins of the rho statistics (from the stamp size to half the
+        stars' diagonal, :func:`rho_bins`).
+    origin : {0, 1}, default=1
+        Pixel convention of PSFEx and PIFF files (1: FITS, as SExtractor's ``X_IMAGE``).
+    chipnum : int, optional
+        CCD of multi-chip PIFF files.
+
+    Returns
+    -------
+    table : astropy.table.Table
+        One row per model: ``model`` (name), ``kind`` ("sklearn_psf", "psfex", "piff"),
+        then :data:`COMPARISON_COLUMNS`: ``rank``, ``n_measured`` and the summary entries
+        of :func:`measure_residuals` (``chi2_dof``, ``e_rms``, ... in pixels for sizes),
+        ``resid_rms`` (mean over stars of the unit-flux residual stamp's pixel rms) and
+        ``rho1_mean_abs`` ... ``rho5_mean_abs`` (mean |rho| over the separation bins).
+    results : dict
+        ``{name: (residuals, summary)}`` of :func:`measure_residuals` for each model (for
+        the figures, :func:`plot_model_comparison`).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from sklearn_psf.validation import validate_models
+    >>> rng = np.random.default_rng(0)
+    >>> yy, xx = np.mgrid[0:15, 0:15] - 7.0
+    >>> def gaussian(sigma):
+    ...     g = np.exp(-0.5 * (xx**2 + yy**2) / sigma**2).ravel()
+    ...     return g / g.sum()
+    >>> class Constant:                              # any model with predict
+    ...     def __init__(self, sigma):
+    ...         self.sigma = sigma
+    ...     def predict(self, X):
+    ...         return np.tile(gaussian(self.sigma), (len(X), 1))
+    >>> X = rng.uniform(0, 500, (40, 2))
+    >>> stars = 1e4 * gaussian(2.0) + rng.normal(0.0, 1.0, (40, 225))
+    >>> table, results = validate_models(X, stars, {"right": Constant(2.0),
+    ...                                             "too wide": Constant(2.2)},
+    ...                                  weights=np.ones((40, 225)))
+    >>> [str(name) for name in table["model"][np.argsort(table["rank"])]]
+    ['right', 'too wide']
+    """
+    X = np.asarray(X, dtype=np.float64)
+    cube = as_stamps(stamps)
+    n, s = cube.shape[0], cube.shape[1]
+    if X.shape != (n, 2):
+        raise ValueError(f"X must hold the (x, y) of the {n} stars, shape ({n}, 2); got "
+                         f"{X.shape}.")
+    if n < 1:
+        raise ValueError("No stars to validate on.")
+    named = _named_models(models, s, origin, chipnum)
+    min_sep, max_sep = rho_bins(X, s)
+    results, rows = {}, []
+    for name, (model, kind) in named.items():
+        pred = _fit_size(model.predict(X), s)
+        table, summary = measure_residuals(X, cube, pred, weights=weights, wcs=wcs,
+                                           min_sep=min_sep, max_sep=max_sep, nbins=nbins)
+        results[name] = (table, summary)
+        ok = np.asarray(table["flag"]) == 0
+        row = {"model": name, "kind": kind,
+               "resid_rms": float(np.mean(np.asarray(table["resid_rms"])[ok])) if ok.any()
+               else np.nan}
+        for key in COMPARISON_COLUMNS:
+            if key.endswith("_mean_abs") and key != "rho1_mean_abs":
+                r = summary.get(key[:-len("_mean_abs")])
+                xi = np.asarray(r["xi"], float) if r else np.array([np.nan])
+                row[key] = float(np.nanmean(np.abs(xi))) if np.isfinite(xi).any() else np.nan
+            elif key in summary:
+                row[key] = summary[key]
+        rows.append(row)
+    chi = np.array([r["chi2_dof"] for r in rows], dtype=float)
+    order = np.argsort(np.where(np.isfinite(chi), chi, np.inf), kind="stable")
+    for rank, i in enumerate(order, start=1):
+        rows[i]["rank"] = rank
+    table = Table(rows=[[r[c] for c in ("model", "kind") + COMPARISON_COLUMNS] for r in rows],
+                  names=("model", "kind") + COMPARISON_COLUMNS)
+    table.meta["rho_theta_units"] = next(
+        (sm.get("rho_theta_units") for _, sm in results.values() if sm.get("rho_theta_units")),
+        "pixel")
+    return table, results

@@ -1,0 +1,231 @@
+"""Residuals of a PSF model's stamps against stars: shapes, pixels, chi^2, rho1-rho5.
+
+One measurement for every model: :func:`fit_and_validate` applies it to its reserved stars,
+:func:`validate_models` to each model (this package's, PSFEx, PIFF) on the same stars.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+from astropy.table import Table
+
+from .._validation import as_stamps
+from ..io import pixel_to_sky
+from ..measure import adaptive_moments
+from ..metrics import RHO_NAMES, rho_statistics
+from ..metrics._correlation import EmptyBinsWarning
+from ..preprocessing import StampNormalizer, estimate_pixel_weights, fourier_shift
+
+__all__ = ["measure_residuals", "rho_bins"]
+
+#: Star-minus-model columns of the residual table (besides index, x, y, flag and stamps).
+RESIDUAL_COLUMNS = ("e1_star", "e2_star", "sigma_star", "e1_model", "e2_model",
+                    "sigma_model", "de1", "de2", "dsigma", "resid_rms", "chi2", "dof")
+
+
+def rho_bins(X, stamp_size):
+    """(min_sep, max_sep) of the rho statistics in pixels: the stamp size to half the
+    diagonal of the positions' extent."""
+    span = np.ptp(np.asarray(X, dtype=np.float64)[:, :2], axis=0)
+    max_sep = 0.5 * float(np.hypot(*span))
+    min_sep = max(float(stamp_size), max_sep / 100.0)
+    return min_sep, max(max_sep, 2.0 * min_sep)
+
+
+def _rms(a):
+    return float(np.sqrt(np.mean(np.square(a)))) if len(a) else float("nan")
+
+
+def _chi2(raw, weights, model, model_mom):
+    """chi^2 of each raw star stamp against its model stamp, and its degrees of freedom.
+
+    The model stamp is moved so that its adaptive centroid falls on the star's (a Fourier
+    shift), then scaled and offset by the weighted least-squares flux and constant
+    background; chi^2 = sum w (star - flux * model - background)^2 over the unmasked pixels,
+    with dof = their number - 4 (flux, background, centroid). NaN where either centroid is
+    unknown.
+    """
+    n, p = raw.shape
+    s = int(round(np.sqrt(p)))
+    w = weights.reshape(n, p)
+    d = np.where(w > 0, np.nan_to_num(raw.reshape(n, p)), 0.0)
+    ms = adaptive_moments(d.reshape(n, s, s), weights=w.reshape(n, s, s))
+    dx = np.asarray(ms["x0"], float) - np.asarray(model_mom["x0"], float)
+    dy = np.asarray(ms["y0"], float) - np.asarray(model_mom["y0"], float)
+    ok = np.isfinite(dx) & np.isfinite(dy)
+    m = fourier_shift(model.reshape(n, s, s), np.where(ok, dx, 0.0),
+                      np.where(ok, dy, 0.0)).reshape(n, p)
+    # weighted least squares of d = f m + b, per star (2 x 2 normal equations)
+    sw, smm, sm = w.sum(1), (w * m * m).sum(1), (w * m).sum(1)
+    sdm, sd = (w * d * m).sum(1), (w * d).sum(1)
+    det = smm * sw - sm**2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = (sdm * sw - sd * sm) / det
+        b = (smm * sd - sm * sdm) / det
+    chi2 = (w * (d - f[:, None] * m - b[:, None]) ** 2).sum(1)
+    dof = (w > 0).sum(1) - 4
+    ok &= np.isfinite(chi2) & (dof > 0) & (det > 0)
+    return np.where(ok, chi2, np.nan), np.where(ok, dof, 0)
+
+
+def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=None,
+                      max_sep=None, nbins: int = 6, index=None):
+    """Star-minus-model residuals of PSF stamps at given stars, and their summary.
+
+    The stars are normalised (:class:`~sklearn_psf.preprocessing.StampNormalizer`: unit
+    flux, adaptive centroid at the stamp centre) and measured with
+    :func:`~sklearn_psf.measure.adaptive_moments`, like the model's stamps. Against the
+    stars' noise, each raw star stamp is compared with the model stamp moved to the star's
+    centroid and fitted in flux and a constant background: chi^2 per star over its unmasked
+    pixels (``dof`` = pixels - 4). rho1 to rho5 (Jarvis et al. 2016,
+    :func:`~sklearn_psf.metrics.rho_statistics`, T = 2 sigma^2) need 10 measured stars.
+
+    Parameters
+    ----------
+    X : array-like of shape (n, 2)
+        Star positions (x, y), 0-based pixels.
+    stamps : array-like of shape (n, s*s) or (n, s, s)
+        Raw, background-subtracted star stamps (NaN = masked pixel). Not modified.
+    predicted : array-like of the stamps' shape
+        The model's stamps at X (unit sum, centred on the centre pixel, as
+        ``PSFModel.predict``).
+    weights : array-like of the stamps' shape, optional
+        Pixel inverse variance of the stamps (0 = masked). Default: estimated from the
+        stamps' borders (:func:`~sklearn_psf.preprocessing.estimate_pixel_weights`, which
+        leaves out the stars' own Poisson noise).
+    wcs : astropy.wcs.WCS, optional
+        Celestial WCS: the rho statistics are then measured on the sky (arcmin).
+    min_sep, max_sep : float, optional
+        Separation range of the rho statistics in pixels; default :func:`rho_bins` of X.
+    nbins : int, default=6
+        Logarithmic separation bins of the rho statistics.
+    index : array-like of shape (n,), optional
+        Row numbers stored in the table's ``index`` column; default 0 to n-1.
+
+    Returns
+    -------
+    table : astropy.table.Table
+        One row per star: ``index``, ``x``, ``y``, ``e1_star``, ``e2_star``,
+        ``sigma_star``, ``e1_model``, ``e2_model``, ``sigma_model``, ``de1``, ``de2``,
+        ``dsigma`` (star - model), ``resid_rms`` (pixel rms of the unit-flux residual
+        stamp), ``chi2`` and ``dof`` (of the raw stamp against the model, see above; NaN
+        and 0 where it cannot be fitted), ``flag`` (0: both measured; 1: star's moments
+        failed; 2: model's), ``stamp_star``, ``stamp_model`` (normalised).
+    summary : dict
+        ``n_measured``, ``de1_mean``, ``de1_rms``, ``de2_mean``, ``de2_rms``, ``e_rms``
+        (sqrt <de1^2 + de2^2>), ``dsigma_mean``, ``dsigma_rms``, ``sigma_mean`` (pixels),
+        ``chi2_dof`` (sum of chi^2 over sum of dof of the measured stars: 1 for a model as
+        good as the noise allows, when the weights are right), ``chi2_dof_median`` (median
+        of the stars' chi^2 / dof), ``rho1`` to ``rho5`` (each a dict of ``theta``, ``xi``,
+        ``sigma_xi``, ``npairs``, or None with fewer than 10 measured stars),
+        ``rho_theta_units`` ("pixel", or "arcmin" with a ``wcs``), ``rho1_mean_abs``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from sklearn_psf.validation import measure_residuals
+    >>> rng = np.random.default_rng(0)
+    >>> yy, xx = np.mgrid[0:15, 0:15] - 7.0
+    >>> psf = np.exp(-0.5 * (xx**2 + yy**2) / 2.0**2); psf /= psf.sum()
+    >>> X = rng.uniform(0, 500, (30, 2))
+    >>> stars = 1e4 * psf + rng.normal(0.0, 1.0, (30, 15, 15))
+    >>> table, summary = measure_residuals(X, stars, np.tile(psf, (30, 1, 1)),
+    ...                                    weights=np.ones((30, 15, 15)))
+    >>> bool(abs(summary["chi2_dof"] - 1) < 0.1), bool(summary["e_rms"] < 0.01)
+    (True, True)
+    """
+    X = np.asarray(X, dtype=np.float64)
+    cube = as_stamps(stamps)
+    n, s = cube.shape[0], cube.shape[1]
+    pred = as_stamps(predicted, name="predicted").reshape(-1, s * s) if n else \
+        np.zeros((0, s * s))
+    if X.shape != (n, 2) or pred.shape != (n, s * s):
+        raise ValueError(f"X {X.shape}, stamps {cube.shape} and predicted {np.shape(predicted)} "
+                         "must describe the same n stars with stamps of the same size.")
+    y = cube.reshape(n, s * s)
+    index = np.arange(n) if index is None else np.asarray(index)
+    if min_sep is None or max_sep is None:
+        min_sep, max_sep = rho_bins(X, s) if n else (1.0, 2.0)
+    table = Table({"index": index, "x": X[:, 0], "y": X[:, 1]})
+    for c in RESIDUAL_COLUMNS:
+        table[c] = np.full(n, np.nan)
+    table["dof"] = np.zeros(n, dtype=np.int64)
+    table["flag"] = np.zeros(n, dtype=np.int64)
+    table["stamp_star"] = np.zeros((n, s * s))
+    table["stamp_model"] = np.zeros((n, s * s))
+    if n:
+        if weights is None:
+            w = estimate_pixel_weights(y)
+        else:
+            w = np.asarray(weights, dtype=np.float64).reshape(n, -1)
+            if w.shape != y.shape:
+                raise ValueError(f"weights must have the stamps' shape {cube.shape}, got "
+                                 f"{np.shape(weights)}.")
+        w = np.where(np.isnan(y), 0.0, w)
+        d = np.where(w > 0, y, 0.0)
+        usable = (w > 0).any(axis=1) & (d.sum(axis=1) > 0)  # others: flagged, not normalised
+        star = np.zeros_like(d)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # uncentrable stars show up as flagged rows
+            if usable.any():
+                star[usable] = StampNormalizer().fit_transform(d[usable], weights=w[usable])
+        ms, mm = adaptive_moments(star), adaptive_moments(pred)
+        flag = ((np.asarray(ms["flag"]) != 0) | ~usable).astype(np.int64) \
+            | 2 * (np.asarray(mm["flag"]) != 0)
+        ok = flag == 0
+        table["flag"] = flag
+        table["stamp_star"], table["stamp_model"] = star, pred
+        for side, mom in (("star", ms), ("model", mm)):
+            for q in ("e1", "e2", "sigma"):
+                table[f"{q}_{side}"] = np.where(ok, np.asarray(mom[q], dtype=np.float64), np.nan)
+        table["de1"] = table["e1_star"] - table["e1_model"]
+        table["de2"] = table["e2_star"] - table["e2_model"]
+        table["dsigma"] = table["sigma_star"] - table["sigma_model"]
+        table["resid_rms"] = np.sqrt(np.mean((star - pred) ** 2, axis=1))
+        chi2, dof = _chi2(y, w, pred, mm)
+        table["chi2"], table["dof"] = np.where(ok, chi2, np.nan), np.where(ok, dof, 0)
+    ok = np.asarray(table["flag"]) == 0
+    de1, de2 = np.asarray(table["de1"])[ok], np.asarray(table["de2"])[ok]
+    ds = np.asarray(table["dsigma"])[ok]
+    chi2, dof = np.asarray(table["chi2"])[ok], np.asarray(table["dof"])[ok]
+    fitted = np.isfinite(chi2) & (dof > 0)
+    summary = {
+        "n_measured": int(ok.sum()),
+        "de1_mean": float(np.mean(de1)) if ok.any() else np.nan, "de1_rms": _rms(de1),
+        "de2_mean": float(np.mean(de2)) if ok.any() else np.nan, "de2_rms": _rms(de2),
+        "e_rms": _rms(np.hypot(de1, de2)),
+        "dsigma_mean": float(np.mean(ds)) if ok.any() else np.nan, "dsigma_rms": _rms(ds),
+        "sigma_mean": float(np.mean(np.asarray(table["sigma_star"])[ok])) if ok.any()
+        else np.nan,
+        "chi2_dof": float(chi2[fitted].sum() / dof[fitted].sum()) if fitted.any() else np.nan,
+        "chi2_dof_median": float(np.median(chi2[fitted] / dof[fitted])) if fitted.any()
+        else np.nan,
+        "rho1": None, "rho1_mean_abs": np.nan,
+    }
+    summary.update(dict.fromkeys(RHO_NAMES[1:]))
+    if ok.sum() >= 10:
+        t = table[ok]
+        where, sky = X[ok], {}
+        if wcs is not None:  # xi+ ignores the uniform rotation of e from pixels to sky
+            arcmin = 60.0 * float(np.sqrt(np.abs(np.linalg.det(wcs.pixel_scale_matrix))))
+            where = pixel_to_sky(wcs, where)
+            sky = {"sky": True, "min_sep": min_sep * arcmin, "max_sep": max_sep * arcmin}
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", EmptyBinsWarning)
+            rho = rho_statistics(where, t["e1_star"], t["e2_star"],
+                                 2 * np.asarray(t["sigma_star"]) ** 2, t["e1_model"],
+                                 t["e2_model"], 2 * np.asarray(t["sigma_model"]) ** 2,
+                                 **{"min_sep": min_sep, "max_sep": max_sep, **sky},
+                                 nbins=nbins, num_threads=1)
+        summary["rho_theta_units"] = "arcmin" if sky else "pixel"
+        for name, r in rho.items():
+            summary[name] = {"theta": np.asarray(r.theta_nominal, dtype=float).tolist(),
+                             "xi": np.asarray(r.xi, dtype=float).tolist(),
+                             "sigma_xi": np.asarray(r.sigma_xi, dtype=float).tolist(),
+                             "npairs": np.asarray(r.npairs, dtype=float).tolist()}
+        xi = np.asarray(rho["rho1"].xi, dtype=float)
+        if np.isfinite(xi).any():
+            summary["rho1_mean_abs"] = float(np.nanmean(np.abs(xi)))
+    return table, summary
