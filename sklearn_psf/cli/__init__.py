@@ -1,6 +1,7 @@
 """Command line: ``sklearn-psf compare`` runs the paper's comparison and writes a report;
 ``sklearn-psf fit`` builds a validated PSF model of a FITS image and ``sklearn-psf predict``
-evaluates a saved model at given positions.
+evaluates a saved model at given positions; ``sklearn-psf validate`` compares PSF models
+(this package's, PSFEx, PIFF) on the same reserved stars.
 
 Run ``sklearn-psf <command> --help`` for the options. Errors in the arguments or the data end with
 a one-line message and exit status 2 (set ``SKLEARN_PSF_DEBUG=1`` for the traceback); the
@@ -16,6 +17,7 @@ import sys
 
 from ._fit import CLIInputError, _add_fit_parsers, _fit, _predict
 from ._compare import PRESETS, STUDIES, STUDY_SCHEMES, add_compare_parser, run_compare
+from ._validate import add_validate_parser, run_validate
 
 __all__ = ["PRESETS", "STUDIES", "STUDY_SCHEMES", "build_parser", "main"]
 
@@ -28,6 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     add_compare_parser(sub)
     _add_fit_parsers(sub)
+    add_validate_parser(sub)
     return parser
 
 
@@ -35,7 +38,8 @@ def main(argv=None) -> int:
     """Entry point of the ``sklearn-psf`` command."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    runners = {"compare": run_compare, "fit": _fit, "predict": _predict}
+    runners = {"compare": run_compare, "fit": _fit, "predict": _predict,
+               "validate": run_validate}
     try:
         return runners[args.command](args)
     except (CLIInputError, ValueError, OSError) as exc:

@@ -1,0 +1,183 @@
+"""The ``validate`` command of ``sklearn-psf``: several PSF models on the same reserved stars.
+
+Building the parser imports nothing heavy; the runner imports the library (and GalSim or PIFF
+only for their models) when it runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+from ._fit import CLIInputError, _about, _positive_int
+
+#: Files ``validate`` writes in its output folder (figures only without --no-plots).
+OUTPUTS = {"table": "validation.csv", "rho": "validation_rho.png",
+           "residuals": "validation_residuals.png", "stamps": "validation_stamps.png",
+           "whiskers": "validation_whiskers.png"}
+
+
+def _odd(text):
+    value = _positive_int(text)
+    if value < 5 or value % 2 == 0:
+        raise argparse.ArgumentTypeError(f"expected an odd stamp size >= 5, got {value}")
+    return value
+
+
+def add_validate_parser(sub):
+    """Add ``sklearn-psf validate`` to the subcommands."""
+    p = sub.add_parser(
+        "validate", help="compare PSF models (this package's, PSFEx .psf, PIFF) on the same "
+        "reserved stars",
+        description="Measure the same residuals of each model on the same stars: e1, e2 and "
+        "size (adaptive moments) of star minus model, the chi^2 of each raw star against the "
+        "model in the star's noise, and rho1-rho5; print one table and write it "
+        f"({OUTPUTS['table']}) with figures ({', '.join(v for k, v in OUTPUTS.items() if k != 'table')}) "
+        "to the output folder. Give stars none of the models was fitted on. PSFEx models "
+        "need GalSim (pip install 'sklearn-psf[galsim]'), PIFF models PIFF "
+        "(pip install 'sklearn-psf[piff]').",
+    )
+    p.add_argument("image", nargs="?",
+                   help="FITS image to cut the stars' stamps from; optional with a catalogue "
+                   "holding VIGNET stamps (SExtractor FITS_LDAC)")
+    p.add_argument("--stars", required=True, metavar="CATALOG",
+                   help="catalogue of the reserved stars: FITS_LDAC with VIGNETs, or a FITS "
+                   "table / ASCII / CSV with x, y (or X_IMAGE, Y_IMAGE) and an image")
+    p.add_argument("-m", "--model", action="append", required=True, metavar="FILE",
+                   help="model file (repeat for each model): written by 'sklearn-psf fit', a "
+                   "PSFEx .psf, or a PIFF file; the kind is read from the file")
+    p.add_argument("-o", "--output", required=True, metavar="FOLDER",
+                   help="folder for the table and the figures (created if needed)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the table and figures of an earlier run in the folder")
+    p.add_argument("--hdu", help="image HDU: index or EXTNAME [first 2-D image]")
+    p.add_argument("--weight-hdu", help="weight/mask HDU of the same file (0 = bad pixel)")
+    p.add_argument("--x-col", help="column of the catalogue's x positions")
+    p.add_argument("--y-col", help="column of the catalogue's y positions")
+    p.add_argument("--one-based", action="store_true",
+                   help="the catalogue's x, y are 1-based (FITS convention); X_IMAGE/Y_IMAGE "
+                   "columns are always read as 1-based")
+    p.add_argument("--select", action="store_true",
+                   help="apply the star selection of 'fit' to the catalogue [use every row]")
+    p.add_argument("--min-snr", type=float, default=20.0,
+                   help="smallest S/N of a selected star, with --select [20]")
+    p.add_argument("--stamp-size", type=_odd,
+                   help="stamp side, odd [25; a catalogue's VIGNET side]")
+    p.add_argument("--saturation", type=float,
+                   help="saturation level [header SATURATE keyword, else none]")
+    p.add_argument("--model-origin", type=int, choices=(0, 1), default=1,
+                   help="pixel convention of PSFEx and PIFF models: 1 = FITS (X_IMAGE), as "
+                   "PSFEx and PIFF on FITS images use [1]")
+    p.add_argument("--chipnum", type=int, help="CCD of a multi-chip PIFF model")
+    p.add_argument("--no-plots", action="store_true", help="do not write figures")
+    return p
+
+
+def _stars(args):
+    """Positions, stamps, weights, WCS and a line on the stars used."""
+    from ..io import (celestial_wcs, extract_star_stamps, extract_vignettes, read_catalog,
+                      read_image, select_stars)
+
+    header, image, weight = {}, None, None
+    if args.image is not None:
+        image, weight, header = read_image(args.image, hdu=args.hdu,
+                                           weight_hdu=args.weight_hdu)
+    with _about(args.stars):
+        catalog = read_catalog(args.stars, one_based=True if args.one_based else None,
+                               x_col=args.x_col, y_col=args.y_col)
+    if image is None:
+        header = catalog.meta.get("image_header") or {}
+    saturation = args.saturation
+    if saturation is None and "SATURATE" in header:
+        saturation = float(header["SATURATE"])
+    n_rows = len(catalog)
+    if args.select:
+        keep, counts = select_stars(catalog, min_snr=args.min_snr, saturation=saturation,
+                                    stamp_size=args.stamp_size or 25)
+        if keep.sum() < 1:
+            reasons = ", ".join(f"{k} {v}" for k, v in counts.items()
+                                if v and not k.startswith("locus"))
+            raise CLIInputError(f"no star of {args.stars} passes the selection ({reasons}); "
+                                "leave out --select or lower --min-snr")
+        catalog = catalog[keep]
+    with _about(args.stars if image is None else args.image):
+        if image is None:
+            cut = extract_vignettes(catalog, args.stamp_size, saturation=saturation,
+                                    gain=header.get("GAIN"))
+        else:
+            cut = extract_star_stamps(image, catalog, args.stamp_size or 25, weight=weight,
+                                      saturation=saturation)
+    skipped = {k: v for k, v in cut.counts.items() if k not in ("input", "used") and v}
+    line = (f"stars: {cut.counts['used']} used of {n_rows} rows"
+            + (f" ({len(catalog)} selected)" if args.select else "")
+            + (" (skipped: " + ", ".join(f"{k} {v}" for k, v in skipped.items()) + ")"
+               if skipped else ""))
+    return cut, celestial_wcs(header), line
+
+
+def _print_table(table):
+    cols = (("model", "model", "{}"), ("kind", "kind", "{}"), ("rank", "rank", "{}"),
+            ("n_measured", "stars", "{}"), ("chi2_dof", "chi2/dof", "{:.3f}"),
+            ("e_rms", "e rms", "{:.4f}"), ("dsigma_rms", "size rms [px]", "{:.4f}"),
+            ("rho1_mean_abs", "|rho1|", "{:.2e}"), ("rho2_mean_abs", "|rho2|", "{:.2e}"))
+    rows = [[fmt.format(r[key]) for key, _, fmt in cols] for r in table]
+    widths = [max(len(title), *(len(row[j]) for row in rows)) for j, (_, title, _) in
+              enumerate(cols)]
+    print("  ".join(title.ljust(w) for (_, title, _), w in zip(cols, widths)))
+    for row in sorted(rows, key=lambda r: int(r[2])):
+        print("  ".join(v.ljust(w) for v, w in zip(row, widths)))
+
+
+def run_validate(args) -> int:
+    """Run ``sklearn-psf validate``."""
+    for path in args.model:
+        if not os.path.isfile(path):
+            raise CLIInputError(f"model file {path!r} does not exist")
+    if (args.x_col is None) != (args.y_col is None):
+        raise CLIInputError("give both --x-col and --y-col, or neither")
+    out = args.output
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise CLIInputError(f"the output {out!r} is a file: give a folder")
+    names = [v for k, v in OUTPUTS.items() if k == "table" or not args.no_plots]
+    existing = [n for n in names if os.path.exists(os.path.join(out, n))]
+    if existing and not args.overwrite:
+        raise CLIInputError(f"{out!r} already holds {', '.join(existing)} (an earlier run): "
+                            "give another folder or --overwrite")
+    try:
+        os.makedirs(out, exist_ok=True)
+    except OSError as exc:
+        raise CLIInputError(f"cannot create the output folder {out!r}: "
+                            f"{exc.strerror or exc}") from None
+
+    from ..validation import model_kind, validate_models
+
+    for path in args.model:
+        with _about(path):
+            model_kind(path)
+    cut, wcs, line = _stars(args)
+    print(line)
+    with _about(", ".join(args.model)):
+        table, results = validate_models(cut.positions, cut.stamps, list(args.model),
+                                         weights=cut.weights, wcs=wcs,
+                                         origin=args.model_origin, chipnum=args.chipnum)
+    written = [os.path.join(out, OUTPUTS["table"])]
+    table.write(written[0], format="ascii.csv", overwrite=True)
+    if not args.no_plots:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        from ..validation import plot_model_comparison
+
+        for name, fig in plot_model_comparison(results).items():
+            path = os.path.join(out, OUTPUTS[name])
+            fig.savefig(path, dpi=100)
+            plt.close(fig)
+            written.append(path)
+    units = table.meta.get("rho_theta_units", "pixel")
+    print(f"star - model on the same stars (rank 1: lowest chi2/dof; e and size from adaptive "
+          f"moments, size in pixels; |rho| mean over separations in {units}):")
+    _print_table(table)
+    print(f"Wrote {', '.join(written)}")
+    return 0
