@@ -6,22 +6,15 @@ only for their models) when it runs.
 
 from __future__ import annotations
 
-import argparse
 import os
 
-from ._fit import CLIInputError, _about, _positive_int
+from ._fit import CLIInputError, _about, _odd_size
 
 #: Files ``validate`` writes in its output folder (figures only without --no-plots).
 OUTPUTS = {"table": "validation.csv", "rho": "validation_rho.png",
            "residuals": "validation_residuals.png", "stamps": "validation_stamps.png",
            "whiskers": "validation_whiskers.png"}
-
-
-def _odd(text):
-    value = _positive_int(text)
-    if value < 5 or value % 2 == 0:
-        raise argparse.ArgumentTypeError(f"expected an odd stamp size >= 5, got {value}")
-    return value
+_FIGURES = [name for key, name in OUTPUTS.items() if key != "table"]
 
 
 def add_validate_parser(sub):
@@ -32,8 +25,8 @@ def add_validate_parser(sub):
         description="Measure the same residuals of each model on the same stars: e1, e2 and "
         "size (adaptive moments) of star minus model, the chi^2 of each raw star against the "
         "model in the star's noise, and rho1-rho5; print one table and write it "
-        f"({OUTPUTS['table']}) with figures ({', '.join(v for k, v in OUTPUTS.items() if k != 'table')}) "
-        "to the output folder. Give stars none of the models was fitted on. PSFEx models "
+        f"({OUTPUTS['table']}) with figures ({', '.join(_FIGURES)}) to the output folder. "
+        "Give stars none of the models was fitted on. PSFEx models "
         "need GalSim (pip install 'sklearn-psf[galsim]'), PIFF models PIFF "
         "(pip install 'sklearn-psf[piff]').",
     )
@@ -61,7 +54,7 @@ def add_validate_parser(sub):
                    help="apply the star selection of 'fit' to the catalogue [use every row]")
     p.add_argument("--min-snr", type=float, default=20.0,
                    help="smallest S/N of a selected star, with --select [20]")
-    p.add_argument("--stamp-size", type=_odd,
+    p.add_argument("--stamp-size", type=_odd_size,
                    help="stamp side, odd [25; a catalogue's VIGNET side]")
     p.add_argument("--saturation", type=float,
                    help="saturation level [header SATURATE keyword, else none]")

@@ -178,6 +178,9 @@ def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6
         rows[i]["rank"] = rank
     table = Table(rows=[[r[c] for c in ("model", "kind") + COMPARISON_COLUMNS] for r in rows],
                   names=("model", "kind") + COMPARISON_COLUMNS)
+    for name in COMPARISON_COLUMNS[2:]:  # printed compactly; the values keep full precision
+        table[name].info.format = ".2e" if name.startswith("rho") or name == "resid_rms" \
+            else ".4f"
     table.meta["rho_theta_units"] = next(
         (sm.get("rho_theta_units") for _, sm in results.values() if sm.get("rho_theta_units")),
         "pixel")

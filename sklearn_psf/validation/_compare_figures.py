@@ -225,8 +225,8 @@ def plot_model_comparison(results, *, amplify: float | None = None) -> dict:
         histograms of the e1, e2 and size residuals and of each star's chi^2/dof;
         ``"stamps"``: the mean star and each model's mean residual stamp in units of its
         standard error (a pattern common to every model comes from the stars, e.g. their
-        centring on a noisy centroid; one seen in one model only is that model's); ``"whiskers"``: the stars' ellipticity and each model's residual across the
-        field.
+        centring on a noisy centroid; one seen in one model only is that model's);
+        ``"whiskers"``: the stars' ellipticity and each model's residual across the field.
 
     Examples
     --------
