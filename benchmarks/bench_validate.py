@@ -196,8 +196,8 @@ def main(argv=None):
     for row in table:
         pix, fitted, e = errors[row["model"]]
         print(f"{row['model']:<46} {row['rank']:>4} {row['chi2_dof']:>9.4f} "
-              f"{row['e_rms']:>8.4f} {row['rho1_mean_abs']:>9.2e} |        {pix:>9.3e} "
-              f"{fitted:>9.3e} {e:>8.4f}")
+              f"{row['e_rms']:>8.5f} {row['rho1_mean_abs']:>9.2e} |        {pix:>9.3e} "
+              f"{fitted:>9.3e} {e:>8.5f}")
     names = list(table["model"])
 
     def same_order(a, b):

@@ -73,6 +73,20 @@ def test_psf_lands_at_the_subpixel_position():
         < 0.01 * exact.array.max()  # measured 0.0022
 
 
+@pytest.mark.parametrize("x, y", [(120.3, 48.7), (10.0, 20.0), (5.49, 7.51)])
+def test_oversampled_centred_stamps_equal_galsims_drawing(x, y):
+    # draw_psf's oversampled, sub-pixel-placed stamps against GalSim drawing the same PSF
+    model = Analytic(galsim.Gaussian(sigma=1.8).shear(g1=0.05, g2=-0.02))
+    ours = draw_psf(model, [[x, y]], centered=True, oversampling=3)[0]
+    dx, dy = x - np.floor(x + 0.5), y - np.floor(y + 0.5)
+    theirs = to_galsim(model, x, y).drawImage(nx=75, ny=75, scale=1 / 3, method="no_pixel",
+                                              offset=(3 * dx, 3 * dy), dtype=float).array
+    theirs /= theirs.sum()
+    assert np.abs(ours - theirs).max() < 0.01 * theirs.max()  # measured 0.0022
+    centroid = galsim.hsm.FindAdaptiveMom(galsim.Image(ours, scale=1 / 3)).moments_centroid
+    assert_allclose([centroid.x - 38, centroid.y - 38], [3 * dx, 3 * dy], atol=0.01)
+
+
 def test_galaxy_convolved_with_the_psf_equals_galsims_own_convolution():
     truth = galsim.Moffat(beta=3.0, fwhm=3.5).shear(g1=-0.03, g2=0.04)
     psf = to_galsim(Analytic(truth, s=35), 500.0, 500.0)
