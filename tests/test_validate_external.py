@@ -169,6 +169,8 @@ def test_measure_residuals_flags_unusable_stars_and_checks_shapes(field):
     assert summary["n_measured"] == 19 and np.isfinite(summary["chi2_dof"])
     with pytest.raises(ValueError, match="same n stars"):
         measure_residuals(field["X"][res], stamps, pred[:5])
+    with pytest.raises(ValueError, match="negative, NaN or infinite values at rows 0,"):
+        measure_residuals(field["X"][res], stamps, pred, weights=-field["weights"][res])
 
 
 def test_fit_and_validate_reports_chi2_in_the_stars_noise(field):

@@ -17,6 +17,7 @@ from ..measure import adaptive_moments
 from ..metrics import RHO_NAMES, rho_statistics
 from ..metrics._correlation import EmptyBinsWarning
 from ..preprocessing import StampNormalizer, estimate_pixel_weights, fourier_shift
+from ..preprocessing._noise import check_pixel_weights
 
 __all__ = ["measure_residuals", "rho_bins"]
 
@@ -156,13 +157,8 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
     table["stamp_star"] = np.zeros((n, s * s))
     table["stamp_model"] = np.zeros((n, s * s))
     if n:
-        if weights is None:
-            w = estimate_pixel_weights(y)
-        else:
-            w = np.asarray(weights, dtype=np.float64).reshape(n, -1)
-            if w.shape != y.shape:
-                raise ValueError(f"weights must have the stamps' shape {cube.shape}, got "
-                                 f"{np.shape(weights)}.")
+        w = estimate_pixel_weights(y) if weights is None else \
+            check_pixel_weights(weights, n, s * s, stamps=y)
         w = np.where(np.isnan(y), 0.0, w)
         d = np.where(w > 0, y, 0.0)
         usable = (w > 0).any(axis=1) & (d.sum(axis=1) > 0)  # others: flagged, not normalised
