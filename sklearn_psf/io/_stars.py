@@ -40,8 +40,8 @@ def _background(data, mask):
     return sep.Background(data, mask=mask, bw=box, bh=box)
 
 
-def _find_stars(data, *, weight=None, stamp_size=25, detect_thresh=5.0, min_snr=50.0,
-                saturation=None, isolation=None, locus_width=0.1):
+def _find_stars(data, *, weight=None, stamp_size=25, detect_thresh=5.0, min_snr=20.0,
+                saturation=None, isolation=None, locus_width="auto"):
     """Detection and point-source selection; returns (catalogue, background-subtracted image).
 
     ``data`` is a float64 C-contiguous image (NaN allowed: masked); not modified.
@@ -57,7 +57,6 @@ def _find_stars(data, *, weight=None, stamp_size=25, detect_thresh=5.0, min_snr=
             f"stamp_size {s} is too large for an image of shape {data.shape}: the image "
             "must be at least stamp_size + 4 pixels on each side."
         )
-    isolation = float(s if isolation is None else isolation)
     mask = _bad_pixel_mask(data, weight)
     if mask is not None:
         if mask.all():
@@ -109,10 +108,10 @@ def _find_stars(data, *, weight=None, stamp_size=25, detect_thresh=5.0, min_snr=
     measured["x"][~np.isfinite(xw)] = x[~np.isfinite(xw)]
     measured["y"][~np.isfinite(yw)] = y[~np.isfinite(yw)]
     keep, cuts = select_stars(measured, min_snr=min_snr, saturation=saturation, stamp_size=s,
-                              image_shape=(ny, nx), isolation=isolation, locus_width=locus_width)
-    locus = cuts.pop("locus_radius")
-    cuts.pop("locus_width")
-    counts.update(cuts)
+                              image_shape=(ny, nx), isolation=isolation, locus_width=locus_width,
+                              min_stars=0)
+    locus = cuts["locus_radius"]
+    counts.update({k: cuts[k] for k in SELECTION_REASONS})
     idx = np.flatnonzero(keep)
     if idx.size:
         _, flags = cut_stamps(sub, np.column_stack([xw[idx], yw[idx]]), s)
@@ -133,8 +132,8 @@ def _find_stars(data, *, weight=None, stamp_size=25, detect_thresh=5.0, min_snr=
 
 
 def find_stars(image, *, weight=None, stamp_size: int = 25, detect_thresh: float = 5.0,
-               min_snr: float = 50.0, saturation: float | None = None,
-               isolation: float | None = None, locus_width: float = 0.1) -> Table:
+               min_snr: float = 20.0, saturation: float | None = None,
+               isolation: float | None = None, locus_width: float | str = "auto") -> Table:
     """Detect sources with ``sep`` and select isolated, unsaturated point sources.
 
     The selection is the flux-radius (size-magnitude) locus method:
@@ -148,11 +147,10 @@ def find_stars(image, *, weight=None, stamp_size: int = 25, detect_thresh: float
        ``meta["rejected"]``): ``flags`` (blended, truncated or failed measurement),
        ``low_snr`` (S/N < ``min_snr``), ``saturated`` (peak + background >= 0.9 x
        ``saturation``), ``near_edge`` (closer than half a stamp + 2 pixels to an edge),
-       ``crowded`` (another detection closer than ``isolation`` pixels along x and y: their
-       stamps would overlap), ``off_locus`` (half-light radius more than ``locus_width``
-       (relative) from the stellar locus: galaxies are larger, cosmic rays smaller), as
-       :func:`select_stars` applies them, then ``bad_stamp`` (a stamp around the star would
-       hold a NaN or masked pixel).
+       ``crowded`` (another detection closer than ``isolation`` pixels along x and y),
+       ``off_locus`` (half-light radius off the stellar locus: galaxies are larger, cosmic
+       rays smaller), as :func:`select_stars` applies them, then ``bad_stamp`` (a stamp around
+       the star would hold a NaN or masked pixel).
 
     Parameters
     ----------
@@ -165,14 +163,16 @@ def find_stars(image, *, weight=None, stamp_size: int = 25, detect_thresh: float
         isolation and the aperture).
     detect_thresh : float, default=5.0
         Detection threshold in units of the background rms.
-    min_snr : float, default=50.0
+    min_snr : float, default=20.0
         Smallest aperture S/N of a selected star.
     saturation : float, optional
         Saturation level (counts, before background subtraction); None: no cut.
     isolation : float, optional
-        Smallest distance (pixels, Chebyshev) to any other detection; default ``stamp_size``.
-    locus_width : float, default=0.1
-        Relative half-width of the stellar locus in half-light radius.
+        Smallest distance (pixels, Chebyshev) to any other detection; default
+        ``stamp_size // 2 + 3`` (see :func:`select_stars`).
+    locus_width : float or "auto", default="auto"
+        Relative half-width of the stellar locus in half-light radius; "auto": 3 times its
+        scatter at each star's S/N (see :func:`select_stars`).
 
     Returns
     -------
