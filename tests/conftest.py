@@ -81,8 +81,8 @@ def _psf(x, y):
     import galsim
 
     u, v = x / SHAPE[1], y / SHAPE[0]
-    fwhm = 1.05 + 0.08 * v - 0.04 * u  # arcsec
-    return galsim.Moffat(beta=3.5, fwhm=fwhm).shear(g1=0.02 + 0.03 * u, g2=-0.02 + 0.03 * v)
+    fwhm = 1.0 + 0.15 * v - 0.05 * u  # arcsec
+    return galsim.Moffat(beta=3.5, fwhm=fwhm).shear(g1=-0.04 + 0.08 * u, g2=-0.03 + 0.06 * v)
 
 
 def _flux_for_snr(snr, n_pix):

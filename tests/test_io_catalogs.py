@@ -235,3 +235,100 @@ def test_fit_and_validate_passes_weights_only_where_accepted():
         fit_and_validate(X, stamps, weights=weights[:, :10])
     with pytest.raises(ValueError, match="finite and >= 0"):
         fit_and_validate(X, stamps, weights=-weights)
+
+
+# ---------------------------------------------------------------- SExtractor's own catalogues
+def test_ldac_header_cell_is_read_without_a_warning(sextractor_ldac, tmp_path):
+    """SExtractor's LDAC_IMHEAD: one cell, TDIM (80, N), cards without trailing blanks."""
+    from sklearn_psf.io import celestial_wcs, pixel_to_sky
+
+    with fits.open(sextractor_ldac["path"]) as hdul:
+        head = hdul["LDAC_IMHEAD"]
+        n_cards = len(sextractor_ldac["header"]) + 1   # + END
+        assert head.header["TDIM1"] == f"(80, {n_cards})"
+        cells = head.data[0][0]
+        assert len(cells) == n_cards and max(len(c) for c in cells) <= 80
+        assert min(len(c) for c in cells) < 80   # numpy strips the blanks: padded back
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        cat = read_catalog(sextractor_ldac["path"])
+    header = cat.meta["image_header"]
+    assert header == sextractor_ldac["header"]
+    assert header["SATURATE"] == 38000.0 and header["CTYPE1"] == "RA---TPV"
+    # the TPV distortion is applied: the catalogue's RA, Dec within 1e-4 arcsec (TAN alone:
+    # arcseconds off)
+    radec = pixel_to_sky(celestial_wcs(header), np.column_stack([cat["x"], cat["y"]]))
+    assert np.abs(radec[:, 0] - cat["ALPHA_J2000"]).max() * 3600 < 1e-4
+    tan = header.copy()
+    tan["CTYPE1"], tan["CTYPE2"] = "RA---TAN", "DEC--TAN"
+    for key in [k for k in tan if k.startswith("PV")]:
+        del tan[key]
+    off = pixel_to_sky(celestial_wcs(tan), np.column_stack([cat["x"], cat["y"]]))
+    assert np.abs(off[:, 0] - cat["ALPHA_J2000"]).max() * 3600 > 1.0
+
+
+def test_locus_selects_point_sources_whatever_class_star_says(sextractor_ldac):
+    """CLASS_STAR 0.55-0.75 for every point source: the 0.8 cut would reject them all; it is
+    reported and left out, the size-magnitude locus selects. The same with the VIGNETs'
+    adaptive-moment size instead of FLUX_RADIUS."""
+    cat = read_catalog(sextractor_ldac["path"])
+    kind = sextractor_ldac["kind"]
+    saturation = cat.meta["image_header"]["SATURATE"]
+    for table in (cat, cat[[c for c in cat.colnames if c != "flux_radius"]]):
+        keep, counts = select_stars(table, saturation=saturation)
+        assert keep[kind == "star"].mean() >= 0.95        # measured 0.99-1 (seeds 0-2)
+        assert keep[kind == "galaxy"].mean() <= 0.03      # measured 0-0.017
+        assert not keep[(kind == "saturated") | (kind == "blend")].any()
+        assert counts["not_applied"] == {"class_star": 1.0} and counts["extended"] == 0
+        assert counts["locus_size"] in ("flux_radius", "adaptive_sigma")
+    # a CLASS_STAR that agrees with the locus is applied
+    cat["class_star"] = np.where(kind == "galaxy", 0.05, 0.95)
+    keep, counts = select_stars(cat, saturation=saturation)
+    assert not counts["not_applied"] and not keep[kind == "galaxy"].any()
+
+
+def test_too_few_stars_error_names_each_cut_and_its_parameter(sextractor_ldac):
+    cat = read_catalog(sextractor_ldac["path"])
+    with pytest.raises(ValueError, match=r"0 of 205 sources pass the star selection, fewer "
+                       r"than 1: .*flags 2 \(flag_mask\), low_snr 203 \(min_snr\)"):
+        select_stars(cat, min_snr=1e4)
+    keep, _ = select_stars(cat, min_snr=1e4, min_stars=0)
+    assert not keep.any()
+    keep, counts = select_stars(cat, flag_mask=0xfe)   # PSFEx's: FLAGS 3 = 1 + 2 rejected
+    assert counts["flags"] == 2
+    keep, counts = select_stars(cat, flag_mask=0xfc, min_snr=0, isolation=0)
+    assert counts["flags"] == 0 and counts["low_snr"] == 0
+
+
+def test_real_decam_catalogue(realdata):
+    """A real DECam SExtractor catalogue (PIFF's test input): the header (TDIM (80, 359))
+    read without a warning, with SATURATE and the TPV WCS that reproduces the catalogue's own
+    ALPHA_J2000; the selected point sources lie on the FLUX_RADIUS locus of the catalogue's
+    sure stars, and hold almost all of them and none of its galaxies."""
+    from sklearn_psf.io import celestial_wcs, pixel_to_sky
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        cat = read_catalog(realdata("DECam_00241238_01_cat.fits"))
+    header = cat.meta["image_header"]
+    assert len(header) == 358 and header["SATURATE"] == 38652.0
+    xy = np.column_stack([cat["X_IMAGE"], cat["Y_IMAGE"]]) - 1.0   # ALPHA_J2000's position
+    radec = pixel_to_sky(celestial_wcs(header), xy)
+    cos = np.cos(np.radians(radec[:, 1]))
+    assert (np.abs(radec[:, 0] - cat["ALPHA_J2000"]) * cos).max() * 3600 < 1e-3  # arcsec
+    assert np.abs(radec[:, 1] - cat["DELTA_J2000"]).max() * 3600 < 1e-3
+    keep, counts = select_stars(cat, saturation=header["SATURATE"])
+    radius, snr = np.asarray(cat["flux_radius"]), np.asarray(cat["snr"])
+    spread, cls = np.asarray(cat["spread_model"]), np.asarray(cat["class_star"])
+    flags = np.asarray(cat["flags"])
+    # the catalogue's own evidence: sure stars and sure galaxies (bright, unflagged)
+    sure = (flags == 0) & (snr > 50) & (cls > 0.95) & (np.abs(spread) < 0.002)
+    galaxies = (flags == 0) & (snr > 20) & (spread > 0.01)
+    locus = np.median(radius[sure])
+    assert 2.3 < locus < 2.5   # pixels
+    deviation = np.abs(radius[keep] / locus - 1)
+    assert np.percentile(deviation, 95) < 0.10 and deviation.max() < 0.2   # 0.078, 0.158
+    assert keep[sure].mean() >= 0.9          # measured 0.95 (the others crowded)
+    assert keep[galaxies].mean() <= 0.01     # measured 0 of 177
+    assert 150 <= keep.sum() <= 220          # 181; PSFEx-style selection: 217
+    assert counts["not_applied"] == {}       # SPREAD_MODEL agrees with the locus here

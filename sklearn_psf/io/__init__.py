@@ -77,7 +77,7 @@ or, in Python::
 from ._catalog import read_catalog, write_ldac
 from ._draw import draw_psf, extrapolation_flags
 from ._image import FITSHeaderWarning, read_image
-from ._select import SELECTION_REASONS, select_stars
+from ._select import SELECTION_OPTIONS, SELECTION_REASONS, select_stars
 from ._stars import REJECTION_REASONS, StarStamps, extract_star_stamps, find_stars
 from ._vignettes import VIGNET_MASKED, extract_vignettes
 from ._wcs import celestial_wcs, pixel_to_sky, sky_to_pixel
@@ -96,6 +96,7 @@ __all__ = [
     "MODEL_FORMAT",
     "MODEL_FORMAT_VERSION",
     "REJECTION_REASONS",
+    "SELECTION_OPTIONS",
     "SELECTION_REASONS",
     "StarStamps",
     "VIGNET_MASKED",

@@ -15,27 +15,13 @@ from __future__ import annotations
 import numpy as np
 from astropy.table import Table
 
+from ..preprocessing import estimate_pixel_weights
 from ._stars import REJECTION_REASONS, StarStamps
 
 __all__ = ["extract_vignettes", "VIGNET_MASKED"]
 
 #: Value below which a VIGNET pixel is masked (SExtractor writes -1e30).
 VIGNET_MASKED = -1e29
-
-
-def _border_variance(cube, valid, width=2):
-    """Per-stamp background variance from the valid pixels of the outer ``width`` rows/cols."""
-    s = cube.shape[1]
-    ring = np.ones((s, s), dtype=bool)
-    ring[width:s - width, width:s - width] = False
-    var = np.full(len(cube), np.nan)
-    for i in range(len(cube)):
-        v = cube[i][ring & valid[i]]
-        if v.size >= 8:
-            var[i] = (1.4826 * np.median(np.abs(v - np.median(v)))) ** 2
-    good = np.isfinite(var) & (var > 0)
-    fallback = np.median(var[good]) if good.any() else 1.0
-    return np.where(good, var, fallback)
 
 
 def extract_vignettes(catalog: Table, stamp_size: int | None = None, *,
@@ -50,9 +36,9 @@ def extract_vignettes(catalog: Table, stamp_size: int | None = None, *,
     (``saturated``).
 
     Weights are the inverse variance of each pixel: the background variance of the star's
-    vignette (from the median absolute deviation of its two outer rows and columns), plus the
-    source's Poisson variance ``max(pixel, 0) / gain`` when ``gain`` (e-/ADU) is given; 0 for
-    masked pixels.
+    vignette (from its border, see :func:`~sklearn_psf.preprocessing.estimate_pixel_weights`:
+    each vignette its own, pooled where they share one level), plus the source's Poisson
+    variance ``max(pixel, 0) / gain`` when ``gain`` (e-/ADU) is given; 0 for masked pixels.
 
     Parameters
     ----------
@@ -110,7 +96,8 @@ def extract_vignettes(catalog: Table, stamp_size: int | None = None, *,
     cube = cube[:, lo:lo + s, lo:lo + s]
     valid = np.isfinite(cube) & (cube > VIGNET_MASKED)
     stamps = np.where(valid, cube, 0.0)
-    var = _border_variance(stamps, valid)[:, None, None]
+    sky = estimate_pixel_weights(np.where(valid, cube, np.nan)).reshape(cube.shape)
+    var = 1.0 / np.where(valid, sky, 1.0)
     if gain is not None:
         var = var + np.maximum(stamps, 0.0) / float(gain)
     weights = np.where(valid, 1.0 / var, 0.0)
