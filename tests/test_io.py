@@ -459,3 +459,25 @@ def test_psf_maps_use_the_page_whatever_the_chip_aspect(shape):
     else:                      # stacked, each over most of the width
         assert min(w0, w1) > 0.7 and min(h0, h1) > 0.3 and y0 - (y1 + h1) < 0.12
     plt.close(fig)
+
+
+def test_even_stamps_are_cut_with_the_star_at_index_half_the_side(field):
+    """32x32 cut-outs: the star's pixel floor(x + 0.5) at index 16, as SExtractor's VIGNET
+    and GalSim's Image.center; stars at the edge are skipped by the even stamp's own extent."""
+    pos = np.column_stack([field.stars["x"], field.stars["y"]])[:20]
+    odd = extract_star_stamps(field.image, pos, 31, subtract_background=False)
+    even = extract_star_stamps(field.image, pos, 32, subtract_background=False)
+    assert even.stamps.shape[1] == 32 * 32 and even.counts["used"] == odd.counts["used"]
+    # the even stamp is the odd one of side 33 without its last row and column
+    big = extract_star_stamps(field.image, pos, 33, subtract_background=False)
+    assert_array_equal(even.stamps.reshape(-1, 32, 32),
+                       big.stamps.reshape(-1, 33, 33)[:, :32, :32])
+    mom = adaptive_moments(even.stamps.reshape(-1, 32, 32))
+    offsets = even.positions - np.floor(even.positions + 0.5)
+    assert_allclose(np.column_stack([mom["x0"], mom["y0"]]) - 16, offsets, atol=0.05)
+    ny, nx = field.image.shape
+    # 16 pixels to the left of the star's pixel and 15 to the right fit; one more does not
+    edge = np.array([[16.2, 100.0], [nx - 16.0, 100.0], [15.4, 100.0], [nx - 15.4, 100.0]])
+    cut = extract_star_stamps(field.image, np.vstack([pos, edge]), 32,
+                              subtract_background=False)
+    assert list(cut.catalog["reason"][-4:]) == ["", "", "edge", "edge"]

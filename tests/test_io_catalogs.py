@@ -74,9 +74,11 @@ def test_selection_spread_model_class_star_and_errors():
         select_stars(np.zeros((3, 2)))
 
 
-def test_vignette_centre_convention_and_masked_pixels():
-    """A Gaussian at X_IMAGE = 20.3 sits +0.3 pixel from the vignette's centre pixel."""
-    v, sigma = 15, 1.8
+@pytest.mark.parametrize("v", [15, 32])
+def test_vignette_centre_convention_and_masked_pixels(v):
+    """A Gaussian at X_IMAGE = 20.3 sits +0.3 pixel from the vignette's pixel v // 2 (its
+    centre for an odd side; SExtractor cuts even ones, e.g. 32x32, the same way)."""
+    sigma = 1.8
     yy, xx = np.mgrid[:v, :v] - v // 2
     rows = []
     for x1, y1 in ((20.3, 31.0), (41.0, 12.6), (60.45, 70.8)):
@@ -98,6 +100,12 @@ def test_vignette_centre_convention_and_masked_pixels():
     assert (cut.weights.reshape(3, v, v)[2, 0] == 0).all()
     assert (cut.stamps.reshape(3, v, v)[2, 0] == 0).all()
     assert (cut.weights.reshape(3, v, v)[2, 1:] > 0).all()
+    # cropped to either parity, the star stays at index s // 2
+    for s in (11, 12):
+        small = extract_vignettes(cat, s).stamps.reshape(3, s, s)
+        mom = adaptive_moments(small[:2])
+        assert_allclose(np.column_stack([mom["x0"], mom["y0"]]) - s // 2, offsets[:2],
+                        atol=0.01)
 
 
 def test_vignette_rejections_and_errors():

@@ -42,10 +42,10 @@ def _fraction(text):
     return value
 
 
-def _odd_size(text):
+def _stamp_size(text):
     value = _positive_int(text)
-    if value < 5 or value % 2 == 0:
-        raise argparse.ArgumentTypeError(f"expected an odd stamp size >= 5, got {value}")
+    if value < 5:
+        raise argparse.ArgumentTypeError(f"expected a stamp size >= 5, got {value}")
     return value
 
 
@@ -115,8 +115,9 @@ def _add_fit_parsers(sub):
                      "5-fold cross-validation [kriging: range fitted by maximum likelihood]")
     fit.add_argument("--reserve", type=_fraction, default=0.2,
                      help="fraction of stars reserved for validation [0.2]")
-    fit.add_argument("--stamp-size", type=_odd_size,
-                     help="stamp side, odd [25; a catalogue's VIGNET side]")
+    fit.add_argument("--stamp-size", type=_stamp_size,
+                     help="stamp side [25; a catalogue's VIGNET side]; the star's pixel is at "
+                     "index side // 2 (SExtractor's VIGNET convention, even sides too)")
     fit.add_argument("--seed", type=int, default=0, help="seed of the reserved-star draw [0]")
     fit.add_argument("--no-plots", action="store_true", help="do not write figures")
     fit.add_argument("--overwrite", action="store_true",
@@ -299,8 +300,9 @@ def _selection_lines(counts, n_kept, lines, head, args):
     size = {"flux_radius": "FLUX_RADIUS", "adaptive_sigma": "adaptive-moment sigma of the "
             "VIGNETs"}.get(counts.get("locus_size"))
     if size and np.isfinite(counts["locus_radius"]):
-        lines.append(f"  size-magnitude locus ({size}): {counts['locus_radius']:.3g} pixels at "
-                     f"the selected stars, half-width {counts['locus_width']:.1%} (median)")
+        lines.append(f"  size-magnitude locus: {size} {counts['locus_radius']:.3g} pixels "
+                     f"(median over the selected stars), accepted within +-"
+                     f"{counts['locus_width']:.1%} (median; wider at low S/N)")
     cuts = {"class_star": f"CLASS_STAR >= {args.min_class_star:g} (--min-class-star)",
             "spread_model": f"|SPREAD_MODEL| <= {args.max_spread_model:g} "
                             "(--max-spread-model)"}

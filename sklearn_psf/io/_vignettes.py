@@ -3,10 +3,13 @@
 Centre convention
 -----------------
 SExtractor cuts ``VIGNET(v, v)`` around the pixel nearest to the object: with the 1-based
-``X_IMAGE``, the vignette's centre pixel ``(v // 2, v // 2)`` is image pixel
-``round(X_IMAGE)`` (1-based), i.e. ``floor(x + 0.5)`` for the 0-based ``x = X_IMAGE - 1`` the
-package uses, the same pixel as :func:`~sklearn_psf.preprocessing.cut_stamps` centres a stamp
-on. The star itself sits at ``x - floor(x + 0.5)`` (in [-0.5, 0.5)) pixels from that centre.
+``X_IMAGE``, the vignette's pixel ``(v // 2, v // 2)`` is image pixel ``round(X_IMAGE)``
+(1-based), i.e. ``floor(x + 0.5)`` for the 0-based ``x = X_IMAGE - 1`` the package uses, the
+same pixel as :func:`~sklearn_psf.preprocessing.cut_stamps` centres a stamp on. For an odd
+side that is the centre pixel; for an even one (e.g. 32x32) the pixel right of and above the
+vignette's centre point (GalSim's ``Image.center``), and stamps cropped from it keep the star at
+index ``stamp_size // 2``. The star itself sits at ``x - floor(x + 0.5)`` (in [-0.5, 0.5))
+pixels from that pixel.
 Masked pixels (SExtractor writes -1e30, also NaN) become zero-weight pixels set to 0.
 """
 
@@ -46,7 +49,7 @@ def extract_vignettes(catalog: Table, stamp_size: int | None = None, *,
         From :func:`~sklearn_psf.io.read_catalog` (0-based ``x``, ``y``; ``VIGNET`` of shape
         (n, v, v), background-subtracted as SExtractor writes it).
     stamp_size : int, optional
-        Odd side of the stamps, at most v; default v.
+        Side of the stamps, at most v (odd or even, see the centre convention); default v.
     saturation : float, optional
         Saturation level; None: no cut.
     gain : float, optional
@@ -63,8 +66,8 @@ def extract_vignettes(catalog: Table, stamp_size: int | None = None, *,
     Raises
     ------
     ValueError
-        Without a vignette column, with even or too large ``stamp_size``, or when no star
-        is usable.
+        Without a vignette column, with a too small or too large ``stamp_size``, or when no
+        star is usable.
 
     Examples
     --------
@@ -80,19 +83,22 @@ def extract_vignettes(catalog: Table, stamp_size: int | None = None, *,
     """
     lower = {c.lower(): c for c in catalog.colnames}
     if column.lower() not in lower:
-        raise ValueError(f"The catalogue has no {column} column (columns: "
-                         f"{', '.join(catalog.colnames)}): give the image to cut the stamps.")
+        names = catalog.colnames
+        shown = ", ".join(names[:8]) + (f", ... ({len(names)} columns)" if len(names) > 8
+                                        else "")
+        raise ValueError(f"The catalogue has no {column} column ({shown}): give the image to "
+                         f"cut the stamps, or have SExtractor write {column}(v,v).")
     cube = np.array(catalog[lower[column.lower()]], dtype=np.float64)
     n = len(catalog)
-    if cube.ndim != 3 or cube.shape[1] != cube.shape[2] or cube.shape[1] % 2 == 0:
-        raise ValueError(f"{column} must hold square vignettes of odd side, got shape "
+    if cube.ndim != 3 or cube.shape[1] != cube.shape[2] or cube.shape[1] < 3:
+        raise ValueError(f"{column} must hold square vignettes of side 3 or more, got shape "
                          f"{cube.shape[1:]}.")
     v = cube.shape[1]
     s = v if stamp_size is None else int(stamp_size)
-    if s % 2 == 0 or s < 3 or s > v:
-        raise ValueError(f"stamp_size must be odd, >= 3 and at most the vignette side {v}, "
+    if s < 3 or s > v:
+        raise ValueError(f"stamp_size must be >= 3 and at most the vignette side {v}, "
                          f"got {stamp_size!r}.")
-    lo = (v - s) // 2
+    lo = v // 2 - s // 2  # the star's pixel stays at index s // 2
     cube = cube[:, lo:lo + s, lo:lo + s]
     valid = np.isfinite(cube) & (cube > VIGNET_MASKED)
     stamps = np.where(valid, cube, 0.0)

@@ -149,7 +149,8 @@ def model_verdict(model, X, stamps, weights, reserved, residuals, random_state=0
     k, reason = _components(model)
     out = {"n_components": k, "components_reason": reason, "chi2_dof": np.nan,
            "chi2_dof_constant": np.nan, "e_noise": np.nan, "e_resid_over_noise": np.nan,
-           "e_resid_over_noise_constant": np.nan, "n_verdict": 0, "kriging_range": None,
+           "e_resid_over_noise_constant": np.nan, "e_model_error": np.nan, "n_verdict": 0,
+           "kriging_range": None,
            "star_spacing": None, "warnings": []}
     found = _kriging_range(model)
     if found is not None:
@@ -196,6 +197,7 @@ def model_verdict(model, X, stamps, weights, reserved, residuals, random_state=0
         var = np.mean(noise[good] ** 2)
         out["e_resid_over_noise"] = float(np.sqrt(np.mean(de[good] ** 2) / var))
         out["e_resid_over_noise_constant"] = float(np.sqrt(np.mean(de_c[good] ** 2) / var))
+        out["e_model_error"] = float(np.sqrt(max(np.mean(de[good] ** 2) - var, 0.0)))
     if out["chi2_total"] >= out["chi2_total_constant"]:
         out["warnings"].append(
             f"the model fits its {n} reserved stars no better than a constant PSF fitted on "
@@ -204,15 +206,15 @@ def model_verdict(model, X, stamps, weights, reserved, residuals, random_state=0
             "over the field, or the model does not follow it")
     beyond = []
     if out["chi2_dof"] > NOISE_LIMIT:
-        beyond.append(f"median chi^2 per degree of freedom {out['chi2_dof']:.2f}")
+        beyond.append(f"their median chi^2 per degree of freedom is {out['chi2_dof']:.2f}")
     if out["e_resid_over_noise"] > NOISE_LIMIT:
-        beyond.append(f"ellipticity residuals {out['e_resid_over_noise']:.2f} times the "
-                      "stars' ellipticity noise")
+        beyond.append(f"their ellipticity residuals are {out['e_resid_over_noise']:.2f} times "
+                      f"their ellipticity noise: beyond the noise, the model's own error is "
+                      f"about {out['e_model_error']:.3g} per component of e")
     if beyond:
         out["warnings"].append(
-            f"the reserved stars' residuals exceed their measurement noise ("
-            + ", ".join(beyond) + f"; the limit is {NOISE_LIMIT:g}): the model misses part of "
-            "the PSF (its variation between too few stars, contaminated stars or galaxies "
-            "taken as stars, too few components), or the pixel weights underestimate the "
-            "noise")
+            f"the reserved stars' residuals exceed their measurement noise (limit: "
+            f"{NOISE_LIMIT:g} times): " + "; ".join(beyond) + ". Causes: the PSF varies on "
+            "scales the stars do not sample (too few stars), contaminated stars or galaxies "
+            "taken as stars, too few components, or pixel weights that underestimate the noise")
     return out
