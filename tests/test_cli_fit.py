@@ -131,7 +131,7 @@ def test_bad_inputs_exit_2(tmp_path, exposure, capsys):
     assert leftovers == []
     # argparse errors: exit 2 as well
     for args in (["fit", noise, "-o", out, "--reserve", "1.5"],
-                 ["fit", noise, "-o", out, "--stamp-size", "24"],
+                 ["fit", noise, "-o", out, "--stamp-size", "3"],
                  ["fit", noise, "-o", out, "--interpolator", "spline"],
                  ["predict", noise, "-o", out]):
         with pytest.raises(SystemExit) as exc:

@@ -84,12 +84,15 @@ def _add_fit_parsers(sub):
     fit = sub.add_parser(
         "fit", help="build a validated PSF model of a FITS image or a catalogue and save it",
         description="Select stars (on the image, or in a catalogue: flags, S/N, saturation, "
-        "SPREAD_MODEL/CLASS_STAR, size-magnitude locus), cut their stamps with the weight map "
-        "(or take the catalogue's VIGNETs: no image needed), reserve a fraction for "
-        "validation, fit a PSF model, save it as a FITS model file and write diagnostic "
-        "figures next to it (MODEL_stamps.png: reserved stars, model, residuals; "
-        "MODEL_whiskers.png: e of stars/model/residuals; MODEL_rho.png: rho1-rho5; "
-        "MODEL_maps.png: model e and size across the chip).",
+        "isolation, the size-magnitude locus, then SPREAD_MODEL/CLASS_STAR where they agree "
+        "with it), cut their stamps with the weight map (or take the catalogue's VIGNETs: no "
+        "image needed), reserve a fraction for validation, fit a PSF model, print a verdict on "
+        "it (the reserved stars' residuals against their own noise and against a constant PSF, "
+        "rho1-rho5; a warning when the model is not trustworthy), save it as a FITS model file "
+        "and write diagnostic figures next to it (MODEL_stamps.png: reserved stars, model, "
+        "residuals; MODEL_whiskers.png: e of stars/model/residuals; MODEL_rho.png: rho1-rho5; "
+        "MODEL_maps.png: model e and size across the chip). Existing files are not replaced "
+        "without --overwrite.",
     )
     fit.add_argument("image", nargs="?",
                      help="FITS image (.fits, .fits.fz); optional with a catalogue holding "

@@ -166,7 +166,7 @@ def _scatter(d, snr, window=0.3, per_bin=15):
     idx = idx[np.argsort(snr[idx])]
     bins = np.array_split(idx, max(1, idx.size // per_bin))
     var = np.array([(_MAD * np.median(-d[b])) ** 2 for b in bins])
-    inv2 = np.array([np.mean(1.0 / snr[b] ** 2) for b in bins])
+    inv2 = np.array([np.mean(1.0 / np.maximum(snr[b], 1e-3) ** 2) for b in bins])
     w = np.sqrt([len(b) for b in bins]) / np.maximum(var, 1e-8)  # relative precision
     (s0, a2), _ = nnls(np.column_stack([np.ones_like(inv2), inv2]) * w[:, None], var * w)
     s = np.sqrt(s0 + a2 / np.maximum(np.nan_to_num(snr, nan=1.0), 1e-3) ** 2)
