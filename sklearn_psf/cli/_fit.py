@@ -528,7 +528,8 @@ def _report(summary, sky):
         lines.append(
             f"reserved stars against their own noise ({summary['n_verdict']} stars; a constant "
             f"PSF fitted on the same stars in brackets): median chi^2 per degree of freedom "
-            f"{summary['chi2_dof']:.3f} ({summary['chi2_dof_constant']:.3f}); e residual rms "
+            f"{summary['chi2_dof_median']:.3f} ({summary['chi2_dof_median_constant']:.3f}); "
+            f"e residual rms "
             f"over e noise rms {summary['e_resid_over_noise']:.2f} "
             f"({summary['e_resid_over_noise_constant']:.2f}; e noise per component "
             f"{summary['e_noise']:.4f}); 1 is pure noise")

@@ -135,8 +135,9 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
         ``cv`` (list of per-scheme mean/std scores) and ``scheme`` (the chosen one). The
         verdict: ``n_components`` and ``components_reason`` (text: the noise edge and the
         variance of the last kept and first dropped components over it), ``n_verdict``
-        (reserved stars used), ``chi2_dof`` / ``chi2_dof_constant`` (median reduced chi^2
-        of the model / the constant PSF; 1 = pure noise), ``chi2_total`` /
+        (reserved stars used), ``chi2_dof_median`` / ``chi2_dof_median_constant`` (median of
+        the stars' chi^2 per degree of freedom against the model / the constant PSF; 1 = pure
+        noise), ``chi2_total`` /
         ``chi2_total_constant`` (summed over the stars), ``e_noise`` (rms ellipticity noise
         per component), ``e_resid_over_noise`` / ``e_resid_over_noise_constant`` (rms of the
         e residuals over the rms e noise), ``e_model_error`` (the residuals' rms per component

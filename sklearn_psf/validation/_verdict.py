@@ -147,8 +147,9 @@ def model_verdict(model, X, stamps, weights, reserved, residuals, random_state=0
     stamp); ``reserved`` the rows of the reserved stars; ``residuals`` their table.
     """
     k, reason = _components(model)
-    out = {"n_components": k, "components_reason": reason, "chi2_dof": np.nan,
-           "chi2_dof_constant": np.nan, "e_noise": np.nan, "e_resid_over_noise": np.nan,
+    out = {"n_components": k, "components_reason": reason, "chi2_dof_median": np.nan,
+           "chi2_dof_median_constant": np.nan, "e_noise": np.nan,
+           "e_resid_over_noise": np.nan,
            "e_resid_over_noise_constant": np.nan, "e_model_error": np.nan, "n_verdict": 0,
            "kriging_range": None,
            "star_spacing": None, "warnings": []}
@@ -188,7 +189,8 @@ def model_verdict(model, X, stamps, weights, reserved, residuals, random_state=0
         [float(e_const["e1"][0]), float(e_const["e2"][0])])
     good = np.isfinite(noise).all(axis=1) & (noise > 0).all(axis=1)
     out.update({
-        "chi2_dof": float(np.median(chi2)), "chi2_dof_constant": float(np.median(chi2_c)),
+        "chi2_dof_median": float(np.median(chi2)),
+        "chi2_dof_median_constant": float(np.median(chi2_c)),
         "chi2_total": float(np.sum(chi2)), "chi2_total_constant": float(np.sum(chi2_c)),
         "n_verdict": int(n),
     })
@@ -205,8 +207,9 @@ def model_verdict(model, X, stamps, weights, reserved, residuals, random_state=0
             f"{out['chi2_total_constant']:.4g}): either the PSF does not vary measurably "
             "over the field, or the model does not follow it")
     beyond = []
-    if out["chi2_dof"] > NOISE_LIMIT:
-        beyond.append(f"their median chi^2 per degree of freedom is {out['chi2_dof']:.2f}")
+    if out["chi2_dof_median"] > NOISE_LIMIT:
+        beyond.append("their median chi^2 per degree of freedom is "
+                      f"{out['chi2_dof_median']:.2f}")
     if out["e_resid_over_noise"] > NOISE_LIMIT:
         beyond.append(f"their ellipticity residuals are {out['e_resid_over_noise']:.2f} times "
                       f"their ellipticity noise: beyond the noise, the model's own error is "
