@@ -250,8 +250,11 @@ def _run_tutorial(app):
         for name, command in commands.items():
             if command[0] == "sklearn-psf":
                 command = [sys.executable, "-m", "sklearn_psf", *command[1:]]
-            out = subprocess.run(command, cwd=work, env=env, capture_output=True, text=True,
-                                 check=True).stdout
+            proc = subprocess.run(command, cwd=work, env=env, capture_output=True, text=True,
+                                  check=True)
+            # the report (stdout) and the verdict's warnings (stderr, after the progress bars)
+            out = proc.stdout + "".join(line + "\n" for line in proc.stderr.splitlines()
+                                        if line.startswith("sklearn-psf: warning:"))
             with open(os.path.join(folder, f"{name}.txt"), "w") as f:
                 f.write(_fit_width(out))
         for png in ("psf_stamps.png", "psf_whiskers.png", "psf_rho.png", "psf_maps.png"):

@@ -96,3 +96,39 @@ def test_help_imports_neither_the_study_nor_matplotlib():
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "[]"
+
+
+def test_missing_input_is_reported_before_the_library_is_imported(tmp_path):
+    """``fit`` with a missing file answers at once: no library module is imported (measured
+    0.2-0.8 s for the whole command on a shared machine, against 4-8 s with the imports)."""
+    code = ("import sys; from sklearn_psf.cli import main; "
+            f"code = main(['fit', {str(tmp_path / 'none.fits')!r}, '-o', "
+            f"{str(tmp_path / 'm.fits')!r}]); "
+            "print(code, sorted(m for m in sys.modules if m.startswith(('sklearn_psf.io', "
+            "'sklearn_psf.model', 'sklearn.', 'astropy', 'scipy'))))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.stdout.strip() == "2 []", proc.stdout + proc.stderr
+    assert "none.fits' does not exist" in proc.stderr
+
+
+def test_compare_refuses_an_earlier_run_unless_told(tmp_path, capsys):
+    """An earlier run's outputs are never mixed with a new report: refused without
+    --overwrite; with it, exactly the earlier run's files are removed (a user's file stays)."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "report.md").write_text("# old\n\n## Files\n\n- `scores.csv`\n- `fig_old.png`\n"
+                                   "- `../elsewhere.png`\n- `report.md`\n")
+    for name in ("scores.csv", "fig_old.png", "notes.txt"):
+        (out / name).write_text("earlier")
+    (tmp_path / "elsewhere.png").write_text("not in the folder")
+    args = ["compare", *SMALL, "--schemes", "polynomial", "--studies", "none", "-o", str(out)]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "holds the outputs of an earlier run (3 files" in err and "--overwrite" in err
+    assert (out / "fig_old.png").read_text() == "earlier"   # nothing touched
+    assert main([*args, "--overwrite"]) == 0
+    names = set(os.listdir(out))
+    assert "fig_old.png" not in names and {"notes.txt", "report.md", "scores.csv"} <= names
+    assert (out / "scores.csv").read_text() != "earlier"
+    assert (tmp_path / "elsewhere.png").exists()
+    assert "fig_old" not in (out / "report.md").read_text()

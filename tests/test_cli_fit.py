@@ -131,7 +131,7 @@ def test_bad_inputs_exit_2(tmp_path, exposure, capsys):
     assert leftovers == []
     # argparse errors: exit 2 as well
     for args in (["fit", noise, "-o", out, "--reserve", "1.5"],
-                 ["fit", noise, "-o", out, "--stamp-size", "24"],
+                 ["fit", noise, "-o", out, "--stamp-size", "3"],
                  ["fit", noise, "-o", out, "--interpolator", "spline"],
                  ["predict", noise, "-o", out]):
         with pytest.raises(SystemExit) as exc:
@@ -282,7 +282,7 @@ def test_predict_x_col_oversampling_and_errors(tmp_path, exposure, capsys, monke
         (["fit", "--stars", exposure["stars"], "-o", tmp_path / "x.fits"],
          r"stars\.fits: The catalogue has no VIGNET column"),
         (["predict", model_path, "--positions", tmp_path / "g.csv", "--radec",
-          "-o", tmp_path / "p.fits"], r"has no WCS"),
+          "-o", tmp_path / "p2.fits"], r"has no WCS"),
     ]
     for args, pattern in cases:
         code, _, err = _run(args, capsys)
@@ -332,3 +332,116 @@ def test_non_standard_header_image_is_read(tmp_path, exposure, capsys):
     header_warnings = [w for w in caught if "non-standard" in str(w.message)]
     assert len(header_warnings) == 1   # one clear warning, not astropy's raw ones
     assert issubclass(header_warnings[0].category, FITSHeaderWarning)
+
+
+# ------------------------------------------------------------- catalogues as SExtractor writes
+def _used_positions(path):
+    """Positions of the stars a model file used: fitted inliers and reserved stars."""
+    model = load_model(path)
+    residuals, summary = read_model_validation(path)
+    used = model.X_fit_[model.inlier_mask_]
+    if residuals is not None:
+        used = np.vstack([used, np.column_stack([residuals["x"], residuals["y"]])])
+    return used, summary
+
+
+def test_default_fit_on_a_sextractor_ldac(tmp_path, sextractor_ldac, capsys):
+    """CLASS_STAR 0.55-0.75 for every point source, S/N 20-300, 30% galaxies, -1e30 pixels,
+    the header in a TDIM (80, N) cell: the default command keeps the stars, not the galaxies,
+    reads the header without a word, keeps its WCS (TPV) and SATURATE, and trusts its model."""
+    from astropy.wcs import WCS
+    from scipy.spatial import cKDTree
+
+    cat = sextractor_ldac
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        code, out, err = _run(["fit", "--stars", cat["path"], "-o", tmp_path / "m.fits",
+                               "--no-plots"], capsys)
+    assert code == 0, err
+    assert not [w for w in caught if issubclass(w.category, FITSHeaderWarning)]
+    assert "warning" not in err  # a good model: no PSFQualityWarning
+    assert "not applied: CLASS_STAR >= 0.8" in out and "100% of the sources" in out
+    used, summary = _used_positions(tmp_path / "m.fits")
+    dist, row = cKDTree(np.column_stack([cat["x"], cat["y"]])).query(used)
+    assert dist.max() < 1e-3
+    kind = cat["kind"][row]
+    n_stars, n_gal = (cat["kind"] == "star").sum(), (cat["kind"] == "galaxy").sum()
+    assert (kind == "star").sum() >= 0.9 * n_stars   # measured 0.986-1 (seeds 0-4)
+    assert (kind == "galaxy").sum() <= 0.03 * n_gal    # measured 0 (seeds 0-4)
+    assert not np.isin(kind, ["saturated", "blend"]).any()
+    # the model file: SATURATE and the TPV WCS of the header (the catalogue's RA, Dec)
+    assert summary["saturation"] == 38000.0 and summary["gain"] == 4.0
+    wcs = WCS(fits.Header.fromstring(summary["wcs"]))
+    with fits.open(cat["path"]) as hdul:
+        objects = hdul["LDAC_OBJECTS"].data
+        ra, dec = wcs.all_pix2world(objects["X_IMAGE"] - 1, objects["Y_IMAGE"] - 1, 0)
+        assert np.max(np.abs(ra - objects["ALPHA_J2000"]) * 3600) < 1e-4   # arcsec
+        assert np.max(np.abs(dec - objects["DELTA_J2000"]) * 3600) < 1e-4
+    assert summary["rho_theta_units"] == "arcmin"
+    # the verdict is printed: components and why, residuals against the noise, rho1-rho5
+    assert "basis: " in out and "noise edge" in out
+    assert "against their own noise" in out
+    for k in range(1, 6):
+        assert f"rho{k} " in out
+    assert summary["e_resid_over_noise"] < 1.5 < summary["e_resid_over_noise_constant"]
+
+
+def test_a_wrong_model_is_flagged(tmp_path, sextractor_ldac, capsys):
+    """Without selection the galaxies are fitted as stars: the reserved stars' residuals
+    exceed their noise and the model is no better than a constant PSF; fit says so."""
+    code, out, err = _run(["fit", "--stars", sextractor_ldac["path"], "--no-select",
+                           "-o", tmp_path / "m.fits", "--no-plots"], capsys)
+    assert code == 0, err
+    warned = [line for line in err.splitlines() if line.startswith("sklearn-psf: warning:")]
+    assert any("exceed their measurement noise" in line for line in warned), err
+    assert any("no better than a constant PSF" in line for line in warned), err
+    _, summary = read_model_validation(tmp_path / "m.fits")
+    assert summary["e_resid_over_noise"] > 2 and len(summary["warnings"]) >= 2
+
+
+def test_too_few_stars_names_each_cut_and_its_option(tmp_path, sextractor_ldac, capsys):
+    code, out, err = _run(["fit", "--stars", sextractor_ldac["path"], "--min-snr", "400",
+                           "-o", tmp_path / "m.fits"], capsys)
+    _one_line_error(code, err, r"0 of the 205 sources .* pass the star selection: too few .*"
+                    r"low_snr 200 \(--min-snr\), saturated 3 \(--saturation\)")
+    assert "flags 2 (--flag-mask)" in err
+    assert "sources in the catalogue: 205" in out   # what was found is printed first
+    # every cut is an option: relaxing them lets every source through the cuts
+    code, out, err = _run(["fit", "--stars", sextractor_ldac["path"], "--min-snr", "0",
+                           "--flag-mask", "0", "--saturation", "1e9", "--locus-width", "10",
+                           "--isolation", "0", "--min-class-star", "0", "-o",
+                           tmp_path / "all.fits", "--no-plots"], capsys)
+    assert code == 0 and "selected as stars: 205\n" in out
+
+
+def test_outputs_are_never_overwritten_unless_told(tmp_path, exposure, capsys):
+    model_path = tmp_path / "m.fits"
+    args = ["fit", exposure["image"], "--hdu", "SCI", "--stars", exposure["stars"], "-o",
+            model_path, "--reserve", "0", "--interpolator", "polynomial"]
+    assert _run([*args, "--no-plots"], capsys)[0] == 0
+    before = model_path.read_bytes()
+    code, _, err = _run(args, capsys)
+    _one_line_error(code, err, r"m\.fits' already exists: pass --overwrite to replace it")
+    assert model_path.read_bytes() == before
+    (tmp_path / "m2_maps.png").write_bytes(b"a figure of an earlier run")
+    code, _, err = _run([*args[:-4], "-o", tmp_path / "m2.fits"], capsys)
+    _one_line_error(code, err, r"m2_maps\.png' already exists")
+    assert _run([*args, "--overwrite", "--no-plots"], capsys)[0] == 0
+    Table({"x": [300.0], "y": [400.0]}).write(tmp_path / "g.csv", format="ascii.csv")
+    pred = ["predict", model_path, "--positions", tmp_path / "g.csv", "-o", tmp_path / "p.fits"]
+    assert _run(pred, capsys)[0] == 0
+    code, _, err = _run(pred, capsys)
+    _one_line_error(code, err, r"p\.fits' already exists: pass --overwrite")
+    assert _run([*pred, "--overwrite"], capsys)[0] == 0
+
+
+def test_nan_pixels_are_counted(tmp_path, exposure, capsys):
+    with fits.open(exposure["image"]) as hdul:
+        data = hdul["SCI"].data.astype(np.float32)
+        header = hdul["SCI"].header
+    data[:100, :1100] = np.nan
+    fits.PrimaryHDU(data, header=header).writeto(tmp_path / "nan.fits")
+    code, out, err = _run(["fit", tmp_path / "nan.fits", "-o", tmp_path / "m.fits",
+                           "--no-plots", "--interpolator", "polynomial"], capsys)
+    assert code == 0, err
+    assert f"NaN pixels: {int(np.isnan(data).sum())} " in out

@@ -430,3 +430,54 @@ def test_model_with_extra_position_columns_is_refused_by_the_file_format(tmp_pat
     with pytest.raises(ValueError, match="joblib"):
         model.save(tmp_path / "m.fits")
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("shape", [(4096, 2048), (2048, 4096), (3000, 3000)])
+def test_psf_maps_use_the_page_whatever_the_chip_aspect(shape):
+    """A tall DECam CCD (2048 x 4096) gets two tall panels side by side, not two narrow
+    panels far apart; a wide chip gets them one above the other."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from sklearn_psf.validation import plot_psf_maps
+
+    class Round:
+        X_fit_ = np.array([[100.0, 100.0], [shape[1] - 100.0, shape[0] - 100.0]])
+
+        def predict(self, X):
+            yy, xx = np.mgrid[-7:8, -7:8]
+            g = np.exp(-(xx**2 + 0.8 * yy**2) / 8.0).ravel()
+            return np.tile(g / g.sum(), (len(X), 1))
+
+    fig = plot_psf_maps(Round(), shape, n_grid=8)
+    fig.canvas.draw()
+    (x0, y0, w0, h0), (x1, y1, w1, h1) = (ax.get_position().bounds for ax in fig.axes[:2])
+    if shape[0] >= shape[1]:   # side by side, each over most of the height
+        assert min(h0, h1) > 0.7 and min(w0, w1) > 0.3 and x1 - (x0 + w0) < 0.12
+    else:                      # stacked, each over most of the width
+        assert min(w0, w1) > 0.7 and min(h0, h1) > 0.3 and y0 - (y1 + h1) < 0.12
+    plt.close(fig)
+
+
+def test_even_stamps_are_cut_with_the_star_at_index_half_the_side(field):
+    """32x32 cut-outs: the star's pixel floor(x + 0.5) at index 16, as SExtractor's VIGNET
+    and GalSim's Image.center; stars at the edge are skipped by the even stamp's own extent."""
+    pos = np.column_stack([field.stars["x"], field.stars["y"]])[:20]
+    odd = extract_star_stamps(field.image, pos, 31, subtract_background=False)
+    even = extract_star_stamps(field.image, pos, 32, subtract_background=False)
+    assert even.stamps.shape[1] == 32 * 32 and even.counts["used"] == odd.counts["used"]
+    # the even stamp is the odd one of side 33 without its last row and column
+    big = extract_star_stamps(field.image, pos, 33, subtract_background=False)
+    assert_array_equal(even.stamps.reshape(-1, 32, 32),
+                       big.stamps.reshape(-1, 33, 33)[:, :32, :32])
+    mom = adaptive_moments(even.stamps.reshape(-1, 32, 32))
+    offsets = even.positions - np.floor(even.positions + 0.5)
+    assert_allclose(np.column_stack([mom["x0"], mom["y0"]]) - 16, offsets, atol=0.05)
+    ny, nx = field.image.shape
+    # 16 pixels to the left of the star's pixel and 15 to the right fit; one more does not
+    edge = np.array([[16.2, 100.0], [nx - 16.0, 100.0], [15.4, 100.0], [nx - 15.4, 100.0]])
+    cut = extract_star_stamps(field.image, np.vstack([pos, edge]), 32,
+                              subtract_background=False)
+    assert list(cut.catalog["reason"][-4:]) == ["", "", "edge", "edge"]

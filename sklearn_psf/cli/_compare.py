@@ -79,6 +79,9 @@ def add_compare_parser(sub):
         "predictor of the same field, and write tables, figures and a Markdown report.",
     )
     cmp.add_argument("-o", "--output", default="sklearn_psf_results", help="output folder")
+    cmp.add_argument("--overwrite", action="store_true",
+                     help="replace the outputs of an earlier run in the output folder (the "
+                     "files its report.md lists, and the tables, are removed first)")
     cmp.add_argument("--quick", action="store_true",
                      help="a few simulations only: minutes instead of the paper's 50 simulations "
                           "(too few to decide most verdicts; the report says so)")
@@ -140,6 +143,44 @@ def _load_reference(name):
                             f"file ({exc})") from None
 
 
+#: Files of a run whose names do not depend on the study (the figures are listed in report.md).
+OWN_FILES = ("report.md", "scores.csv", "scores.fits", "galaxies.fits", "correlations.fits",
+             "config.json", "exposures.md", "sigma_sys_vs_exposures.png", "exposure_scores.csv")
+
+
+def _earlier_outputs(folder):
+    """The files of an earlier run in ``folder``: the fixed names and the files listed under
+    "## Files" in its report.md (plain names of that folder only)."""
+    from pathlib import Path
+
+    folder = Path(folder)
+    names = set(OWN_FILES)
+    report = folder / "report.md"
+    if report.is_file():
+        listed = False
+        for line in report.read_text(encoding="utf-8", errors="replace").splitlines():
+            if line.startswith("## "):
+                listed = line.strip() == "## Files"
+            elif listed and line.startswith("- `") and line.rstrip().endswith("`"):
+                name = line.strip()[3:-1]
+                if name and Path(name).name == name and name.endswith(
+                        (".png", ".csv", ".fits", ".json", ".md")):
+                    names.add(name)
+    return sorted(p for p in (folder / n for n in names) if p.is_file())
+
+
+def _check_earlier_run(folder, overwrite):
+    """Refuse a folder holding an earlier run's outputs unless ``overwrite``."""
+    earlier = _earlier_outputs(folder)
+    if earlier and not overwrite:
+        shown = ", ".join(p.name for p in earlier[:4]) + (", ..." if len(earlier) > 4 else "")
+        raise CLIInputError(
+            f"the output folder {folder!r} holds the outputs of an earlier run ({len(earlier)} "
+            f"files: {shown}): pass --overwrite to replace them, or choose another folder "
+            "with -o")
+    return earlier
+
+
 def _selected(names, available, what):
     unknown = [n for n in names if n not in available]
     if unknown:
@@ -165,6 +206,7 @@ def run_compare(args) -> int:
     schemes = {n: all_schemes[n] for n in names}
     study_schemes = {n: all_schemes[n] for n in STUDY_SCHEMES}
     _check_output(args.output)
+    earlier = _check_earlier_run(args.output, args.overwrite)
     reference = _load_reference(args.reference)
 
     base = compare.SimulationConfig(
@@ -217,6 +259,8 @@ def run_compare(args) -> int:
     result.config["quick"] = bool(args.quick)
     result.config["reference"] = args.reference
     stamps, positions = compare.example_stars(base, result.config["seeds"][0], reference)
+    for path in earlier:  # no figure of the earlier run stays next to the new report
+        path.unlink(missing_ok=True)
     paths = write_report(result, args.output, stamps=stamps, positions=positions)
     if "exposures" in studies:
         paths = [*paths, *_run_exposures(args)]

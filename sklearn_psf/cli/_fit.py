@@ -9,9 +9,8 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import sys
 import tempfile
-
-import numpy as np
 
 
 class CLIInputError(ValueError):
@@ -43,23 +42,57 @@ def _fraction(text):
     return value
 
 
-def _odd_size(text):
+def _stamp_size(text):
     value = _positive_int(text)
-    if value < 5 or value % 2 == 0:
-        raise argparse.ArgumentTypeError(f"expected an odd stamp size >= 5, got {value}")
+    if value < 5:
+        raise argparse.ArgumentTypeError(f"expected a stamp size >= 5, got {value}")
     return value
+
+
+def _number(text):
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+
+
+def _bits(text):
+    try:
+        return int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected an integer (e.g. 254 or 0xfe), got {text!r}") from None
+
+
+def _width(text):
+    return text if text == "auto" else _number(text)
+
+
+#: ``sklearn-psf fit`` options relaxing each selection cut (the parameters of select_stars).
+CLI_OPTIONS = {
+    "flag_mask": "--flag-mask",
+    "min_snr": "--min-snr",
+    "saturation": "--saturation",
+    "stamp_size": "--stamp-size",
+    "isolation": "--isolation",
+    "locus_width": "--locus-width",
+    "max_spread_model / min_class_star": "--max-spread-model / --min-class-star",
+}
 
 
 def _add_fit_parsers(sub):
     fit = sub.add_parser(
         "fit", help="build a validated PSF model of a FITS image or a catalogue and save it",
         description="Select stars (on the image, or in a catalogue: flags, S/N, saturation, "
-        "SPREAD_MODEL/CLASS_STAR, size-magnitude locus), cut their stamps with the weight map "
-        "(or take the catalogue's VIGNETs: no image needed), reserve a fraction for "
-        "validation, fit a PSF model, save it as a FITS model file and write diagnostic "
-        "figures next to it (MODEL_stamps.png: reserved stars, model, residuals; "
-        "MODEL_whiskers.png: e of stars/model/residuals; MODEL_rho.png: rho1-rho5; "
-        "MODEL_maps.png: model e and size across the chip).",
+        "isolation, the size-magnitude locus, then SPREAD_MODEL/CLASS_STAR where they agree "
+        "with it), cut their stamps with the weight map (or take the catalogue's VIGNETs: no "
+        "image needed), reserve a fraction for validation, fit a PSF model, print a verdict on "
+        "it (the reserved stars' residuals against their own noise and against a constant PSF, "
+        "rho1-rho5; a warning when the model is not trustworthy), save it as a FITS model file "
+        "and write diagnostic figures next to it (MODEL_stamps.png: reserved stars, model, "
+        "residuals; MODEL_whiskers.png: e of stars/model/residuals; MODEL_rho.png: rho1-rho5; "
+        "MODEL_maps.png: model e and size across the chip). Existing files are not replaced "
+        "without --overwrite.",
     )
     fit.add_argument("image", nargs="?",
                      help="FITS image (.fits, .fits.fz); optional with a catalogue holding "
@@ -79,22 +112,42 @@ def _add_fit_parsers(sub):
     fit.add_argument("--one-based", action="store_true",
                      help="the catalogue's x, y are 1-based (FITS convention); X_IMAGE/Y_IMAGE "
                      "columns are always read as 1-based")
-    fit.add_argument("--no-select", action="store_true",
-                     help="use every catalogue row as a star (no star/galaxy selection)")
     fit.add_argument("--interpolator", default="kriging", choices=FIT_INTERPOLATORS + ("auto",),
                      help="interpolation scheme (each in the noise-aware PSFModel: "
                      "StampPCA basis, chi^2 outlier rejection), or 'auto' to choose it by "
                      "5-fold cross-validation [kriging: range fitted by maximum likelihood]")
     fit.add_argument("--reserve", type=_fraction, default=0.2,
                      help="fraction of stars reserved for validation [0.2]")
-    fit.add_argument("--stamp-size", type=_odd_size,
-                     help="stamp side, odd [25; a catalogue's VIGNET side]")
-    fit.add_argument("--saturation", type=float,
-                     help="saturation level [header SATURATE keyword, else none]")
-    fit.add_argument("--min-snr", type=float, default=50.0,
-                     help="smallest S/N of a selected star [50]")
+    fit.add_argument("--stamp-size", type=_stamp_size,
+                     help="stamp side [25; a catalogue's VIGNET side]; the star's pixel is at "
+                     "index side // 2 (SExtractor's VIGNET convention, even sides too)")
     fit.add_argument("--seed", type=int, default=0, help="seed of the reserved-star draw [0]")
     fit.add_argument("--no-plots", action="store_true", help="do not write figures")
+    fit.add_argument("--overwrite", action="store_true",
+                     help="replace an existing model file and its figures")
+    sel = fit.add_argument_group(
+        "star selection", "cuts of select_stars (and of the finder on the image), in this "
+        "order; the size-magnitude locus is the primary point-source test")
+    sel.add_argument("--no-select", action="store_true",
+                     help="use every catalogue row as a star (no star/galaxy selection)")
+    sel.add_argument("--flag-mask", type=_bits,
+                     help="bits of FLAGS that reject a source [every bit; PSFEx: 0xfe]")
+    sel.add_argument("--min-snr", type=float, default=20.0,
+                     help="smallest S/N of a selected star [20]")
+    sel.add_argument("--saturation", type=float,
+                     help="saturation level [header SATURATE keyword, else none]")
+    sel.add_argument("--isolation", type=float,
+                     help="smallest distance in pixels (along x and y) to another source "
+                     "[half the stamp + 3; 0: no crowding cut]")
+    sel.add_argument("--locus-width", type=_width, default="auto",
+                     help="relative half-width of the size-magnitude locus, or 'auto': 3 times "
+                     "its scatter at each star's S/N [auto]")
+    sel.add_argument("--max-spread-model", type=float, default=0.003,
+                     help="largest |SPREAD_MODEL| (+ 2 SPREADERR_MODEL) of a point source, "
+                     "unless it would reject most of the locus [0.003]")
+    sel.add_argument("--min-class-star", type=float, default=0.8,
+                     help="smallest CLASS_STAR of a point source (without SPREAD_MODEL), "
+                     "unless it would reject most of the locus [0.8]")
 
     pred = sub.add_parser(
         "predict", help="evaluate a saved PSF model at given positions",
@@ -120,6 +173,7 @@ def _add_fit_parsers(sub):
     pred.add_argument("--oversampling", type=_positive_int, default=1,
                       help="samples per pixel along each axis [1]")
     pred.add_argument("-o", "--output", required=True, help="FITS table to write")
+    pred.add_argument("--overwrite", action="store_true", help="replace an existing output")
 
 
 def _figure_paths(output):
@@ -127,13 +181,27 @@ def _figure_paths(output):
     return {name: f"{stem}_{name}.png" for name in ("stamps", "whiskers", "rho", "maps")}
 
 
-def _check_output_file(path):
-    """Fail before any work when ``path`` cannot be written (the user's path in the message)."""
+def _check_input(path, what):
+    """Fail at once (before importing the library) when an input file is missing."""
+    if not os.path.exists(path):
+        raise CLIInputError(f"the {what} {path!r} does not exist")
+    if os.path.isdir(path):
+        raise CLIInputError(f"the {what} {path!r} is a folder: give a file")
+
+
+def _check_output_file(path, overwrite=False, also=()):
+    """Fail before any work when ``path`` cannot be written, or when it (or one of ``also``,
+    files written with it) exists and ``overwrite`` is not set."""
     folder = os.path.dirname(os.path.abspath(path)) or "."
     if not os.path.isdir(folder):
         raise CLIInputError(f"the folder of the output file {path!r} does not exist")
     if os.path.isdir(path):
         raise CLIInputError(f"the output {path!r} is a folder: give a file name")
+    existing = [p for p in (path, *also) if os.path.exists(p)]
+    if existing and not overwrite:
+        more = f" (and {len(existing) - 1} more output files)" if len(existing) > 1 else ""
+        raise CLIInputError(f"{existing[0]!r} already exists{more}: pass --overwrite to "
+                            "replace it")
     try:  # the atomic write creates a temporary file there: try one now
         with tempfile.NamedTemporaryFile(dir=folder):
             pass
@@ -169,9 +237,18 @@ def _image_hdus(path):
         raise CLIInputError(f"cannot read {path!r}: {exc}") from None
 
 
+def _outputs(args, output):
+    """The model file and the figures written next to it."""
+    return output, () if args.no_plots else tuple(_figure_paths(output).values())
+
+
 def _fit(args):
     if args.image is None and not args.stars:
         raise CLIInputError("give a FITS image, or a catalogue with VIGNET stamps (--stars)")
+    if args.image is not None:
+        _check_input(args.image, "image")
+    if args.stars:
+        _check_input(args.stars, "catalogue")
     if (args.x_col is None) != (args.y_col is None):
         raise CLIInputError("give both --x-col and --y-col, or neither")
     if args.hdu is not None and args.hdu.strip().lower() == "all":
@@ -186,17 +263,63 @@ def _fit(args):
             raise CLIInputError(f"{args.image!r} holds no 2-D image HDU")
         jobs = [(i, f"{stem}_{name}.fits") for i, name in hdus]
         for _, out in jobs:
-            _check_output_file(out)
+            path, figures = _outputs(args, out)
+            _check_output_file(path, args.overwrite, figures)
         for index, out in jobs:
             print(f"HDU {index} -> {out}")
             _fit_one(argparse.Namespace(**{**vars(args), "hdu": str(index), "output": out}))
         return 0
-    _check_output_file(args.output)
+    path, figures = _outputs(args, args.output)
+    _check_output_file(path, args.overwrite, figures)
     return _fit_one(args)
 
 
-def _select(args, catalog, saturation, image_shape, lines):
+def _counts_text(counts, keys):
+    """``"flags 2, low_snr 28"``: the non-zero counts of ``keys``."""
+    return ", ".join(f"{k} {counts[k]}" for k in keys if counts.get(k))
+
+
+def _too_few(head, counts, hint):
+    """The error when fewer than 5 stars are selected: each cut's count and its option."""
+    from ..io import SELECTION_OPTIONS, SELECTION_REASONS
+
+    options = {reason: CLI_OPTIONS.get(param, param)
+               for reason, param in SELECTION_OPTIONS.items()}
+    per_cut = ", ".join(f"{k} {counts[k]} ({options[k]})" for k in SELECTION_REASONS
+                        if counts.get(k) and k in options)
+    return CLIInputError(
+        f"{head}: too few for a PSF model (need 5)"
+        + (f"; dropped by cut (option relaxing it): {per_cut}" if per_cut else "")
+        + f"; {hint}")
+
+
+def _selection_lines(counts, n_kept, lines, head, args):
+    import numpy as np
+
+    from ..io import SELECTION_REASONS
+
+    rejected = _counts_text(counts, SELECTION_REASONS)
+    lines.append(f"{head}{n_kept}" + (f" (rejected: {rejected})" if rejected else ""))
+    size = {"flux_radius": "FLUX_RADIUS", "adaptive_sigma": "adaptive-moment sigma of the "
+            "VIGNETs"}.get(counts.get("locus_size"))
+    if size and np.isfinite(counts["locus_radius"]):
+        lines.append(f"  size-magnitude locus: {size} {counts['locus_radius']:.3g} pixels "
+                     f"(median over the selected stars), accepted within +-"
+                     f"{counts['locus_width']:.1%} (median; wider at low S/N)")
+    cuts = {"class_star": f"CLASS_STAR >= {args.min_class_star:g} (--min-class-star)",
+            "spread_model": f"|SPREAD_MODEL| <= {args.max_spread_model:g} "
+                            "(--max-spread-model)"}
+    for name, fraction in counts.get("not_applied", {}).items():
+        lines.append(f"  not applied: {cuts[name]}, which would reject {fraction:.0%} of the "
+                     "sources on the size-magnitude locus"
+                     + (" (SExtractor's CLASS_STAR depends on the SEEING_FWHM it was given)"
+                        if name == "class_star" else ""))
+
+
+def _select(args, catalog, saturation, image_shape, stamp_size, lines):
     """The star/galaxy selection of a catalogue given with --stars."""
+    import numpy as np
+
     from ..io import select_stars
 
     lines.append(f"sources in the catalogue: {len(catalog)}"
@@ -213,31 +336,65 @@ def _select(args, catalog, saturation, image_shape, lines):
     if args.no_select:
         return catalog
     # positions off the image or at its edge are counted when the stamps are cut
-    keep, counts = select_stars(catalog, min_snr=args.min_snr, saturation=saturation,
-                                stamp_size=args.stamp_size or 25)
-    rejected = {k: v for k, v in counts.items() if not k.startswith("locus") and v}
-    lines.append(f"selected as stars: {int(keep.sum())}" + (" (rejected: " + ", ".join(
-        f"{k} {v}" for k, v in rejected.items()) + ")" if rejected else ""))
+    keep, counts = select_stars(
+        catalog, min_snr=args.min_snr, saturation=saturation, flag_mask=args.flag_mask,
+        stamp_size=stamp_size, isolation=args.isolation, locus_width=args.locus_width,
+        max_spread_model=args.max_spread_model, min_class_star=args.min_class_star,
+        min_stars=0)
+    _selection_lines(counts, int(keep.sum()), lines, "selected as stars: ", args)
     if keep.sum() < 5:
-        raise CLIInputError(f"{int(keep.sum())} stars of {args.stars} pass the selection: too "
-                            "few for a PSF model; lower --min-snr or use --no-select")
-    return catalog[keep]
+        raise _too_few(f"{int(keep.sum())} of the {len(catalog)} sources of {args.stars} pass "
+                       "the star selection", counts,
+                       "or use --no-select if the catalogue holds stars only")
+    catalog = catalog[keep]
+    if args.flag_mask is not None and "flags" in catalog.colnames:
+        # flags outside the mask were accepted: the stamp cutters must not skip them again
+        catalog["flags"] = np.asarray(catalog["flags"]).astype(np.int64) & int(args.flag_mask)
+    return catalog
+
+
+def _gain(header):
+    """Detector gain (e-/ADU): GAIN, else the gain SExtractor used (SEXGAIN); None."""
+    for key in ("GAIN", "SEXGAIN"):
+        value = header.get(key)
+        if isinstance(value, (int, float)) and value > 0:
+            return float(value)
+    return None
 
 
 def _fit_one(args):
+    lines = []
+    try:
+        return _fit_steps(args, lines)
+    except (CLIInputError, ValueError, OSError):
+        if lines:  # what was found before the error helps to understand it
+            print("\n".join(lines))
+        raise
+
+
+def _fit_steps(args, lines):
+    import warnings
+
+    import numpy as np
     from tqdm.auto import tqdm
 
     from ..io import (celestial_wcs, extract_star_stamps, extract_vignettes, find_stars,
-                     read_catalog, read_image, save_model)
+                      read_catalog, read_image, save_model)
     from ..model import PSFModel, make_interpolator
     from ..validation import fit_and_validate
 
-    lines = []
     with tqdm(total=6, desc="reading", unit="step") as bar:
         header, image, weight, catalog = {}, None, None, None
+        n_nan = 0
         if args.image is not None:
             image, weight, header = read_image(args.image, hdu=args.hdu,
                                                weight_hdu=args.weight_hdu)
+            n_nan = int(np.isnan(image).sum())
+            n_zero = 0 if weight is None else int(np.sum(~(np.asarray(weight) > 0)))
+            lines.append(f"image: {image.shape[1]} x {image.shape[0]} pixels; NaN pixels: "
+                         f"{n_nan}" + ("" if weight is None else
+                                       f"; zero-weight pixels: {n_zero}")
+                         + " (masked: a star with one in its core is skipped)")
         if args.stars:
             with _about(args.stars):
                 catalog = read_catalog(args.stars, one_based=True if args.one_based else None,
@@ -247,34 +404,40 @@ def _fit_one(args):
         saturation = args.saturation
         if saturation is None and "SATURATE" in header:
             saturation = float(header["SATURATE"])
+        gain = _gain(header)
+        vignettes = image is None and catalog is not None and "VIGNET" in [
+            c.upper() for c in catalog.colnames]
+        stamp_size = args.stamp_size
+        if stamp_size is None:
+            stamp_size = (int(np.shape(catalog[[c for c in catalog.colnames
+                                                if c.upper() == "VIGNET"][0]])[1])
+                          if vignettes else 25)
         bar.update()
         bar.set_description("selecting stars")
         if catalog is not None:
             catalog = _select(args, catalog, saturation,
-                              None if image is None else image.shape, lines)
+                              None if image is None else image.shape, stamp_size, lines)
         else:
-            catalog = find_stars(image, weight=weight, stamp_size=args.stamp_size or 25,
-                                 min_snr=args.min_snr, saturation=saturation)
-            rejected = {k: v for k, v in catalog.meta["rejected"].items() if v}
-            lines.append(f"sources detected: {catalog.meta['n_detections']}, selected as stars: "
-                         f"{len(catalog)}" + (" (rejected: " + ", ".join(
-                             f"{k} {v}" for k, v in rejected.items()) + ")" if rejected else ""))
+            catalog = find_stars(image, weight=weight, stamp_size=stamp_size,
+                                 min_snr=args.min_snr, saturation=saturation,
+                                 isolation=args.isolation, locus_width=args.locus_width)
+            counts = {**catalog.meta["rejected"], "locus_size": None}
+            _selection_lines(counts, len(catalog), lines, f"sources detected: "
+                             f"{catalog.meta['n_detections']}, selected as stars: ", args)
             if len(catalog) < 5:
-                raise CLIInputError(
-                    f"found {len(catalog)} usable stars in {args.image} "
-                    f"({catalog.meta['n_detections']} detections): too few for a PSF model; "
-                    "give a star catalogue with --stars or lower --min-snr"
-                )
+                raise _too_few(f"found {len(catalog)} usable stars in {args.image} "
+                               f"({catalog.meta['n_detections']} detections)", counts,
+                               "or give a star catalogue with --stars")
         bar.update()
         bar.set_description("cutting stamps")
         if args.image is None:
             with _about(args.stars):
                 cut = extract_vignettes(catalog, args.stamp_size, saturation=saturation,
-                                        gain=header.get("GAIN"))
+                                        gain=gain)
         else:
             with _about(args.stars or args.image):
-                cut = extract_star_stamps(image, catalog, args.stamp_size or 25,
-                                          weight=weight, saturation=saturation)
+                cut = extract_star_stamps(image, catalog, stamp_size, weight=weight,
+                                          saturation=saturation)
         skipped = {k: v for k, v in cut.counts.items() if k not in ("input", "used") and v}
         lines.append(f"stars used: {cut.counts['used']} of {cut.counts['input']}"
                      + (" (skipped: " + ", ".join(f"{k} {v}" for k, v in skipped.items()) + ")"
@@ -284,25 +447,30 @@ def _fit_one(args):
         wcs = celestial_wcs(header)
         options = {"reserve": args.reserve, "random_state": args.seed, "weights": cut.weights,
                    "wcs": wcs}
-        if args.interpolator == "auto":
-            candidates = {n: PSFModel(interpolator=make_interpolator(n))
-                          for n in FIT_INTERPOLATORS}
-            model, residuals, summary = fit_and_validate(
-                cut.positions, cut.stamps, candidates=candidates, **options)
-        else:
-            model, residuals, summary = fit_and_validate(
-                cut.positions, cut.stamps,
-                PSFModel(interpolator=make_interpolator(args.interpolator)), **options)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            if args.interpolator == "auto":
+                candidates = {n: PSFModel(interpolator=make_interpolator(n))
+                              for n in FIT_INTERPOLATORS}
+                model, residuals, summary = fit_and_validate(
+                    cut.positions, cut.stamps, candidates=candidates, **options)
+            else:
+                model, residuals, summary = fit_and_validate(
+                    cut.positions, cut.stamps,
+                    PSFModel(interpolator=make_interpolator(args.interpolator)), **options)
         summary["selection"] = dict(cut.counts)
         summary["image"] = os.path.abspath(args.image or args.stars)
         summary["interpolator"] = summary.get("scheme", args.interpolator)
+        summary["nan_pixels"] = n_nan
+        summary["saturation"] = saturation
+        summary["gain"] = gain
         if wcs is not None:  # predict can then take and return (RA, Dec)
             summary["wcs"] = wcs.to_header_string()
         bar.update()
         bar.set_description("saving")
         try:
             save_model(model, args.output, residuals=residuals if len(residuals) else None,
-                       summary=summary, overwrite=True)
+                       summary=summary, overwrite=args.overwrite)
         except OSError as exc:
             raise CLIInputError(f"cannot write {args.output!r}: {exc.strerror or exc}") from None
         bar.update()
@@ -317,6 +485,23 @@ def _fit_one(args):
                 shape = tuple(int(v) + 1 for v in cut.positions.max(axis=0)[::-1])
             written += _fit_figures(residuals, summary, args.output, model, shape)
         bar.update()
+    lines += _report(summary, wcs is not None)
+    print("\n".join(lines))
+    lines.clear()
+    for w in caught:
+        if w.category.__module__.startswith("sklearn_psf"):
+            print(f"sklearn-psf: warning: {w.message}", file=sys.stderr)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    print(f"Wrote {', '.join(written)}")
+    return 0
+
+
+def _report(summary, sky):
+    """The lines of the fit's report after the selection: basis, residuals, verdict."""
+    import numpy as np
+
+    lines = []
     if "cv" in summary:
         lines.append("cross-validation (e rms): " + ", ".join(
             f"{r['scheme']} {r['e_rms']:.4f}" for r in summary["cv"])
@@ -324,17 +509,41 @@ def _fit_one(args):
     lines.append(f"interpolator: {summary['interpolator']}; fitted stars: {summary['n_fit']}, "
                  f"outliers rejected: {summary['n_outliers']}, reserved: "
                  f"{summary['n_reserved']}")
+    if "n_components" in summary:
+        lines.append(f"basis: {summary['n_components']} components: "
+                     f"{summary['components_reason']}")
+    if summary.get("kriging_range") is not None:
+        lines.append(f"Kriging range (maximum likelihood): {summary['kriging_range']:.3g}; "
+                     f"stars' typical spacing: {summary['star_spacing']:.3g} (median distance "
+                     "to the nearest star; both in the interpolator's coordinates, the field "
+                     "scaled to the unit square)")
     if summary["n_measured"]:
         lines.append(
             f"reserved stars (star - model, {summary['n_measured']} measured): "
             f"e rms {summary['e_rms']:.4f} (e1 mean {summary['de1_mean']:+.4f} rms "
             f"{summary['de1_rms']:.4f}, e2 mean {summary['de2_mean']:+.4f} rms "
             f"{summary['de2_rms']:.4f}), size mean {summary['dsigma_mean']:+.4f} rms "
-            f"{summary['dsigma_rms']:.4f} pixels, |rho1| mean {summary['rho1_mean_abs']:.2e}"
-            + (" (rho statistics on the sky, arcmin)" if wcs is not None else ""))
-    print("\n".join(lines))
-    print(f"Wrote {', '.join(written)}")
-    return 0
+            f"{summary['dsigma_rms']:.4f} pixels")
+    if summary.get("n_verdict"):
+        lines.append(
+            f"reserved stars against their own noise ({summary['n_verdict']} stars; a constant "
+            f"PSF fitted on the same stars in brackets): median chi^2 per degree of freedom "
+            f"{summary['chi2_dof_median']:.3f} ({summary['chi2_dof_median_constant']:.3f}); "
+            f"e residual rms "
+            f"over e noise rms {summary['e_resid_over_noise']:.2f} "
+            f"({summary['e_resid_over_noise_constant']:.2f}; e noise per component "
+            f"{summary['e_noise']:.4f}); 1 is pure noise")
+    if summary.get("rho1"):
+        unit = "arcmin" if sky else "pixel"
+        means = []
+        for k in range(1, 6):
+            xi = np.asarray((summary.get(f"rho{k}") or {}).get("xi", []), dtype=float)
+            means.append(f"rho{k} {np.nanmean(np.abs(xi)):.2e}" if np.isfinite(xi).any()
+                         else f"rho{k} -")
+        theta = summary["rho1"]["theta"]
+        lines.append(f"rho statistics of the reserved stars (mean |rho| over {len(theta)} bins, "
+                     f"{theta[0]:.3g}-{theta[-1]:.3g} {unit}): " + ", ".join(means))
+    return lines
 
 
 def _fit_figures(residuals, summary, output, model, shape):
@@ -362,6 +571,10 @@ def _fit_figures(residuals, summary, output, model, shape):
 
 
 def _predict(args):
+    _check_input(args.model, "model file")
+    _check_input(args.positions, "catalogue")
+    _check_output_file(args.output, args.overwrite)
+    import numpy as np
     from astropy.io import fits
     from astropy.table import Table
     from tqdm.auto import tqdm
@@ -371,7 +584,6 @@ def _predict(args):
     from .._files import write_fits_atomic
     from ..measure import adaptive_moments
 
-    _check_output_file(args.output)
     if (args.x_col is None) != (args.y_col is None):
         raise CLIInputError("give both --x-col and --y-col, or neither")
     model = load_model(args.model)
@@ -425,7 +637,8 @@ def _predict(args):
     hdu.header["COMMENT"] = ("x, y: 0-based pixel positions (x = column); psf: unit-sum "
                              "stamps centred on pixel floor(x + 0.5), floor(y + 0.5)")
     try:
-        write_fits_atomic(fits.HDUList([fits.PrimaryHDU(), hdu]), args.output, overwrite=True)
+        write_fits_atomic(fits.HDUList([fits.PrimaryHDU(), hdu]), args.output,
+                          overwrite=args.overwrite)
     except OSError as exc:
         raise CLIInputError(f"cannot write {args.output!r}: {exc.strerror or exc}") from None
     flagged = int(np.sum(out["moments_flag"] != 0))

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import os
 
-from ._fit import CLIInputError, _about, _odd_size
+from ._fit import CLIInputError, _about, _stamp_size
 
 #: Files ``validate`` writes in its output folder (figures only without --no-plots).
 OUTPUTS = {"table": "validation.csv", "rho": "validation_rho.png",
@@ -54,7 +54,7 @@ def add_validate_parser(sub):
                    help="apply the star selection of 'fit' to the catalogue [use every row]")
     p.add_argument("--min-snr", type=float, default=20.0,
                    help="smallest S/N of a selected star, with --select [20]")
-    p.add_argument("--stamp-size", type=_odd_size,
+    p.add_argument("--stamp-size", type=_stamp_size,
                    help="stamp side, odd [25; a catalogue's VIGNET side]")
     p.add_argument("--saturation", type=float,
                    help="saturation level [header SATURATE keyword, else none]")

@@ -63,11 +63,16 @@ or, in Python::
     psf = draw_psf(model, [[1021.37, 88.62]], centered=True, oversampling=3)
 
 - :func:`select_stars` is the one star selector (:func:`find_stars` applies it to the
-  sources it measures): flags, S/N, saturation, ``SPREAD_MODEL``/``CLASS_STAR``, the
-  size-magnitude locus of ``FLUX_RADIUS``; every rejection is counted by reason.
+  sources it measures): flags, S/N, saturation, isolation, then the size-magnitude locus of
+  ``FLUX_RADIUS`` (the primary point-source test), ``SPREAD_MODEL``/``CLASS_STAR`` only where
+  they agree with the locus; every rejection is counted by reason, and too few stars raise an
+  error naming the parameter that relaxes each cut.
+- ``LDAC_IMHEAD`` is SExtractor's image header, one cell of ``TDIM (80, N)`` cards: it is
+  read with its ``SATURATE``, ``GAIN`` and WCS (TPV included), without a warning.
 - Vignette centre: pixel ``round(X_IMAGE)`` (1-based), i.e. ``floor(x + 0.5)`` of the
-  0-based ``x``, the centre pixel of every stamp in the package (see
-  :func:`extract_vignettes`); :func:`draw_psf` shifts the model's PSF to the exact position.
+  0-based ``x``, at index ``side // 2`` of every stamp in the package, of odd or even side
+  (see :func:`extract_vignettes`); :func:`draw_psf` shifts the model's PSF to the exact
+  position.
 - With a celestial WCS in the image (or LDAC) header, ``fit`` measures rho1-rho5 in arcmin
   and ``predict --radec`` takes (RA, Dec) (:func:`celestial_wcs`, :func:`sky_to_pixel`).
 - ``predict`` flags extrapolated rows (:func:`extrapolation_flags`: outside the stars'
@@ -78,7 +83,7 @@ from ._catalog import read_catalog, write_ldac
 from ._draw import draw_psf, extrapolation_flags
 from ._image import FITSHeaderWarning, read_image
 from ._psf_stamps import read_psf_stamps, write_psf_stamps
-from ._select import SELECTION_REASONS, select_stars
+from ._select import SELECTION_OPTIONS, SELECTION_REASONS, select_stars
 from ._stars import REJECTION_REASONS, StarStamps, extract_star_stamps, find_stars
 from ._vignettes import VIGNET_MASKED, extract_vignettes
 from ._wcs import celestial_wcs, pixel_to_sky, sky_to_pixel
@@ -97,6 +102,7 @@ __all__ = [
     "MODEL_FORMAT",
     "MODEL_FORMAT_VERSION",
     "REJECTION_REASONS",
+    "SELECTION_OPTIONS",
     "SELECTION_REASONS",
     "StarStamps",
     "VIGNET_MASKED",

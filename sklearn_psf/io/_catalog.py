@@ -40,23 +40,34 @@ def _is_sextractor_ascii(path):
 
 
 def _ldac_header(hdul):
-    """The image header SExtractor stores in LDAC_IMHEAD, or None."""
+    """The image header SExtractor stores in LDAC_IMHEAD, or None.
+
+    SExtractor writes it as one cell of a column ``Field Header Card`` with ``TDIM = (80,
+    N)``: N cards that numpy returns without their trailing blanks, each padded back to 80
+    characters here (older writers store one string of N x 80 characters).
+    """
     if "LDAC_IMHEAD" not in hdul:
         return None
     data = hdul["LDAC_IMHEAD"].data
     if data is None or len(data) == 0:
         return None
-    text = data[0][0]
-    text = "".join(text) if not isinstance(text, (str, bytes)) else text
-    text = text.decode("ascii", "replace") if isinstance(text, bytes) else text
+    cell = data[0][0]
+    if isinstance(cell, (str, bytes)):
+        cards = [cell]
+    else:
+        cards = list(np.asarray(cell).ravel())
+    width = 80
+    text = "".join((c.decode("ascii", "replace") if isinstance(c, bytes) else str(c))
+                   .ljust(width) for c in cards)
     return fits.Header.fromstring(text)
 
 
 def write_ldac(path, objects: Table, header=None, overwrite: bool = False) -> None:
     """Write a SExtractor FITS_LDAC catalogue (what PSFEx reads).
 
-    HDU 1 ``LDAC_IMHEAD`` holds the image header as one string of 80-character cards
-    (column ``Field Header Card``), HDU 2 ``LDAC_OBJECTS`` the objects.
+    HDU 1 ``LDAC_IMHEAD`` holds the image header as SExtractor writes it: one cell of the
+    column ``Field Header Card`` with ``TDIM = (80, N)``, the N 80-character cards; HDU 2
+    ``LDAC_OBJECTS`` the objects.
 
     Parameters
     ----------
@@ -84,8 +95,10 @@ def write_ldac(path, objects: Table, header=None, overwrite: bool = False) -> No
     (np.float64(10.0), 50000.0)
     """
     text = (header or fits.Header()).tostring(endcard=True, padding=False)
+    cards = np.array([[text[i:i + 80] for i in range(0, len(text), 80)]])
     head = fits.BinTableHDU.from_columns(
-        [fits.Column(name="Field Header Card", format=f"{len(text)}A", array=np.array([text]))],
+        [fits.Column(name="Field Header Card", format=f"{cards.size * 80}A",
+                     dim=f"(80, {cards.size})", array=cards)],
         name="LDAC_IMHEAD")
     objs = fits.table_to_hdu(Table(objects))
     objs.name = "LDAC_OBJECTS"

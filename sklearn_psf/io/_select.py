@@ -3,31 +3,43 @@
 :func:`select_stars` works on any catalogue with 0-based ``x``, ``y`` (and optional measured
 columns, as :func:`~sklearn_psf.io.read_catalog` names them); :func:`~sklearn_psf.io.find_stars`
 measures the sources of an image and applies the same cuts.
+
+The primary point-source criterion is the size-magnitude locus, as PSFEx and PIFF select stars:
+point sources share the PSF's size at every flux, galaxies are larger, cosmic rays smaller.
+SExtractor's ``CLASS_STAR`` and ``SPREAD_MODEL`` are secondary: each is checked against the
+locus, and a cut that would reject most of the locus (``CLASS_STAR`` depends on the
+``SEEING_FWHM`` the user gave SExtractor, often left unset) is reported and not applied.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from astropy.table import Table
+from scipy.optimize import nnls
 from scipy.spatial import cKDTree
 
-__all__ = ["select_stars", "SELECTION_REASONS"]
+__all__ = ["select_stars", "SELECTION_REASONS", "SELECTION_OPTIONS"]
 
 #: Why a source is not selected as a star, in the order the cuts are applied (a source is
 #: counted under the first cut it fails); ``bad_stamp`` is applied when stamps are cut.
-SELECTION_REASONS = ("flags", "low_snr", "saturated", "near_edge", "crowded", "extended",
-                     "off_locus", "bad_stamp")
+SELECTION_REASONS = ("flags", "low_snr", "saturated", "near_edge", "crowded", "off_locus",
+                     "extended", "bad_stamp")
 
+#: The parameter of :func:`select_stars` that relaxes each cut.
+SELECTION_OPTIONS = {
+    "flags": "flag_mask",
+    "low_snr": "min_snr",
+    "saturated": "saturation",
+    "near_edge": "stamp_size",
+    "crowded": "isolation",
+    "off_locus": "locus_width",
+    "extended": "max_spread_model / min_class_star",
+}
 
-def _shorth_mode(values, fraction=0.2):
-    """Mode estimate: median of the shortest window holding ``fraction`` of the values."""
-    v = np.sort(np.asarray(values, dtype=np.float64))
-    m = max(3, int(np.ceil(fraction * v.size)))
-    if v.size <= m:
-        return float(np.median(v))
-    spans = v[m - 1:] - v[: v.size - m + 1]
-    i = int(np.argmin(spans))
-    return float(np.median(v[i:i + m]))
+#: Robust sigma from the median absolute deviation (Gaussian).
+_MAD = 1.4826
+#: A secondary cut that rejects more than this fraction of the locus is not applied.
+_MOST = 0.5
 
 
 def _column(table, name):
@@ -38,72 +50,212 @@ def _column(table, name):
     return np.asarray(table[lower[name]], dtype=np.float64)
 
 
+def _vignettes(table):
+    lower = {c.lower(): c for c in table.colnames}
+    if "vignet" not in lower:
+        return None
+    vig = np.asarray(table[lower["vignet"]], dtype=np.float64)
+    return vig if vig.ndim == 3 else None
+
+
 def _peak(table):
-    """Highest raw pixel of each source: ``peak`` (+ ``background``), or the vignette's max."""
+    """Highest raw pixel of each source: ``peak`` (+ ``background``), or the vignette's max
+    (+ ``background``)."""
+    back = _column(table, "background")
+    back = 0.0 if back is None else back
     peak = _column(table, "peak")
     if peak is not None:
-        back = _column(table, "background")
-        peak = peak + (back if back is not None else 0.0)
-    lower = {c.lower(): c for c in table.colnames}
-    if "vignet" in lower:
-        vig = np.asarray(table[lower["vignet"]], dtype=np.float64)
+        peak = peak + back
+    vig = _vignettes(table)
+    if vig is not None:
         vig = np.where(np.isfinite(vig) & (vig > -1e29), vig, -np.inf)
-        vmax = vig.reshape(len(table), -1).max(axis=1)
+        vmax = vig.reshape(len(table), -1).max(axis=1) + back
         peak = vmax if peak is None else np.maximum(peak, vmax)
     return peak
 
 
-def select_stars(catalog, *, min_snr: float = 50.0, saturation: float | None = None,
-                 stamp_size: int = 25, image_shape=None, isolation: float | None = None,
-                 locus_width: float | str = "auto", max_spread_model: float = 0.003,
-                 min_class_star: float = 0.8):
+def _size(table):
+    """(size, name): ``flux_radius``, else the adaptive-moment sigma of the ``VIGNET``."""
+    radius = _column(table, "flux_radius")
+    if radius is not None:
+        return radius, "flux_radius"
+    vig = _vignettes(table)
+    if vig is None or len(vig) == 0:
+        return None, None
+    from ..measure import adaptive_moments
+
+    valid = np.isfinite(vig) & (vig > -1e29)
+    mom = adaptive_moments(np.where(valid, vig, 0.0), weights=valid.astype(np.float64),
+                           guess_sigma=max(1.0, vig.shape[1] / 10))
+    sigma = np.where(np.asarray(mom["flag"]) == 0, np.asarray(mom["sigma"], float), np.nan)
+    return sigma, "adaptive_sigma"
+
+
+def _densest(values, half_width):
+    """Centre of the window of ``2 * half_width`` holding the most values (the mode)."""
+    v = np.sort(values)
+    stop = np.searchsorted(v, v + 2 * half_width, side="right")
+    i = int(np.argmax(stop - np.arange(v.size)))
+    return float(np.median(v[i:stop[i]]))
+
+
+def _poly_design(u, v, order):
+    return np.column_stack([u**i * v**j for i in range(order + 1)
+                            for j in range(order + 1 - i)])
+
+
+def _locus(log_size, bright, snr, x, y, width):
+    """The stellar locus of ``log_size`` over the field, and each source's allowed distance.
+
+    1. Seed: the densest 16%-wide window of sizes among the brighter half of the sources
+       (at least 10): stars pile up at one size, galaxies spread over larger ones.
+    2. The locus centre varies over the field as the PSF: a polynomial in (x, y) (order 2
+       with >= 30 locus stars, 1 with >= 10, else a constant) fitted to the sources near it,
+       twice, with the width below.
+    3. Width: the scatter about the centre grows at low S/N as measurement noise,
+       ``s(snr)^2 = s0^2 + (a / snr)^2``, fitted on the sources *below* the locus (galaxies
+       only lie above it) within 30%, in S/N bins; a source is on the locus within 3 s(snr)
+       (``width="auto"``) or within ``width`` (relative).
+
+    Returns (centre, half_width) per source, in log size, or None when too few sources.
+    """
+    n = log_size.size
+    if n < 3:
+        return None
+    order = np.argsort(-bright)
+    top = order[: max(min(n, 10), n // 2)]
+    seed = _densest(log_size[top], 0.08)
+    u = (x - x.mean()) / max(np.ptp(x), 1.0)
+    v = (y - y.mean()) / max(np.ptp(y), 1.0)
+    near = np.zeros(n, dtype=bool)
+    near[top] = np.abs(log_size[top] - seed) <= 0.1
+    sigma = np.full(n, 0.05)
+    for _ in range(3):
+        deg = 2 if near.sum() >= 30 else 1 if near.sum() >= 10 else 0
+        design = _poly_design(u, v, deg)
+        w = 1.0 / sigma[near]  # faint sources count less
+        coef, *_ = np.linalg.lstsq(design[near] * w[:, None], log_size[near] * w, rcond=None)
+        centre = design @ coef
+        d = log_size - centre
+        if isinstance(width, str):
+            sigma = _scatter(d, snr)
+            half = 3.0 * sigma
+        else:
+            half = np.full(n, float(width))
+        near = np.abs(d) <= half
+        if near.sum() < 3:
+            break
+    return centre, half
+
+
+def _scatter(d, snr, window=0.3, per_bin=15):
+    """Scatter of the locus at each source's S/N from the sources below it (see _locus): one
+    level, or ``s0^2 + (a / snr)^2`` fitted over S/N bins of ``per_bin`` sources when the
+    S/N spans a factor 2 or more."""
+    below = (d < 0) & (d > -window)
+    if below.sum() < 3:
+        return np.full(d.size, 0.05)
+    if snr is not None:
+        s_below = snr[below]
+        spans = np.nanmax(s_below) >= 2 * np.nanmin(s_below) if np.isfinite(s_below).any() \
+            else False
+    if snr is None or below.sum() < 2 * per_bin or not spans:
+        s = _MAD * float(np.median(-d[below]))
+        return np.full(d.size, max(s, 0.01))
+    idx = np.flatnonzero(below)
+    idx = idx[np.argsort(snr[idx])]
+    bins = np.array_split(idx, max(1, idx.size // per_bin))
+    var = np.array([(_MAD * np.median(-d[b])) ** 2 for b in bins])
+    inv2 = np.array([np.mean(1.0 / np.maximum(snr[b], 1e-3) ** 2) for b in bins])
+    w = np.sqrt([len(b) for b in bins]) / np.maximum(var, 1e-8)  # relative precision
+    (s0, a2), _ = nnls(np.column_stack([np.ones_like(inv2), inv2]) * w[:, None], var * w)
+    s = np.sqrt(s0 + a2 / np.maximum(np.nan_to_num(snr, nan=1.0), 1e-3) ** 2)
+    return np.maximum(s, 0.01)
+
+
+def _relax_text(counts, options):
+    """``"low_snr 28 (min_snr), off_locus 40 (locus_width)"``: each reason's count and option."""
+    return ", ".join(f"{k} {counts[k]} ({options[k]})" for k in SELECTION_REASONS
+                     if counts.get(k) and k in options)
+
+
+def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = None,
+                 flag_mask: int | None = None, stamp_size: int = 25, image_shape=None,
+                 isolation: float | None = None, locus_width: float | str = "auto",
+                 max_spread_model: float = 0.003, min_class_star: float = 0.8,
+                 min_stars: int = 1):
     """Select clean, isolated point sources of a catalogue, counting each rejection by reason.
 
     Cuts, in this order (a source is counted under the first it fails; a cut whose columns
     are absent is skipped):
 
-    - ``flags``: non-zero ``flags`` (SExtractor ``FLAGS``: blended, saturated, truncated...);
+    - ``flags``: ``flags & flag_mask`` non-zero (SExtractor ``FLAGS``: neighbours, blended,
+      saturated, truncated...);
     - ``low_snr``: ``snr`` below ``min_snr``;
     - ``saturated``: highest raw pixel (``peak`` + ``background``, or the maximum of the
-      ``VIGNET``) at or above 0.9 x ``saturation``;
+      ``VIGNET`` + ``background``) at or above 0.9 x ``saturation``;
     - ``near_edge``: closer than half a stamp + 2 pixels to the edge of ``image_shape``;
     - ``crowded``: another source of the catalogue closer than ``isolation`` pixels along x
-      and y (their stamps would overlap);
-    - ``extended``: ``|spread_model|`` above ``max_spread_model`` when that column exists,
-      else ``class_star`` below ``min_class_star`` when that column exists;
-    - ``off_locus``: the size-magnitude locus: ``flux_radius`` more than ``locus_width``
-      (relative) from the stellar locus, the mode of the radii of the brighter half (by
-      ``flux``) of the sources left. Stars share one radius at every magnitude; galaxies are
-      larger, cosmic rays smaller. ``"auto"``: 3 times the robust scatter (1.4826 x median
-      absolute relative deviation) of the sources within 15% of the locus, kept in
-      [0.03, 0.1].
+      and y (by default, its centre falls within the star's stamp or 3 pixels from it; the
+      wings of farther ones are left to the model's outlier test);
+    - ``off_locus``, the primary point-source criterion: the size-magnitude locus. The size is
+      ``flux_radius`` (SExtractor ``FLUX_RADIUS``), else the adaptive-moment sigma of the
+      ``VIGNET``; the locus is found as the densest size among the brighter half of the
+      sources, follows the PSF's size over the field (a polynomial in x, y) and widens at low
+      S/N by the measured scatter of the sources below it (galaxies lie only above it). With
+      ``locus_width="auto"``, a source is a point source within 3 times that scatter at its
+      S/N; a float is a fixed relative half-width;
+    - ``extended``, secondary: ``|spread_model|`` above ``max_spread_model`` (plus 2 times
+      ``spreaderr_model`` when given) if that column exists, else ``class_star`` below
+      ``min_class_star``. The cut is first checked against the locus: when it would reject
+      more than half of the sources on the locus it is not applied, and reported in
+      ``counts["not_applied"]``. Without a size column it is applied as it is.
 
     Parameters
     ----------
     catalog : astropy.table.Table
         Sources with 0-based ``x``, ``y`` and optional columns ``flags``, ``snr``, ``flux``,
         ``peak``, ``background``, ``VIGNET``, ``flux_radius``, ``spread_model``,
-        ``class_star`` (any case), as :func:`~sklearn_psf.io.read_catalog` returns them.
-    min_snr : float, default=50
+        ``spreaderr_model``, ``class_star`` (any case), as
+        :func:`~sklearn_psf.io.read_catalog` returns them.
+    min_snr : float, default=20
+        Smallest S/N (PSFEx's default too): a noise-aware model uses faint stars.
     saturation : float, optional
-        Saturation level of the raw image; None: no cut.
+        Saturation level of the raw image (header ``SATURATE``); None: no cut.
+    flag_mask : int, optional
+        Bits of ``flags`` that reject a source; default every bit. PSFEx's default, ``0xfe``,
+        keeps sources flagged 1 (neighbours close enough to bias the photometry).
     stamp_size : int, default=25
         Side of the stamps (edge margin, default isolation).
     image_shape : tuple (ny, nx), optional
         Shape of the image; None: no edge cut.
     isolation : float, optional
-        Smallest Chebyshev distance to another source; default ``stamp_size``.
+        Smallest Chebyshev distance to another source, pixels; default ``stamp_size // 2 +
+        3``. 0: no crowding cut.
     locus_width : float or "auto", default="auto"
+        Relative half-width of the locus (see above).
     max_spread_model : float, default=0.003
     min_class_star : float, default=0.8
+    min_stars : int, default=1
+        Fewer selected stars raise a ValueError that counts the sources dropped by each cut
+        and names the parameter relaxing it. 0: never raise.
 
     Returns
     -------
     keep : ndarray of bool, shape (n,)
         True for the selected stars.
     counts : dict
-        Reason (every one of :data:`SELECTION_REASONS`) -> number of sources dropped, and
-        ``locus_radius`` and ``locus_width`` (floats, NaN when no locus cut was made).
+        Reason (every one of :data:`SELECTION_REASONS`) -> number of sources dropped;
+        ``locus_size`` (the size column: ``"flux_radius"``, ``"adaptive_sigma"`` or None),
+        ``locus_radius`` (median size of the locus at the selected stars) and
+        ``locus_width`` (their median relative half-width), NaN without a locus;
+        ``not_applied``: secondary cut (``"spread_model"`` or ``"class_star"``) -> fraction
+        of the locus it would have rejected, for cuts left out.
+
+    Raises
+    ------
+    ValueError
+        Without ``x``, ``y`` columns, or when fewer than ``min_stars`` stars are selected.
 
     Examples
     --------
@@ -111,12 +263,15 @@ def select_stars(catalog, *, min_snr: float = 50.0, saturation: float | None = N
     >>> from astropy.table import Table
     >>> from sklearn_psf.io import select_stars
     >>> rng = np.random.default_rng(0)
-    >>> radius = np.r_[rng.normal(2.0, 0.03, 60), rng.uniform(2.6, 5.0, 40)]
+    >>> radius = np.r_[rng.normal(2.0, 0.02, 60), rng.uniform(2.6, 5.0, 40)]
     >>> cat = Table({"x": rng.uniform(0, 4000, 100), "y": rng.uniform(0, 4000, 100),
-    ...              "flux_radius": radius, "snr": np.full(100, 200.0)})
+    ...              "flux_radius": radius, "snr": np.full(100, 200.0),
+    ...              "class_star": np.full(100, 0.6)})    # SEEING_FWHM left unset
     >>> keep, counts = select_stars(cat)
     >>> int(keep[:60].sum()), int(keep[60:].sum()), counts["off_locus"]
     (60, 0, 40)
+    >>> counts["not_applied"]                 # a CLASS_STAR > 0.8 cut would drop every star
+    {'class_star': 1.0}
     """
     if not isinstance(catalog, Table):
         raise TypeError(f"catalog must be an astropy Table, got {type(catalog).__name__}.")
@@ -127,6 +282,8 @@ def select_stars(catalog, *, min_snr: float = 50.0, saturation: float | None = N
     n = len(catalog)
     x, y = _column(catalog, "x"), _column(catalog, "y")
     counts = dict.fromkeys(SELECTION_REASONS, 0)
+    counts.update({"locus_size": None, "locus_radius": np.nan, "locus_width": np.nan,
+                   "not_applied": {}})
     keep = np.isfinite(x) & np.isfinite(y)
 
     def cut(name, ok):
@@ -138,7 +295,8 @@ def select_stars(catalog, *, min_snr: float = 50.0, saturation: float | None = N
     counts["flags"] = int(np.count_nonzero(~keep))  # NaN positions
     flags = _column(catalog, "flags")
     if flags is not None:
-        cut("flags", flags == 0)
+        bits = np.nan_to_num(flags, nan=1.0).astype(np.int64)
+        cut("flags", (bits & (-1 if flag_mask is None else int(flag_mask))) == 0)
     snr = _column(catalog, "snr")
     if snr is not None:
         cut("low_snr", np.nan_to_num(snr, nan=-np.inf) >= min_snr)
@@ -154,29 +312,50 @@ def select_stars(catalog, *, min_snr: float = 50.0, saturation: float | None = N
     if n > 1:
         finite = np.column_stack([np.nan_to_num(x, nan=-1e12), np.nan_to_num(y, nan=-1e12)])
         d, _ = cKDTree(finite).query(finite, k=2, p=np.inf)
-        cut("crowded", d[:, 1] >= float(stamp_size if isolation is None else isolation))
-    spread, cls = _column(catalog, "spread_model"), _column(catalog, "class_star")
-    if spread is not None:
-        cut("extended", np.abs(np.nan_to_num(spread, nan=np.inf)) <= max_spread_model)
-    elif cls is not None:
-        cut("extended", np.nan_to_num(cls, nan=-1.0) >= min_class_star)
-    radius = _column(catalog, "flux_radius")
-    counts["locus_radius"] = counts["locus_width"] = np.nan
-    if radius is not None:
-        cut("off_locus", np.isfinite(radius) & (radius > 0))
+        iso = int(stamp_size) // 2 + 3 if isolation is None else float(isolation)
+        cut("crowded", d[:, 1] >= iso)
+
+    size, size_name = _size(catalog) if keep.any() else (None, None)
+    on_locus = None
+    if size is not None:
+        counts["locus_size"] = size_name
+        cut("off_locus", np.isfinite(size) & (size > 0))
         left = np.flatnonzero(keep)
-        if left.size >= 3:
-            flux = _column(catalog, "flux")
-            if flux is not None and left.size >= 10:
-                left = left[np.argsort(-np.nan_to_num(flux[left], nan=-np.inf))]
-                left = left[: max(5, left.size // 2)]
-            locus = _shorth_mode(radius[left], 0.5 if left.size < 20 else 0.3)
-            counts["locus_radius"] = locus
-            rel = np.abs(radius / locus - 1.0)
-            width = locus_width
-            if isinstance(width, str):
-                near = rel[keep & (rel <= 0.15)]
-                width = float(np.clip(3 * 1.4826 * np.median(near), 0.03, 0.1))
-            counts["locus_width"] = float(width)
-            cut("off_locus", rel <= width)
+        flux = _column(catalog, "flux")
+        bright = flux if flux is not None else snr if snr is not None else -size
+        found = _locus(np.log(size[left]), np.nan_to_num(bright[left], nan=-np.inf),
+                       None if snr is None else snr[left], x[left], y[left], locus_width)
+        if found is not None:
+            centre, width = found
+            ok = np.zeros(n, dtype=bool)
+            ok[left] = np.abs(np.log(size[left]) - centre) <= width
+            cut("off_locus", ok)
+            on = ok[left]
+            if on.any():
+                counts["locus_radius"] = float(np.exp(np.median(centre[on])))
+                counts["locus_width"] = float(np.median(np.expm1(width[on])))
+            on_locus = keep.copy()
+
+    spread, cls = _column(catalog, "spread_model"), _column(catalog, "class_star")
+    secondary = None
+    if spread is not None:
+        err = _column(catalog, "spreaderr_model")
+        limit = max_spread_model + (0.0 if err is None else 2.0 * np.nan_to_num(err))
+        secondary = ("spread_model", np.abs(np.nan_to_num(spread, nan=np.inf)) <= limit)
+    elif cls is not None:
+        secondary = ("class_star", np.nan_to_num(cls, nan=-1.0) >= min_class_star)
+    if secondary is not None:
+        name, ok = secondary
+        rejected = float(np.mean(~ok[on_locus])) if on_locus is not None and on_locus.any() \
+            else 0.0
+        if rejected > _MOST:
+            counts["not_applied"][name] = rejected
+        else:
+            cut("extended", ok)
+    selected = int(keep.sum())
+    if selected < int(min_stars):
+        raise ValueError(
+            f"{selected} of {n} sources pass the star selection, fewer than {int(min_stars)}: "
+            f"dropped by cut (parameter relaxing it): "
+            f"{_relax_text(counts, SELECTION_OPTIONS) or 'none'}.")
     return keep, counts

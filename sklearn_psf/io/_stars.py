@@ -10,7 +10,7 @@ import numpy as np
 from astropy.table import Table
 
 from ..preprocessing import cut_stamps
-from ..preprocessing._stamps import CUT_BAD_POSITION, CUT_OFF_EDGE
+from ..preprocessing._stamps import CUT_BAD_POSITION, CUT_NAN, CUT_OFF_EDGE
 from ._select import SELECTION_REASONS, select_stars
 
 __all__ = ["find_stars", "extract_star_stamps", "StarStamps", "REJECTION_REASONS"]
@@ -31,6 +31,28 @@ def _bad_pixel_mask(data, weight):
     return bad if bad.any() else None
 
 
+def _cut(image, positions, s):
+    """:func:`~sklearn_psf.preprocessing.cut_stamps` for a side of either parity: the star's
+    pixel ``floor(x + 0.5)`` is at index ``s // 2`` (the centre of an odd stamp; for an even
+    one, the pixel right of and above the stamp's centre point, as GalSim's ``Image.center``).
+    An even stamp is the odd one of side s + 1 without its last row and column."""
+    if s % 2:
+        return cut_stamps(image, positions, s)
+    stamps, flags = cut_stamps(image, positions, s + 1)
+    stamps = np.ascontiguousarray(stamps[:, :s, :s])
+    pos = np.asarray(positions, dtype=np.float64)
+    finite = np.isfinite(pos).all(axis=1)
+    c = np.floor(np.where(finite[:, None], pos, 0.0) + 0.5)
+    ny, nx = np.shape(image)
+    h = s // 2
+    inside = ((c[:, 0] >= h) & (c[:, 0] + h - 1 <= nx - 1) & (c[:, 1] >= h)
+              & (c[:, 1] + h - 1 <= ny - 1))
+    flags = flags & ~(CUT_OFF_EDGE | CUT_NAN)  # judged again on the kept pixels
+    flags |= np.where(finite & ~inside, CUT_OFF_EDGE, 0)
+    flags |= np.where(finite & inside & ~np.isfinite(stamps).all(axis=(1, 2)), CUT_NAN, 0)
+    return stamps, flags
+
+
 def _background(data, mask):
     """sep background (mesh of 16..64 pixels) of an image whose bad pixels are ``mask``."""
     import sep
@@ -40,8 +62,8 @@ def _background(data, mask):
     return sep.Background(data, mask=mask, bw=box, bh=box)
 
 
-def _find_stars(data, *, weight=None, stamp_size=25, detect_thresh=5.0, min_snr=50.0,
-                saturation=None, isolation=None, locus_width=0.1):
+def _find_stars(data, *, weight=None, stamp_size=25, detect_thresh=5.0, min_snr=20.0,
+                saturation=None, isolation=None, locus_width="auto"):
     """Detection and point-source selection; returns (catalogue, background-subtracted image).
 
     ``data`` is a float64 C-contiguous image (NaN allowed: masked); not modified.
@@ -49,15 +71,14 @@ def _find_stars(data, *, weight=None, stamp_size=25, detect_thresh=5.0, min_snr=
     import sep
 
     s = int(stamp_size)
-    if s != stamp_size or s < 3 or s % 2 == 0:
-        raise ValueError(f"stamp_size must be an odd integer >= 3, got {stamp_size!r}.")
+    if s != stamp_size or s < 3:
+        raise ValueError(f"stamp_size must be an integer >= 3, got {stamp_size!r}.")
     ny, nx = data.shape
     if s + 4 > min(ny, nx):
         raise ValueError(
             f"stamp_size {s} is too large for an image of shape {data.shape}: the image "
             "must be at least stamp_size + 4 pixels on each side."
         )
-    isolation = float(s if isolation is None else isolation)
     mask = _bad_pixel_mask(data, weight)
     if mask is not None:
         if mask.all():
@@ -109,17 +130,16 @@ def _find_stars(data, *, weight=None, stamp_size=25, detect_thresh=5.0, min_snr=
     measured["x"][~np.isfinite(xw)] = x[~np.isfinite(xw)]
     measured["y"][~np.isfinite(yw)] = y[~np.isfinite(yw)]
     keep, cuts = select_stars(measured, min_snr=min_snr, saturation=saturation, stamp_size=s,
-                              image_shape=(ny, nx), isolation=isolation, locus_width=locus_width)
-    locus = cuts.pop("locus_radius")
-    cuts.pop("locus_width")
-    counts.update(cuts)
+                              image_shape=(ny, nx), isolation=isolation, locus_width=locus_width,
+                              min_stars=0)
+    locus = cuts["locus_radius"]
+    counts.update({k: cuts[k] for k in SELECTION_REASONS})
     idx = np.flatnonzero(keep)
     if idx.size:
-        _, flags = cut_stamps(sub, np.column_stack([xw[idx], yw[idx]]), s)
+        _, flags = _cut(sub, np.column_stack([xw[idx], yw[idx]]), s)
         if mask is not None:
             # a masked pixel anywhere under the stamp: not a clean star
-            mcube, _ = cut_stamps(mask.astype(np.float64), np.column_stack([xw[idx], yw[idx]]),
-                                  s)
+            mcube, _ = _cut(mask.astype(np.float64), np.column_stack([xw[idx], yw[idx]]), s)
             flags = flags | (np.nansum(mcube, axis=(1, 2)) > 0)
         counts["bad_stamp"] += int(np.count_nonzero(flags != 0))
         idx = idx[flags == 0]
@@ -133,8 +153,8 @@ def _find_stars(data, *, weight=None, stamp_size=25, detect_thresh=5.0, min_snr=
 
 
 def find_stars(image, *, weight=None, stamp_size: int = 25, detect_thresh: float = 5.0,
-               min_snr: float = 50.0, saturation: float | None = None,
-               isolation: float | None = None, locus_width: float = 0.1) -> Table:
+               min_snr: float = 20.0, saturation: float | None = None,
+               isolation: float | None = None, locus_width: float | str = "auto") -> Table:
     """Detect sources with ``sep`` and select isolated, unsaturated point sources.
 
     The selection is the flux-radius (size-magnitude) locus method:
@@ -148,11 +168,10 @@ def find_stars(image, *, weight=None, stamp_size: int = 25, detect_thresh: float
        ``meta["rejected"]``): ``flags`` (blended, truncated or failed measurement),
        ``low_snr`` (S/N < ``min_snr``), ``saturated`` (peak + background >= 0.9 x
        ``saturation``), ``near_edge`` (closer than half a stamp + 2 pixels to an edge),
-       ``crowded`` (another detection closer than ``isolation`` pixels along x and y: their
-       stamps would overlap), ``off_locus`` (half-light radius more than ``locus_width``
-       (relative) from the stellar locus: galaxies are larger, cosmic rays smaller), as
-       :func:`select_stars` applies them, then ``bad_stamp`` (a stamp around the star would
-       hold a NaN or masked pixel).
+       ``crowded`` (another detection closer than ``isolation`` pixels along x and y),
+       ``off_locus`` (half-light radius off the stellar locus: galaxies are larger, cosmic
+       rays smaller), as :func:`select_stars` applies them, then ``bad_stamp`` (a stamp around
+       the star would hold a NaN or masked pixel).
 
     Parameters
     ----------
@@ -161,18 +180,20 @@ def find_stars(image, *, weight=None, stamp_size: int = 25, detect_thresh: float
     weight : array-like of shape (ny, nx), optional
         Weight (inverse variance) or mask map: pixels of zero weight are masked.
     stamp_size : int, default=25
-        Odd side of the stamps the stars will be cut into (sets the edge margin, the
-        isolation and the aperture).
+        Side of the stamps the stars will be cut into (sets the edge margin, the isolation and
+        the aperture); odd or even, as :func:`extract_star_stamps`.
     detect_thresh : float, default=5.0
         Detection threshold in units of the background rms.
-    min_snr : float, default=50.0
+    min_snr : float, default=20.0
         Smallest aperture S/N of a selected star.
     saturation : float, optional
         Saturation level (counts, before background subtraction); None: no cut.
     isolation : float, optional
-        Smallest distance (pixels, Chebyshev) to any other detection; default ``stamp_size``.
-    locus_width : float, default=0.1
-        Relative half-width of the stellar locus in half-light radius.
+        Smallest distance (pixels, Chebyshev) to any other detection; default
+        ``stamp_size // 2 + 3`` (see :func:`select_stars`).
+    locus_width : float or "auto", default="auto"
+        Relative half-width of the stellar locus in half-light radius; "auto": 3 times its
+        scatter at each star's S/N (see :func:`select_stars`).
 
     Returns
     -------
@@ -262,7 +283,9 @@ def extract_star_stamps(image, catalog, stamp_size: int = 25, *, weight=None,
         Star positions: a table with 0-based ``x``, ``y`` columns (and optionally ``flags``),
         as returned by :func:`read_catalog` or :func:`find_stars`, or an (n, 2) array.
     stamp_size : int, default=25
-        Odd stamp side.
+        Stamp side. The star's pixel ``floor(x + 0.5)`` is at index ``stamp_size // 2``: the
+        centre of an odd stamp; of an even one (e.g. 32), the pixel right of and above its
+        centre point.
     weight : array-like of shape (ny, nx), optional
         Weight (inverse variance) or mask: zero means bad.
     saturation : float, optional
@@ -316,8 +339,8 @@ def extract_star_stamps(image, catalog, stamp_size: int = 25, *, weight=None,
     if n == 0:
         raise ValueError("The star catalogue is empty.")
     s = int(stamp_size)
-    if s != stamp_size or s < 3 or s % 2 == 0:
-        raise ValueError(f"stamp_size must be an odd integer >= 3, got {stamp_size!r}.")
+    if s != stamp_size or s < 3:
+        raise ValueError(f"stamp_size must be an integer >= 3, got {stamp_size!r}.")
     pos = np.column_stack([np.asarray(cat["x"], dtype=np.float64),
                            np.asarray(cat["y"], dtype=np.float64)])
     raw = np.array(img, dtype=np.float64, copy=True)
@@ -329,14 +352,14 @@ def extract_star_stamps(image, catalog, stamp_size: int = 25, *, weight=None,
             data = data - _background(data, bad).back()
     else:
         data = raw
-    stamps, flags = cut_stamps(data, pos, s)
-    raws, _ = cut_stamps(raw, pos, s)
+    stamps, flags = _cut(data, pos, s)
+    raws, _ = _cut(raw, pos, s)
     wcube = None
     if weight is not None:
-        bad_cube, _ = cut_stamps(bad.astype(np.float64) if bad is not None
-                                 else np.zeros((ny, nx)), pos, s)
+        bad_cube, _ = _cut(bad.astype(np.float64) if bad is not None
+                           else np.zeros((ny, nx)), pos, s)
         bad_cube = np.nan_to_num(bad_cube, nan=0.0) > 0
-        wcube, _ = cut_stamps(np.asarray(weight, dtype=np.float64), pos, s)
+        wcube, _ = _cut(np.asarray(weight, dtype=np.float64), pos, s)
         wcube[bad_cube | ~np.isfinite(wcube)] = 0.0
     else:
         bad_cube = np.zeros(stamps.shape, dtype=bool)

@@ -3,10 +3,13 @@
 Centre convention
 -----------------
 SExtractor cuts ``VIGNET(v, v)`` around the pixel nearest to the object: with the 1-based
-``X_IMAGE``, the vignette's centre pixel ``(v // 2, v // 2)`` is image pixel
-``round(X_IMAGE)`` (1-based), i.e. ``floor(x + 0.5)`` for the 0-based ``x = X_IMAGE - 1`` the
-package uses, the same pixel as :func:`~sklearn_psf.preprocessing.cut_stamps` centres a stamp
-on. The star itself sits at ``x - floor(x + 0.5)`` (in [-0.5, 0.5)) pixels from that centre.
+``X_IMAGE``, the vignette's pixel ``(v // 2, v // 2)`` is image pixel ``round(X_IMAGE)``
+(1-based), i.e. ``floor(x + 0.5)`` for the 0-based ``x = X_IMAGE - 1`` the package uses, the
+same pixel as :func:`~sklearn_psf.preprocessing.cut_stamps` centres a stamp on. For an odd
+side that is the centre pixel; for an even one (e.g. 32x32) the pixel right of and above the
+vignette's centre point (GalSim's ``Image.center``), and stamps cropped from it keep the star at
+index ``stamp_size // 2``. The star itself sits at ``x - floor(x + 0.5)`` (in [-0.5, 0.5))
+pixels from that pixel.
 Masked pixels (SExtractor writes -1e30, also NaN) become zero-weight pixels set to 0.
 """
 
@@ -15,27 +18,13 @@ from __future__ import annotations
 import numpy as np
 from astropy.table import Table
 
+from ..preprocessing import estimate_pixel_weights
 from ._stars import REJECTION_REASONS, StarStamps
 
 __all__ = ["extract_vignettes", "VIGNET_MASKED"]
 
 #: Value below which a VIGNET pixel is masked (SExtractor writes -1e30).
 VIGNET_MASKED = -1e29
-
-
-def _border_variance(cube, valid, width=2):
-    """Per-stamp background variance from the valid pixels of the outer ``width`` rows/cols."""
-    s = cube.shape[1]
-    ring = np.ones((s, s), dtype=bool)
-    ring[width:s - width, width:s - width] = False
-    var = np.full(len(cube), np.nan)
-    for i in range(len(cube)):
-        v = cube[i][ring & valid[i]]
-        if v.size >= 8:
-            var[i] = (1.4826 * np.median(np.abs(v - np.median(v)))) ** 2
-    good = np.isfinite(var) & (var > 0)
-    fallback = np.median(var[good]) if good.any() else 1.0
-    return np.where(good, var, fallback)
 
 
 def extract_vignettes(catalog: Table, stamp_size: int | None = None, *,
@@ -50,9 +39,9 @@ def extract_vignettes(catalog: Table, stamp_size: int | None = None, *,
     (``saturated``).
 
     Weights are the inverse variance of each pixel: the background variance of the star's
-    vignette (from the median absolute deviation of its two outer rows and columns), plus the
-    source's Poisson variance ``max(pixel, 0) / gain`` when ``gain`` (e-/ADU) is given; 0 for
-    masked pixels.
+    vignette (from its border, see :func:`~sklearn_psf.preprocessing.estimate_pixel_weights`:
+    each vignette its own, pooled where they share one level), plus the source's Poisson
+    variance ``max(pixel, 0) / gain`` when ``gain`` (e-/ADU) is given; 0 for masked pixels.
 
     Parameters
     ----------
@@ -60,7 +49,7 @@ def extract_vignettes(catalog: Table, stamp_size: int | None = None, *,
         From :func:`~sklearn_psf.io.read_catalog` (0-based ``x``, ``y``; ``VIGNET`` of shape
         (n, v, v), background-subtracted as SExtractor writes it).
     stamp_size : int, optional
-        Odd side of the stamps, at most v; default v.
+        Side of the stamps, at most v (odd or even, see the centre convention); default v.
     saturation : float, optional
         Saturation level; None: no cut.
     gain : float, optional
@@ -77,8 +66,8 @@ def extract_vignettes(catalog: Table, stamp_size: int | None = None, *,
     Raises
     ------
     ValueError
-        Without a vignette column, with even or too large ``stamp_size``, or when no star
-        is usable.
+        Without a vignette column, with a too small or too large ``stamp_size``, or when no
+        star is usable.
 
     Examples
     --------
@@ -94,23 +83,27 @@ def extract_vignettes(catalog: Table, stamp_size: int | None = None, *,
     """
     lower = {c.lower(): c for c in catalog.colnames}
     if column.lower() not in lower:
-        raise ValueError(f"The catalogue has no {column} column (columns: "
-                         f"{', '.join(catalog.colnames)}): give the image to cut the stamps.")
+        names = catalog.colnames
+        shown = ", ".join(names[:8]) + (f", ... ({len(names)} columns)" if len(names) > 8
+                                        else "")
+        raise ValueError(f"The catalogue has no {column} column ({shown}): give the image to "
+                         f"cut the stamps, or have SExtractor write {column}(v,v).")
     cube = np.array(catalog[lower[column.lower()]], dtype=np.float64)
     n = len(catalog)
-    if cube.ndim != 3 or cube.shape[1] != cube.shape[2] or cube.shape[1] % 2 == 0:
-        raise ValueError(f"{column} must hold square vignettes of odd side, got shape "
+    if cube.ndim != 3 or cube.shape[1] != cube.shape[2] or cube.shape[1] < 3:
+        raise ValueError(f"{column} must hold square vignettes of side 3 or more, got shape "
                          f"{cube.shape[1:]}.")
     v = cube.shape[1]
     s = v if stamp_size is None else int(stamp_size)
-    if s % 2 == 0 or s < 3 or s > v:
-        raise ValueError(f"stamp_size must be odd, >= 3 and at most the vignette side {v}, "
+    if s < 3 or s > v:
+        raise ValueError(f"stamp_size must be >= 3 and at most the vignette side {v}, "
                          f"got {stamp_size!r}.")
-    lo = (v - s) // 2
+    lo = v // 2 - s // 2  # the star's pixel stays at index s // 2
     cube = cube[:, lo:lo + s, lo:lo + s]
     valid = np.isfinite(cube) & (cube > VIGNET_MASKED)
     stamps = np.where(valid, cube, 0.0)
-    var = _border_variance(stamps, valid)[:, None, None]
+    sky = estimate_pixel_weights(np.where(valid, cube, np.nan)).reshape(cube.shape)
+    var = 1.0 / np.where(valid, sky, 1.0)
     if gain is not None:
         var = var + np.maximum(stamps, 0.0) / float(gain)
     weights = np.where(valid, 1.0 / var, 0.0)

@@ -132,7 +132,8 @@ class PSFModel(RegressorMixin, BaseEstimator):
     >>> sig = (1.8 + X[:, 0] / 2000.0)[:, None, None]   # size varies along x: 2 components
     >>> stars = 5e4 * np.exp(-0.5 * (xx**2 + yy**2) / sig**2) / (2 * np.pi * sig**2)
     >>> stamps = stars + rng.normal(0.0, 10.0, stars.shape)   # S/N about 200
-    >>> model = PSFModel().fit(X, stamps.reshape(80, -1))
+    >>> weights = np.full((80, 15 * 15), 1 / 10.0**2)           # inverse variance
+    >>> model = PSFModel().fit(X, stamps.reshape(80, -1), weights=weights)
     >>> model.n_components_, bool(model.inlier_mask_.mean() > 0.95)
     (2, True)
     >>> model.predict([[500.0, 500.0]]).shape

@@ -11,28 +11,71 @@ from .._validation import as_stamps, rows_text
 __all__ = ["estimate_pixel_weights", "check_pixel_weights"]
 
 _MAD_TO_SIGMA = 1.4826
+#: Standard deviation of a standard normal truncated to [-3, 3]: corrects the clipped std.
+_CLIPPED_STD = 0.98656
 
 
+def _border_noise(edge, design, n_iter=3):
+    """Per-row noise of ``edge`` (n, m) pixels (NaN = masked) about a local background.
 
-def estimate_pixel_weights(stamps, *, border: int = 2, pooled: bool = True):
-    """Inverse-variance pixel weights estimated from each stamp's border.
+    The background of each row is a linear combination of the columns of ``design`` (m, p)
+    (a constant, and the stars' mean wing and its gradients), fitted by least squares on the
+    pixels within 3 sigma of it (a neighbour or a cosmic ray is clipped); the noise is the
+    clipped standard deviation of the residuals, started from their median absolute deviation.
+    Returns the noise and the number of pixels it used.
+    """
+    finite = np.isfinite(edge)
+    data = np.where(finite, edge, 0.0)
+    p = design.shape[1]
+    keep = finite
+    sigma = None
+    for it in range(n_iter + 1):
+        k = keep.astype(np.float64)
+        normal = np.einsum("mi,nm,mj->nij", design, k, design)
+        rhs = np.einsum("mi,nm->ni", design, k * data)
+        sol = np.einsum("nij,nj->ni", np.linalg.pinv(normal, hermitian=True), rhs)
+        resid = np.where(finite, data - sol @ design.T, np.nan)
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: NaN noise
+            if it == 0:
+                sigma = _MAD_TO_SIGMA * np.nanmedian(np.abs(resid), axis=1, keepdims=True)
+            else:
+                m = keep.sum(axis=1, keepdims=True)
+                sigma = np.sqrt(np.where(keep, resid**2, 0.0).sum(axis=1, keepdims=True)
+                                / (m - p)) / _CLIPPED_STD
+            keep = finite & (np.abs(resid) <= 3.0 * sigma)
+    return sigma[:, 0], keep.sum(axis=1)
 
-    The background noise of each stamp is 1.4826 times the median absolute deviation of the
-    pixels in its outer ring of width ``border`` (sky-dominated for a star stamp; robust to a
-    neighbour at the edge). With ``pooled=True`` (stamps from one image, one sky noise) every
-    stamp gets the median of these estimates, which is far less noisy than each one (a 25x25
-    stamp's ring has 184 pixels: about 10% scatter in sigma per stamp); otherwise each stamp
-    keeps its own. Every pixel gets weight ``1 / sigma^2``; NaN pixels get weight 0 (masked).
-    The stars' own Poisson noise is not included: give weights (e.g. from the image's weight
-    map) when it matters, or when the stamps come from images of different depths.
+
+def estimate_pixel_weights(stamps, *, border="auto", pooled="auto"):
+    """Inverse-variance pixel weights estimated from each stamp's own border.
+
+    Each stamp's noise is measured on the pixels of its outer ring of width ``border``
+    (sky-dominated for a star stamp) after removing the local background there: a 3-sigma
+    clipped standard deviation about the clipped mean, so that a neighbour or a star's wing at
+    the edge does not count. Each stamp keeps its own level, which is what unit-sum
+    (normalised) stamps, stamps of stars on different sky levels or with different gains, and
+    raw stamps all need: the noise of a normalised stamp is the sky noise over the star's flux.
+
+    A single stamp's estimate scatters (a 25x25 stamp's ring of width 4 has 336 pixels: about
+    4% in sigma); where stamps share one noise level it is pooled: with ``pooled="auto"``, when
+    the stamps' estimates scatter no more than their own precision allows (raw stamps from one
+    image), every stamp consistent with their median within three times that precision gets the
+    median, the others (e.g. the brightest stars, whose wings reach the border) keep their own.
+
+    Every pixel gets weight ``1 / sigma^2``; NaN pixels get weight 0 (masked). The stars' own
+    Poisson noise is not included: give weights (e.g. from the image's weight map and gain)
+    when it matters.
 
     Parameters
     ----------
     stamps : array-like of shape (n, s*s) or (n, s, s)
-    border : int, default=2
-        Width of the ring of pixels used, in pixels.
-    pooled : bool, default=True
-        One noise level for all stamps (the median of the stamps' estimates).
+    border : int or "auto", default="auto"
+        Width of the ring of pixels used, in pixels; "auto": ``max(2, round(s / 6))`` (4 for
+        25x25 stamps).
+    pooled : "auto" or bool, default="auto"
+        True: one noise level for all stamps (the median of their estimates); False: each
+        stamp its own; "auto": pooled where the stamps share one level (see above).
 
     Returns
     -------
@@ -45,31 +88,73 @@ def estimate_pixel_weights(stamps, *, border: int = 2, pooled: bool = True):
     >>> import numpy as np
     >>> from sklearn_psf.preprocessing import estimate_pixel_weights
     >>> rng = np.random.default_rng(0)
-    >>> stamps = rng.normal(0.0, 2.0, size=(3, 25 * 25))
-    >>> w = estimate_pixel_weights(stamps)
-    >>> bool(np.allclose(1 / np.sqrt(w[:, 0]), 2.0, rtol=0.2))
-    True
+    >>> noise = np.array([1.0, 1.0, 4.0])[:, None]      # the third stamp is 4 times noisier
+    >>> stamps = rng.normal(0.0, 1.0, size=(3, 25 * 25)) * noise
+    >>> sigma = 1 / np.sqrt(estimate_pixel_weights(stamps)[:, 0])
+    >>> np.round(sigma, 1)
+    array([1. , 1. , 4.1])
     """
     cube = as_stamps(stamps)
     n, s, _ = cube.shape
+    if isinstance(border, str):
+        if border != "auto":
+            raise ValueError(f"border must be 'auto' or a width in pixels, got {border!r}.")
+        border = max(2, int(round(s / 6)))
     border = int(border)
     if not 1 <= border <= s // 2:
         raise ValueError(f"border must be between 1 and {s // 2} pixels, got {border}.")
+    if not (pooled == "auto" or isinstance(pooled, (bool, np.bool_))):
+        raise ValueError(f"pooled must be 'auto', True or False, got {pooled!r}.")
     ring = np.ones((s, s), dtype=bool)
     ring[border:s - border, border:s - border] = False
-    edge = cube[:, ring]
+    sigma, m = _border_noise(cube[:, ring], _background_design(cube, ring))
     with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN stamps: handled below
-        med = np.nanmedian(edge, axis=1, keepdims=True)
-        sigma = _MAD_TO_SIGMA * np.nanmedian(np.abs(edge - med), axis=1)
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN stamps
         peak = np.nanmax(np.abs(cube.reshape(n, -1)), axis=1)
     floor = 1e-6 * np.where(np.isfinite(peak) & (peak > 0), peak, 1.0)
-    sigma = np.where(np.isfinite(sigma) & (sigma > floor), sigma, floor)
-    if pooled:
+    good = np.isfinite(sigma) & (sigma > floor)
+    sigma = np.where(good, sigma, floor)
+    if pooled is True or (pooled is np.True_):
         sigma = np.full(n, np.median(sigma))
+    elif pooled == "auto" and good.sum() >= 5:
+        sigma = _pool_where_equal(sigma, m, good)
     weights = np.broadcast_to((1.0 / sigma**2)[:, None], (n, s * s)).copy()
     weights[np.isnan(cube.reshape(n, -1))] = 0.0
     return weights
+
+
+def _background_design(cube, ring, min_stamps=10):
+    """Columns of the local background on the ``ring`` pixels: a constant and, with at least
+    ``min_stamps`` stamps, the stars' wing there (median unit-sum stamp) and its x and y
+    gradients (a star off the centre pixel); unit-norm columns."""
+    columns = [np.ones(int(ring.sum()))]
+    if len(cube) >= min_stamps:
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            total = np.nansum(cube, axis=(1, 2))
+            positive = total > 0
+            if positive.sum() >= min_stamps:
+                mean = np.nanmedian(cube[positive] / total[positive, None, None], axis=0)
+                if np.isfinite(mean).all():
+                    gy, gx = np.gradient(mean)
+                    columns += [mean[ring], gx[ring], gy[ring]]
+    design = np.column_stack(columns)
+    norm = np.linalg.norm(design, axis=0)
+    return design / np.where(norm > 0, norm, 1.0)
+
+
+def _pool_where_equal(sigma, m, good):
+    """The stamps' noise, pooled to the median where they share one level (see
+    :func:`estimate_pixel_weights`)."""
+    log = np.log(sigma[good])
+    centre = float(np.median(log))
+    # standard deviation of ln(sigma) estimated from m Gaussian pixels: 1 / sqrt(2 (m - 1))
+    precision = 1.0 / np.sqrt(2.0 * np.maximum(m - 1, 1))
+    spread = _MAD_TO_SIGMA * float(np.median(np.abs(log - centre)))
+    if spread > 1.5 * float(np.median(precision[good])):
+        return sigma  # several levels: each stamp keeps its own
+    same = good & (np.abs(np.log(sigma) - centre) <= 3.0 * precision)
+    return np.where(same, np.exp(centre), sigma)
 
 
 def check_pixel_weights(weights, n_stamps: int, n_pixels: int, stamps=None):

@@ -4,7 +4,10 @@
 predicts the PSF at their positions and compares the shapes (adaptive-moment e1, e2, size)
 of the observed, normalised reserved stars with the model's, summarises the residuals (mean,
 rms) and measures rho1 to rho5 (Jarvis et al. 2016, :func:`sklearn_psf.metrics.rho_statistics`)
-on them.
+on them, then says whether the model can be trusted: the reserved stars' residuals against their
+own measurement noise, against a constant PSF fitted on the same stars (a
+:class:`PSFQualityWarning` when the model is no better than that constant or its residuals exceed
+the noise), the components the basis kept and why, the Kriging range against the stars' spacing.
 Optionally the interpolation scheme is chosen first by K-fold cross-validation on the fitted
 stars with the correlation scorers. The figures (:func:`plot_stamp_residuals`,
 :func:`plot_whiskers`, :func:`plot_rho_statistics`, :func:`plot_psf_maps`) are what
@@ -32,9 +35,10 @@ from ._compare_figures import plot_model_comparison
 from ._external import PiffModel, PSFExModel, load_psf_model, model_kind
 from ._psfex import psfex_terms, write_psfex
 from ._residuals import measure_residuals, rho_bins
+from ._verdict import PSFQualityWarning
 
-__all__ = ["fit_and_validate", "plot_stamp_residuals", "plot_whiskers", "plot_rho1",
-           "plot_rho_statistics", "plot_psf_maps", "COMPARISON_COLUMNS", "PSFExModel",
-           "PiffModel", "load_psf_model", "measure_residuals", "model_kind",
+__all__ = ["fit_and_validate", "PSFQualityWarning", "plot_stamp_residuals", "plot_whiskers",
+           "plot_rho1", "plot_rho_statistics", "plot_psf_maps", "COMPARISON_COLUMNS",
+           "PSFExModel", "PiffModel", "load_psf_model", "measure_residuals", "model_kind",
            "plot_model_comparison", "psfex_terms", "rho_bins", "validate_models",
            "write_psfex"]

@@ -245,8 +245,9 @@ def plot_psf_maps(model, shape, n_grid: int = 20):
     Returns
     -------
     fig : matplotlib.figure.Figure
-        Left: whiskers of e (length |e|, angle of the major axis); right: sigma [pixels], with
-        the fitted stars as dots.
+        Left (top for a chip wider than tall): whiskers of e (length |e|, angle of the major
+        axis); right (bottom): sigma [pixels], with the fitted stars as dots. The figure's
+        size follows the chip's aspect, so that a tall CCD fills the page.
 
     Examples
     --------
@@ -272,21 +273,31 @@ def plot_psf_maps(model, shape, n_grid: int = 20):
     e1 = np.asarray(mom["e1"], float).reshape(gx.shape)
     e2 = np.asarray(mom["e2"], float).reshape(gx.shape)
     sigma = np.asarray(mom["sigma"], float).reshape(gx.shape)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), layout="constrained")
+    # panel sizes follow the chip's aspect: side by side for square or tall chips (a DECam
+    # CCD is 2048 x 4096), one above the other for wide ones; about 30 square inches each
+    ratio = ny / nx
+    width = float(np.clip(np.sqrt(30.0 / ratio), 2.5, 9.0))
+    height = float(np.clip(width * ratio, 2.5, 8.0))
+    width = height / ratio if ratio >= 1 else width
+    tall = ratio >= 0.6
+    size = (2 * width + 2.0, height + 1.2) if tall else (width + 2.0, 2 * height + 1.6)
+    fig, axes = plt.subplots(1 if tall else 2, 2 if tall else 1, figsize=size,
+                             layout="constrained", squeeze=False)
+    axes = axes.ravel()
     emax = float(np.nanmax(np.hypot(e1, e2))) or 1e-3
     _whisker(axes[0], gx.ravel(), gy.ravel(), e1.ravel(), e2.ravel(), 0.9 * step / emax, "k",
              "model")
-    axes[0].set_title(f"model ellipticity (longest whisker: |e| = {emax:.3f})")
+    axes[0].set_title(f"model ellipticity\n(longest whisker: |e| = {emax:.3f})")
     im = axes[1].imshow(sigma, origin="lower", extent=(0, nx, 0, ny), cmap="viridis",
                         aspect="equal")
-    fig.colorbar(im, ax=axes[1], label=r"$\sigma$ [pixel]")
+    fig.colorbar(im, ax=axes[1], label=r"$\sigma$ [pixel]", shrink=0.8)
     stars = np.asarray(getattr(model, "X_fit_", np.zeros((0, 2))))
     axes[1].plot(stars[:, 0], stars[:, 1], ".", color="w", ms=2, label="fitted stars")
-    axes[1].set_title("model size (adaptive-moment sigma)")
+    axes[1].set_title("model size\n(adaptive-moment sigma)")
     for ax in axes:
         ax.set_xlim(0, nx)
         ax.set_ylim(0, ny)
         ax.set_aspect("equal")
         ax.set_xlabel("x [pixel]")
-    axes[0].set_ylabel("y [pixel]")
+        ax.set_ylabel("y [pixel]")
     return fig

@@ -15,6 +15,7 @@ from ..metrics import make_ellipticity_rms_scorer, make_rho1_scorer
 from ..metrics._correlation import EmptyBinsWarning
 from ..model import PSFModel
 from ._residuals import measure_residuals, rho_bins
+from ._verdict import PSFQualityWarning, model_verdict
 
 __all__ = ["fit_and_validate"]
 
@@ -51,8 +52,21 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
        and measured with :func:`~sklearn_psf.measure.adaptive_moments`, like the model's
        stamps at their positions; residuals are star minus model.
 
+    5. The verdict: each reserved star's pixels are fitted (flux and sub-pixel centroid) with
+       the model's PSF and with a constant PSF fitted on the same stars (the inverse-variance
+       weighted mean of the model's coefficients of its kept stars), in units of the star's
+       pixel noise (``weights``, else estimated stamp by stamp); the ellipticity residuals
+       are compared with the stars' ellipticity noise (the standard deviation of e over 16
+       noise draws from the star's weights around its fitted model). A
+       :class:`PSFQualityWarning` is issued (and its text kept in ``summary["warnings"]``)
+       when the model fits the reserved stars no better than the constant PSF (summed
+       chi^2), when the residuals exceed twice the noise (median reduced chi^2, or e residual
+       rms over e noise rms), and when maximum likelihood gives the Kriging a range below the
+       stars' typical spacing (no spatial correlation found).
+
     Note that the reserved-star residuals include the stars' own measurement noise: at S/N
-    ~100 it is comparable with the model errors of a good scheme.
+    ~100 it is comparable with the model errors of a good scheme; the verdict's ratios
+    (1 for pure noise) separate the two.
 
     Parameters
     ----------
@@ -106,7 +120,23 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
         ``theta`` [``rho_theta_units``: pixel, or arcmin with a ``wcs``], ``xi``,
         ``sigma_xi``, ``npairs``, or None with fewer than 10 measured stars),
         ``rho_theta_units``, ``rho1_mean_abs`` and, with candidates,
-        ``cv`` (list of per-scheme mean/std scores) and ``scheme`` (the chosen one).
+        ``cv`` (list of per-scheme mean/std scores) and ``scheme`` (the chosen one). The
+        verdict: ``n_components`` and ``components_reason`` (text: the noise edge and the
+        variance of the last kept and first dropped components over it), ``n_verdict``
+        (reserved stars used), ``chi2_dof_median`` / ``chi2_dof_median_constant`` (median of
+        the stars' chi^2 per degree of freedom against the model / the constant PSF; 1 = pure
+        noise), ``chi2_total`` /
+        ``chi2_total_constant`` (summed over the stars), ``e_noise`` (rms ellipticity noise
+        per component), ``e_resid_over_noise`` / ``e_resid_over_noise_constant`` (rms of the
+        e residuals over the rms e noise), ``e_model_error`` (the residuals' rms per component
+        of e with the noise removed in quadrature: the model's own error), ``kriging_range``
+        and ``star_spacing`` (median nearest-star distance, in the Kriging's coordinates;
+        None without Kriging) and ``warnings`` (list of texts).
+
+    Warns
+    -----
+    PSFQualityWarning
+        When the model looks untrustworthy (see 5.).
 
     Raises
     ------
@@ -123,11 +153,23 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
     ...                        snr=200.0, random_state=0)
     >>> stamps, flags = field.star_stamps(normalize=False)
     >>> X = np.column_stack([field.stars["x"], field.stars["y"]])
-    >>> model, res, summary = fit_and_validate(X, stamps, reserve=0.25, random_state=0)
+    >>> import warnings
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     model, res, summary = fit_and_validate(X, stamps, reserve=0.25, random_state=0)
     >>> summary["n_reserved"], len(res)
     (20, 20)
     >>> bool(summary["e_rms"] < 0.05)
     True
+
+    At S/N 200 the 60 fitted stars are too few for this PSF's variations: the reserved
+    stars' ellipticity residuals are 3 times their noise (a constant PSF: 6 times), and
+    a :class:`PSFQualityWarning` says so.
+
+    >>> round(summary["e_resid_over_noise"]), round(summary["e_resid_over_noise_constant"])
+    (3, 6)
+    >>> [w.category.__name__ for w in caught]
+    ['PSFQualityWarning']
     """
     X = np.array(X, dtype=np.float64, copy=True)
     if X.ndim != 2 or X.shape[1] != 2:
@@ -198,4 +240,9 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
         X[reserved], y[reserved], pred, weights=None if weights is None else w[reserved],
         wcs=wcs, min_sep=min_sep, max_sep=max_sep, nbins=rho1_nbins, index=reserved)
     summary.update(measured)
+    if hasattr(model, "coefficients_"):
+        summary.update(model_verdict(model, X, y, None if weights is None else w, reserved,
+                                     table, random_state=rng.randint(0, 2**31 - 1)))
+        for message in summary["warnings"]:
+            warnings.warn(message, PSFQualityWarning, stacklevel=2)
     return model, table, summary

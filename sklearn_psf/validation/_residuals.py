@@ -39,8 +39,9 @@ def _rms(a):
     return float(np.sqrt(np.mean(np.square(a)))) if len(a) else float("nan")
 
 
-def _chi2(raw, weights, model, model_mom):
-    """chi^2 of each raw star stamp against its model stamp, and its degrees of freedom.
+def _chi2(raw, weights, model, model_mom, return_model=False):
+    """chi^2 of each raw star stamp against its model stamp, and its degrees of freedom
+    (and, with ``return_model``, the fitted model stamps ``flux * model + background``).
 
     The model stamp is moved so that its adaptive centroid falls on the star's (a Fourier
     shift), then scaled and offset by the weighted least-squares flux and constant
@@ -68,7 +69,10 @@ def _chi2(raw, weights, model, model_mom):
     chi2 = (w * (d - f[:, None] * m - b[:, None]) ** 2).sum(1)
     dof = (w > 0).sum(1) - 4
     ok &= np.isfinite(chi2) & (dof > 0) & (det > 0)
-    return np.where(ok, chi2, np.nan), np.where(ok, dof, 0)
+    out = np.where(ok, chi2, np.nan), np.where(ok, dof, 0)
+    if return_model:
+        return *out, f[:, None] * m + b[:, None]
+    return out
 
 
 def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=None,
