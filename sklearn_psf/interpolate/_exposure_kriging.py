@@ -1,0 +1,498 @@
+"""Kriging across exposures: a static pattern shared by every exposure plus each exposure's own.
+
+Model of target ``t`` at star ``i`` (position ``x_i``, exposure ``e_i``)::
+
+    y_t(i) = mu_t + s_t(x_i) + a_{t, e_i}(x_i) + eps_t(i)
+    cov    = p_t R(|x_i - x_j| / a_s) + q_t [e_i = e_j] R(|x_i - x_j| / a_a) + diag(noise_t)
+
+``s_t`` is the static (optical) pattern in chip (or focal-plane) coordinates, ``a_{t,e}`` the
+atmospheric pattern of exposure ``e``, independent from exposure to exposure. Within one
+exposure the dither is a constant shift, so sky and chip separations are equal: the
+atmospheric term needs no dither. Ranges ``a_s``, ``a_a`` (shared by the targets) and the
+sills ``p_t``, ``q_t`` are fitted by maximum likelihood with the mean ``mu_t`` profiled out
+(generalised least squares); ``R`` is a variogram's correlation (:mod:`._variogram`).
+
+Exact solve up to ``max_exact_samples`` stars; beyond, the static part across exposures goes
+through a grid of inducing points while every exposure's block (its atmosphere, its noise and
+the static part between its own stars) stays exact (the partially independent training
+conditional of Quinonero-Candela & Rasmussen 2005, with exposures as blocks), solved by
+Woodbury's identity: cost ``O(n m^2 + n n_e^2)`` for ``n`` stars, ``m`` inducing points and
+``n_e`` stars per exposure, memory ``O(n m)``.
+"""
+
+from __future__ import annotations
+
+import numbers
+import warnings
+
+import numpy as np
+from scipy.linalg import LinAlgError, cho_factor, cho_solve, lapack, solve_triangular
+from scipy.optimize import minimize
+from scipy.spatial.distance import cdist
+from sklearn.utils import check_random_state
+from threadpoolctl import threadpool_limits
+
+from ._base import _check_n_samples, _NoiseAwareInterpolator, _query_chunks
+from ._variogram import _CORRELATIONS, _corr_dlog_range
+
+__all__ = ["ExposureKrigingRegressor"]
+
+_NAME = "ExposureKrigingRegressor"
+_LOG_2PI = np.log(2.0 * np.pi)
+_P_BOUNDS = (1e-6, 1e3)  # sills, in units of the target's variance
+_RANGE_BOUNDS = (1e-3, 10.0)  # ranges, in units of the unit square
+_JITTER = 1e-10  # relative diagonal term keeping noise-free systems factorisable
+_MIN_ML_STARS = 10
+
+
+def _correlation(variogram, D, a):
+    return _CORRELATIONS[variogram](D / a)
+
+
+def _cho_inverse(K):
+    """(inverse of SPD K as a full symmetric matrix, log|K|), or (None, None); K overwritten."""
+    L, info = lapack.dpotrf(K, lower=1, clean=1, overwrite_a=1)
+    if info != 0:
+        return None, None
+    logdet = 2.0 * np.sum(np.log(np.diag(L)))
+    Ki, info = lapack.dpotri(L, lower=1, overwrite_c=1)
+    if info != 0:
+        return None, None
+    Ki = np.tril(Ki)
+    Ki += np.tril(Ki, -1).T
+    return Ki, logdet
+
+
+class _JointLikelihood:
+    """Negative log-likelihood of the stars (targets summed) and its gradient in
+    ``theta = (log a_s, log a_a, log p_1..p_T, log q_1..q_T)``."""
+
+    def __init__(self, U, exposure, Y, noise, variogram):
+        self.D = cdist(U, U)
+        self.same = exposure[:, None] == exposure[None, :]
+        self.Y, self.noise, self.variogram = Y, noise, variogram
+        self.n, self.T = Y.shape
+
+    def __call__(self, theta):
+        n, T = self.n, self.T
+        a_s, a_a = np.exp(theta[:2])
+        p, q = np.exp(theta[2:2 + T]), np.exp(theta[2 + T:])
+        r_s, r_a = self.D / a_s, self.D / a_a
+        Rs = _CORRELATIONS[self.variogram](r_s.copy())
+        Ra = _CORRELATIONS[self.variogram](r_a.copy()) * self.same
+        dRs = _corr_dlog_range(self.variogram, r_s, Rs)
+        dRa = _corr_dlog_range(self.variogram, r_a, Ra) * self.same
+        ones = np.ones(n)
+        nll, grad = 0.0, np.zeros(2 + 2 * T)
+        for t in range(T):
+            K = p[t] * Rs + q[t] * Ra
+            K[np.diag_indices(n)] += (0.0 if self.noise is None else self.noise[:, t]) \
+                + _JITTER * (p[t] + q[t])
+            Ki, logdet = _cho_inverse(np.asfortranarray(K))
+            if Ki is None:
+                return 1e300, np.zeros_like(theta)
+            y = self.Y[:, t]
+            k1 = Ki @ ones
+            mu = (k1 @ y) / k1.sum()
+            alpha = Ki @ (y - mu)
+            nll += 0.5 * (alpha @ (y - mu) + logdet + n * _LOG_2PI)
+            # d nll / d log(par) = -(alpha' dK alpha - tr(K^-1 dK)) / 2
+            for j, (scale, dK) in enumerate(((p[t], dRs), (q[t], dRa))):
+                grad[j] -= 0.5 * scale * (alpha @ dK @ alpha - np.vdot(Ki, dK))
+            grad[2 + t] -= 0.5 * p[t] * (alpha @ Rs @ alpha - np.vdot(Ki, Rs))
+            grad[2 + T + t] -= 0.5 * q[t] * (alpha @ Ra @ alpha - np.vdot(Ki, Ra))
+        return nll, grad
+
+
+def fit_joint_hyperparameters(U, exposure, Y, noise, variogram, *, range_, atmosphere_range):
+    """Maximum-likelihood ranges and sills of the static and atmospheric parts.
+
+    Parameters
+    ----------
+    U : ndarray (n, d)
+        Positions (scaled to the unit square).
+    exposure : ndarray (n,)
+        Exposure of each star.
+    Y : ndarray (n, T)
+    noise : ndarray (n, T) or None
+    variogram : str
+    range_, atmosphere_range : float or "auto"
+
+    Returns
+    -------
+    dict with ``range``, ``atmosphere_range``, ``static_sill`` (T,), ``atmosphere_sill`` (T,)
+    (in the units of Y squared) and ``log_likelihood``.
+    """
+    n, T = Y.shape
+    scale = Y.std(axis=0)
+    scale[scale == 0] = 1.0
+    Ys = Y / scale
+    Ns = None if noise is None else noise / scale**2
+    fun = _JointLikelihood(U, exposure, Ys, Ns, variogram)
+    mean_noise = 0.0 if Ns is None else Ns.mean(axis=0)
+    p0 = np.log(np.clip(1.0 - mean_noise, 0.1, 1.0) / 2.0)
+    fixed = {0: range_, 1: atmosphere_range}
+    bounds = [tuple(np.log(_RANGE_BOUNDS))] * 2 + [tuple(np.log(_P_BOUNDS))] * (2 * T)
+    for j, value in fixed.items():
+        if not isinstance(value, str):
+            bounds[j] = (np.log(value), np.log(value))
+    starts = []
+    for a_s in (0.1, 0.5):
+        for a_a in (0.1, 0.5):
+            for split in (0.2, 0.8):
+                x0 = np.concatenate([[np.log(a_s), np.log(a_a)], p0 + np.log(2 * split),
+                                     p0 + np.log(2 * (1 - split))])
+                for j, value in fixed.items():
+                    if not isinstance(value, str):
+                        x0[j] = np.log(value)
+                starts.append(x0)
+    with threadpool_limits(limits=1, user_api="blas"):
+        x0 = min(starts, key=lambda s: fun(s)[0])
+        res = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=bounds,
+                       options={"maxiter": 200, "maxfun": 300, "ftol": 1e-9, "gtol": 1e-5})
+    theta = res.x
+    return {"range": float(np.exp(theta[0])), "atmosphere_range": float(np.exp(theta[1])),
+            "static_sill": np.exp(theta[2:2 + T]) * scale**2,
+            "atmosphere_sill": np.exp(theta[2 + T:]) * scale**2,
+            "log_likelihood": float(-res.fun - n * np.sum(np.log(scale))),
+            "n_iter": int(res.nit)}
+
+
+def _check_positive(value, name, auto=True):
+    if auto and isinstance(value, str) and value == "auto":
+        return
+    if not (isinstance(value, numbers.Real) and not isinstance(value, bool)
+            and np.isfinite(value) and value > 0):
+        raise ValueError(f"{_NAME}: {name} must be a positive number{' or auto' * auto}, got "
+                         f"{value!r}.")
+
+
+def _check_int(value, name, low):
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < low:
+        raise ValueError(f"{_NAME}: {name} must be an integer >= {low}, got {value!r}.")
+
+
+class ExposureKrigingRegressor(_NoiseAwareInterpolator):
+    """Kriging over several exposures: a static pattern plus each exposure's own pattern.
+
+    ``X`` holds the positions and an integer exposure column. The covariance of targets
+    ``t`` at stars ``i`` and ``j`` is ``static_sill_[t] R(h / range_) + [same exposure]
+    atmosphere_sill_[t] R(h / atmosphere_range_)`` plus each star's measurement noise
+    (``noise_var``), with ``h`` the distance between the stars' positions scaled to the unit
+    square and ``R`` the variogram's correlation. The ranges and sills are fitted by maximum
+    likelihood on the stars of all exposures, so the model learns how much of the pattern
+    every exposure shares: with no static part it predicts each exposure from its own stars
+    (per-exposure Kriging); with no atmospheric part, from all stars as one static field.
+
+    Predictions are the best linear unbiased predictor of the noise-free value at
+    ``(position, exposure)``, for exposures seen in ``fit``.
+
+    Parameters
+    ----------
+    variogram : {"exponential", "spherical", "gaussian"}, default="exponential"
+        Correlation of both parts.
+    range : float or "auto", default="auto"
+        Range of the static part, in units of the unit square the positions are scaled to.
+    atmosphere_range : float or "auto", default="auto"
+        Range of the atmospheric part.
+    exposure_column : int, default=-1
+        Column of X holding the integer exposure index.
+    max_ml_samples : int, default=300
+        Maximum likelihood uses at most this many stars: every exposure's when there are few,
+        otherwise the same number from each of at most ``max_ml_samples // 40`` exposures
+        drawn at random (with ``random_state``), so that pairs of stars within and across
+        exposures both inform the split.
+    max_exact_samples : int, default=1000
+        Up to this many stars the Kriging system is solved exactly; beyond, the static part
+        between exposures goes through ``n_inducing`` inducing points (see Notes).
+    n_inducing : int, default=400
+        Inducing points on a square grid over the unit square (rounded to a square number).
+    random_state : int, RandomState instance or None, default=0
+        Seed of the maximum-likelihood subset.
+
+    Attributes
+    ----------
+    range_, atmosphere_range_ : float
+        Fitted ranges (unit-square units).
+    static_sill_, atmosphere_sill_ : ndarray of shape (n_targets,)
+        Fitted sills of the two parts.
+    mean_ : ndarray of shape (n_targets,)
+        Generalised-least-squares mean.
+    exposures_ : ndarray of int
+        Exposures seen in fit.
+    exact_ : bool
+        Whether the Kriging system was solved exactly.
+    log_likelihood_ : float or None
+        Maximum log-likelihood (on the maximum-likelihood subset); None with fixed ranges.
+    noise_var_ : ndarray of shape (n_stars, n_targets) or None
+    n_features_in_ : int
+
+    Notes
+    -----
+    Above ``max_exact_samples`` the prior covariance is replaced by one that is exact within
+    each exposure and goes through inducing points ``u`` between exposures:
+    ``K ~ Q + blockdiag_e(K_ee - Q_ee + A_ee + N_e)`` with ``Q = p K_xu K_uu^-1 K_ux`` (the
+    partially independent training conditional, Quinonero-Candela & Rasmussen 2005, with
+    exposures as blocks); ``K^-1`` follows from Woodbury's identity with one factorisation per
+    exposure block and one of size ``m = n_inducing``. Predictions use the same covariance:
+    exact towards the query's own exposure, through the inducing points towards the others.
+
+    The closed-form leave-one-out of :meth:`loo_predict` is Dubrule's (1983) with the
+    generalised-least-squares mean, in both modes.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from sklearn_psf.interpolate import ExposureKrigingRegressor
+    >>> rng = np.random.default_rng(0)
+    >>> xy = rng.uniform(0, 1000, (120, 2))
+    >>> exposure = np.repeat([0, 1, 2], 40)
+    >>> static = np.sin(xy[:, 0] / 300.0)               # shared by every exposure
+    >>> atmosphere = np.array([0.3, -0.2, 0.1])[exposure] * np.cos(xy[:, 1] / 200.0)
+    >>> X = np.column_stack([xy, exposure])
+    >>> reg = ExposureKrigingRegressor().fit(X, static + atmosphere,
+    ...                                      noise_var=np.full(120, 1e-4))
+    >>> bool(reg.static_sill_[0] > reg.atmosphere_sill_[0])
+    True
+    >>> reg.predict([[500.0, 500.0, 1]]).shape
+    (1,)
+    """
+
+    def __init__(self, variogram="exponential", range="auto", atmosphere_range="auto",
+                 exposure_column=-1, max_ml_samples=300, max_exact_samples=1000,
+                 n_inducing=400, random_state=0):
+        self.variogram = variogram
+        self.range = range
+        self.atmosphere_range = atmosphere_range
+        self.exposure_column = exposure_column
+        self.max_ml_samples = max_ml_samples
+        self.max_exact_samples = max_exact_samples
+        self.n_inducing = n_inducing
+        self.random_state = random_state
+
+    # ------------------------------------------------------------------ input
+    def _split(self, X, reset):
+        if X.shape[1] < 2:
+            raise ValueError(f"{_NAME}: X must hold positions and an exposure column, got "
+                             f"n_features = {X.shape[1]}.")
+        col = self.exposure_column % X.shape[1]
+        exposure = X[:, col]
+        if not np.array_equal(exposure, np.round(exposure)):
+            raise ValueError(f"{_NAME}: column {col} of X (exposure_column) must hold integer "
+                             "exposure indices.")
+        exposure = exposure.astype(np.int64)
+        pos = np.delete(X, col, axis=1)
+        if not reset:
+            unknown = np.setdiff1d(exposure, self.exposures_)
+            if len(unknown):
+                raise ValueError(f"{_NAME}: exposures {unknown.tolist()} were not in the fit: "
+                                 "a model predicts only the exposures its stars came from.")
+        return (pos - self._lo) / self._span, exposure
+
+    def _check_params(self):
+        if self.variogram not in _CORRELATIONS:
+            raise ValueError(f"{_NAME}: variogram must be one of {sorted(_CORRELATIONS)}, got "
+                             f"{self.variogram!r}.")
+        _check_positive(self.range, "range")
+        _check_positive(self.atmosphere_range, "atmosphere_range")
+        _check_int(self.max_ml_samples, "max_ml_samples", _MIN_ML_STARS)
+        _check_int(self.max_exact_samples, "max_exact_samples", 0)
+        _check_int(self.n_inducing, "n_inducing", 4)
+
+    # ------------------------------------------------------------------ fit
+    def _fit(self, X, Y, noise):
+        self._check_params()
+        if X.shape[1] < 2:
+            raise ValueError(f"{_NAME}: X must hold positions and an exposure column, got "
+                             f"n_features = {X.shape[1]}.")
+        col = self.exposure_column % X.shape[1]
+        pos = np.delete(X, col, axis=1)
+        self._lo = pos.min(axis=0)
+        span = pos.max(axis=0) - self._lo
+        self._span = np.where(span > 0, span, 1.0)
+        U, exposure = self._split(X, reset=True)
+        n, T = Y.shape
+        _check_n_samples(_NAME, n, 3, "")
+        self.exposures_ = np.unique(exposure)
+        self._fit_hyperparameters(U, exposure, Y, noise)
+        self.noise_var_ = noise
+        self._U_fit, self._e_fit, self._y_fit = U, exposure, Y
+        self.exact_ = n <= self.max_exact_samples
+        (self._fit_exact if self.exact_ else self._fit_inducing)(U, exposure, Y, noise)
+        return self
+
+    def _ml_subset(self, exposure):
+        n = len(exposure)
+        if n <= self.max_ml_samples:
+            return np.arange(n)
+        rng = check_random_state(self.random_state)
+        groups = [np.flatnonzero(exposure == e) for e in self.exposures_]
+        n_exp = min(len(groups), max(2, self.max_ml_samples // 40))
+        chosen = np.sort(rng.choice(len(groups), n_exp, replace=False))
+        pool = np.concatenate([groups[g] for g in chosen])
+        if len(pool) <= self.max_ml_samples:
+            return pool
+        per = self.max_ml_samples // n_exp
+        return np.sort(np.concatenate([rng.choice(groups[g], min(per, len(groups[g])),
+                                                  replace=False) for g in chosen]))
+
+    def _fit_hyperparameters(self, U, exposure, Y, noise):
+        auto = [isinstance(v, str) for v in (self.range, self.atmosphere_range)]
+        self.log_likelihood_ = None
+        if not any(auto):
+            # fixed ranges: the sills split the targets' variance equally (no likelihood)
+            self.range_, self.atmosphere_range_ = float(self.range), float(self.atmosphere_range)
+            self.static_sill_ = self.atmosphere_sill_ = Y.var(axis=0) / 2.0
+            return
+        sub = self._ml_subset(exposure)
+        _check_n_samples(_NAME, len(sub), _MIN_ML_STARS,
+                         "to fit the hyperparameters by maximum likelihood")
+        fit = fit_joint_hyperparameters(
+            U[sub], exposure[sub], Y[sub], None if noise is None else noise[sub],
+            self.variogram, range_=self.range, atmosphere_range=self.atmosphere_range)
+        self.range_, self.atmosphere_range_ = fit["range"], fit["atmosphere_range"]
+        self.static_sill_, self.atmosphere_sill_ = fit["static_sill"], fit["atmosphere_sill"]
+        self.log_likelihood_ = fit["log_likelihood"]
+
+    def _diagonal(self, noise, t, n):
+        p, q = self.static_sill_[t], self.atmosphere_sill_[t]
+        return (0.0 if noise is None else noise[:, t]) + _JITTER * (p + q) * np.ones(n)
+
+    def _fit_exact(self, U, exposure, Y, noise):
+        n, T = Y.shape
+        D = cdist(U, U)
+        Rs = _correlation(self.variogram, D, self.range_)
+        Ra = _correlation(self.variogram, D, self.atmosphere_range_)
+        Ra *= exposure[:, None] == exposure[None, :]
+        del D
+        self.mean_, self.dual_coef_ = np.empty(T), np.empty((n, T))
+        self._loo_pdiag = np.empty((n, T))
+        ones = np.ones(n)
+        for t in range(T):
+            K = self.static_sill_[t] * Rs + self.atmosphere_sill_[t] * Ra
+            K[np.diag_indices(n)] += self._diagonal(noise, t, n)
+            Ki, _ = _cho_inverse(np.asfortranarray(K))
+            if Ki is None:
+                raise ValueError(f"{_NAME}: the Kriging covariance matrix is not positive "
+                                 "definite (stars at the same position in one exposure "
+                                 "without noise?). Merge such stars or give noise_var.")
+            self._set_target(t, Ki @ ones, Ki @ Y[:, t], Y[:, t], np.diag(Ki))
+
+    def _set_target(self, t, k1, ky, y, diag_inv):
+        """Mean, dual coefficients and leave-one-out diagonal of target t from ``K^-1 1``,
+        ``K^-1 y`` and ``diag(K^-1)``."""
+        s = k1.sum()
+        self.mean_[t] = (k1 @ y) / s
+        self.dual_coef_[:, t] = ky - self.mean_[t] * k1  # K^-1 (y - mu)
+        self._loo_pdiag[:, t] = diag_inv - k1 * k1 / s
+
+    # -- inducing points (PITC over exposure blocks)
+    def _inducing_grid(self, d):
+        g = max(2, int(round(self.n_inducing ** (1.0 / d))))
+        axes = [np.linspace(0.0, 1.0, g)] * d
+        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, d)
+
+    def _fit_inducing(self, U, exposure, Y, noise):
+        n, T = Y.shape
+        Z = self._inducing_grid(U.shape[1])
+        m = len(Z)
+        Kuu = _correlation(self.variogram, cdist(Z, Z), self.range_)
+        Kuu[np.diag_indices(m)] += 1e-8
+        Lu = cho_factor(Kuu, lower=True)[0]
+        V = solve_triangular(Lu, _correlation(self.variogram, cdist(Z, U), self.range_),
+                             lower=True, check_finite=False)  # (m, n): Q = p V^T V
+        blocks = [np.flatnonzero(exposure == e) for e in self.exposures_]
+        # per exposure: static minus its inducing-point part, and the atmosphere (unit sills)
+        parts = []
+        for idx in blocks:
+            D = cdist(U[idx], U[idx])
+            Vb = V[:, idx]
+            parts.append((_correlation(self.variogram, D.copy(), self.range_) - Vb.T @ Vb,
+                          _correlation(self.variogram, D, self.atmosphere_range_)))
+        self.mean_, self.dual_coef_ = np.empty(T), np.empty((n, T))
+        self._loo_pdiag = np.empty((n, T))
+        ones = np.ones(n)
+        for t in range(T):
+            p, q = self.static_sill_[t], self.atmosphere_sill_[t]
+            diag = self._diagonal(noise, t, n)
+            rhs = np.column_stack([ones, Y[:, t]])
+            lam_rhs, lam_V = np.empty((n, 2)), np.empty((n, m))
+            lam_diag = np.empty(n)
+            for idx, (S, A) in zip(blocks, parts):
+                B = p * S + q * A
+                B[np.diag_indices(len(idx))] += diag[idx]
+                try:
+                    Lb = cho_factor(B, lower=True, overwrite_a=True, check_finite=False)
+                except LinAlgError:
+                    raise ValueError(f"{_NAME}: an exposure's covariance block is not positive "
+                                     "definite (stars at the same position without noise?). "
+                                     "Merge such stars or give noise_var.") from None
+                lam_rhs[idx] = cho_solve(Lb, rhs[idx], check_finite=False)
+                lam_V[idx] = cho_solve(Lb, V[:, idx].T, check_finite=False)
+                Linv = lapack.dtrtri(Lb[0], lower=1)[0]
+                lam_diag[idx] = np.einsum("ij,ij->j", np.tril(Linv), np.tril(Linv))
+            # Woodbury: K^-1 = L^-1 - L^-1 V^T M^-1 V L^-1, M = I / p + V L^-1 V^T
+            M = V @ lam_V
+            M[np.diag_indices(m)] += 1.0 / p
+            Lm = cho_factor(M, lower=True, overwrite_a=True, check_finite=False)
+            sol = lam_rhs - lam_V @ cho_solve(Lm, V @ lam_rhs, check_finite=False)
+            W = solve_triangular(Lm[0], lam_V.T, lower=True, check_finite=False)  # (m, n)
+            diag_inv = lam_diag - np.einsum("ij,ij->j", W, W)
+            self._set_target(t, sol[:, 0], sol[:, 1], Y[:, t], diag_inv)
+        self._Z, self._Lu, self._V = Z, Lu, V
+        # the static part through the inducing points: Q(x, X) p alpha = V_x^T (V p alpha)
+        self._static_u = V @ (self.dual_coef_ * self.static_sill_)  # (m, T)
+
+    # ------------------------------------------------------------------ predict
+    def _predict(self, X):
+        U, exposure = self._split(X, reset=False)
+        out = np.empty((len(U), self.dual_coef_.shape[1]))
+        if self.exact_:
+            for sl in _query_chunks(len(U), len(self._U_fit)):
+                out[sl] = self._predict_exact(U[sl], exposure[sl])
+            return out
+        for e in np.unique(exposure):
+            rows = np.flatnonzero(exposure == e)
+            stars = np.flatnonzero(self._e_fit == e)
+            for sl in _query_chunks(len(rows), max(len(stars), len(self._Z))):
+                out[rows[sl]] = self._predict_inducing(U[rows[sl]], stars)
+        return out
+
+    def _predict_exact(self, U, exposure):
+        D = cdist(U, self._U_fit)
+        same = exposure[:, None] == self._e_fit[None, :]
+        Ra = _correlation(self.variogram, D.copy(), self.atmosphere_range_) * same
+        Rs = _correlation(self.variogram, D, self.range_)
+        return (self.mean_ + Ra @ (self.dual_coef_ * self.atmosphere_sill_)
+                + Rs @ (self.dual_coef_ * self.static_sill_))
+
+    def _predict_inducing(self, U, stars):
+        """Queries of one exposure: exact towards its own stars, inducing points beyond."""
+        D = cdist(U, self._U_fit[stars])
+        alpha = self.dual_coef_[stars]
+        Vq = solve_triangular(self._Lu, _correlation(self.variogram, cdist(self._Z, U),
+                                                     self.range_),
+                              lower=True, check_finite=False)  # (m, q)
+        Rs = _correlation(self.variogram, D.copy(), self.range_) - Vq.T @ self._V[:, stars]
+        Ra = _correlation(self.variogram, D, self.atmosphere_range_)
+        return (self.mean_ + Vq.T @ self._static_u + Rs @ (alpha * self.static_sill_)
+                + Ra @ (alpha * self.atmosphere_sill_))
+
+    def loo_predict(self, return_std=False):
+        """Leave-one-out predictions at the stars, in closed form.
+
+        Parameters
+        ----------
+        return_std : bool, default=False
+            Also return the standard deviation of ``y_i - prediction`` (the Kriging variance
+            at the star plus its own noise).
+
+        Returns
+        -------
+        y_loo : ndarray of shape (n_stars,) or (n_stars, n_targets)
+        y_std : ndarray, same shape (only with ``return_std=True``)
+        """
+        pred = self._format_output(self._y_fit - self.dual_coef_ / self._loo_pdiag)
+        if not return_std:
+            return pred
+        return pred, self._format_output(np.sqrt(1.0 / self._loo_pdiag))
