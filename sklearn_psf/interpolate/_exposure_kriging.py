@@ -302,6 +302,7 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
     # ------------------------------------------------------------------ fit
     def _fit(self, X, Y, noise):
         self._check_params()
+        _check_n_samples(_NAME, X.shape[0], 3, "")
         if X.shape[1] < 2:
             raise ValueError(f"{_NAME}: X must hold positions and an exposure column, got "
                              f"n_features = {X.shape[1]}.")
@@ -312,7 +313,6 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
         self._span = np.where(span > 0, span, 1.0)
         U, exposure = self._split(X, reset=True)
         n, T = Y.shape
-        _check_n_samples(_NAME, n, 3, "")
         self.exposures_ = np.unique(exposure)
         self._fit_hyperparameters(U, exposure, Y, noise)
         self.noise_var_ = noise
