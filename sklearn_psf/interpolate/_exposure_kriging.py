@@ -63,6 +63,12 @@ def _cho_inverse(K):
     return Ki, logdet
 
 
+def _inverse_diagonal(L):
+    """diag(K^-1) from the lower Cholesky factor L of K (the upper triangle is ignored)."""
+    Linv = np.tril(lapack.dtrtri(L, lower=1)[0])
+    return np.einsum("ij,ij->j", Linv, Linv)
+
+
 class _JointLikelihood:
     """Negative log-likelihood of the stars (targets summed) and its gradient in
     ``theta = (log a_s, log a_a, log p_1..p_T, log q_1..q_T)``."""
@@ -130,7 +136,7 @@ def fit_joint_hyperparameters(U, exposure, Y, noise, variogram, *, range_, atmos
     Ns = None if noise is None else noise / scale**2
     fun = _JointLikelihood(U, exposure, Ys, Ns, variogram)
     mean_noise = 0.0 if Ns is None else Ns.mean(axis=0)
-    p0 = np.log(np.clip(1.0 - mean_noise, 0.1, 1.0) / 2.0)
+    p0 = np.log(np.clip(1.0 - mean_noise, 0.1, 1.0) / 2.0) * np.ones(T)
     fixed = {0: range_, 1: atmosphere_range}
     bounds = [tuple(np.log(_RANGE_BOUNDS))] * 2 + [tuple(np.log(_P_BOUNDS))] * (2 * T)
     for j, value in fixed.items():
@@ -192,7 +198,8 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
     variogram : {"exponential", "spherical", "gaussian"}, default="exponential"
         Correlation of both parts.
     range : float or "auto", default="auto"
-        Range of the static part, in units of the unit square the positions are scaled to.
+        Range of the static part, in units of the unit square the positions are scaled to;
+        "auto": maximum likelihood. The sills are always fitted by maximum likelihood.
     atmosphere_range : float or "auto", default="auto"
         Range of the atmospheric part.
     exposure_column : int, default=-1
@@ -202,10 +209,10 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
         otherwise the same number from each of at most ``max_ml_samples // 40`` exposures
         drawn at random (with ``random_state``), so that pairs of stars within and across
         exposures both inform the split.
-    max_exact_samples : int, default=1000
+    max_exact_samples : int, default=2000
         Up to this many stars the Kriging system is solved exactly; beyond, the static part
         between exposures goes through ``n_inducing`` inducing points (see Notes).
-    n_inducing : int, default=400
+    n_inducing : int, default=900
         Inducing points on a square grid over the unit square (rounded to a square number).
     random_state : int, RandomState instance or None, default=0
         Seed of the maximum-likelihood subset.
@@ -222,8 +229,8 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
         Exposures seen in fit.
     exact_ : bool
         Whether the Kriging system was solved exactly.
-    log_likelihood_ : float or None
-        Maximum log-likelihood (on the maximum-likelihood subset); None with fixed ranges.
+    log_likelihood_ : float
+        Maximum log-likelihood (on the maximum-likelihood subset).
     noise_var_ : ndarray of shape (n_stars, n_targets) or None
     n_features_in_ : int
 
@@ -259,8 +266,8 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
     """
 
     def __init__(self, variogram="exponential", range="auto", atmosphere_range="auto",
-                 exposure_column=-1, max_ml_samples=300, max_exact_samples=1000,
-                 n_inducing=400, random_state=0):
+                 exposure_column=-1, max_ml_samples=300, max_exact_samples=2000,
+                 n_inducing=900, random_state=0):
         self.variogram = variogram
         self.range = range
         self.atmosphere_range = atmosphere_range
@@ -337,16 +344,9 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
                                                   replace=False) for g in chosen]))
 
     def _fit_hyperparameters(self, U, exposure, Y, noise):
-        auto = [isinstance(v, str) for v in (self.range, self.atmosphere_range)]
-        self.log_likelihood_ = None
-        if not any(auto):
-            # fixed ranges: the sills split the targets' variance equally (no likelihood)
-            self.range_, self.atmosphere_range_ = float(self.range), float(self.atmosphere_range)
-            self.static_sill_ = self.atmosphere_sill_ = Y.var(axis=0) / 2.0
-            return
         sub = self._ml_subset(exposure)
         _check_n_samples(_NAME, len(sub), _MIN_ML_STARS,
-                         "to fit the hyperparameters by maximum likelihood")
+                         "to fit the sills by maximum likelihood")
         fit = fit_joint_hyperparameters(
             U[sub], exposure[sub], Y[sub], None if noise is None else noise[sub],
             self.variogram, range_=self.range, atmosphere_range=self.atmosphere_range)
@@ -367,16 +367,18 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
         del D
         self.mean_, self.dual_coef_ = np.empty(T), np.empty((n, T))
         self._loo_pdiag = np.empty((n, T))
-        ones = np.ones(n)
+        rhs = np.column_stack([np.ones(n), Y])
         for t in range(T):
             K = self.static_sill_[t] * Rs + self.atmosphere_sill_[t] * Ra
             K[np.diag_indices(n)] += self._diagonal(noise, t, n)
-            Ki, _ = _cho_inverse(np.asfortranarray(K))
-            if Ki is None:
+            try:
+                L = cho_factor(K, lower=True, overwrite_a=True, check_finite=False)
+            except LinAlgError:
                 raise ValueError(f"{_NAME}: the Kriging covariance matrix is not positive "
                                  "definite (stars at the same position in one exposure "
-                                 "without noise?). Merge such stars or give noise_var.")
-            self._set_target(t, Ki @ ones, Ki @ Y[:, t], Y[:, t], np.diag(Ki))
+                                 "without noise?). Merge such stars or give noise_var.") from None
+            sol = cho_solve(L, rhs[:, [0, t + 1]], check_finite=False)
+            self._set_target(t, sol[:, 0], sol[:, 1], Y[:, t], _inverse_diagonal(L[0]))
 
     def _set_target(self, t, k1, ky, y, diag_inv):
         """Mean, dual coefficients and leave-one-out diagonal of target t from ``K^-1 1``,
@@ -429,8 +431,7 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
                                      "Merge such stars or give noise_var.") from None
                 lam_rhs[idx] = cho_solve(Lb, rhs[idx], check_finite=False)
                 lam_V[idx] = cho_solve(Lb, V[:, idx].T, check_finite=False)
-                Linv = lapack.dtrtri(Lb[0], lower=1)[0]
-                lam_diag[idx] = np.einsum("ij,ij->j", np.tril(Linv), np.tril(Linv))
+                lam_diag[idx] = _inverse_diagonal(Lb[0])
             # Woodbury: K^-1 = L^-1 - L^-1 V^T M^-1 V L^-1, M = I / p + V L^-1 V^T
             M = V @ lam_V
             M[np.diag_indices(m)] += 1.0 / p
