@@ -63,6 +63,48 @@ def _cho_inverse(K):
     return Ki, logdet
 
 
+def split_exposure_column(X, column, owner=""):
+    """(positions, integer exposure indices) of X whose column ``column`` holds the exposure.
+
+    Parameters
+    ----------
+    X : ndarray of shape (n, n_features)
+    column : int
+        Column of the exposure index (negative counts from the end).
+    owner : str, default=""
+        Prefix of the error messages.
+
+    Returns
+    -------
+    positions : ndarray of shape (n, n_features - 1)
+    exposure : ndarray of shape (n,), int
+
+    Raises
+    ------
+    ValueError
+        With fewer than 2 columns, or when the exposure column is not integer.
+    """
+    if X.shape[1] < 2:
+        raise ValueError(f"{owner}X must hold positions and an exposure column, got "
+                         f"n_features = {X.shape[1]}.")
+    col = column % X.shape[1]
+    exposure = X[:, col]
+    if not np.array_equal(exposure, np.round(exposure)):
+        raise ValueError(f"{owner}column {col} of X (exposure_column) must hold integer "
+                         "exposure indices.")
+    return np.delete(X, col, axis=1), exposure.astype(np.int64)
+
+
+def _factor(K):
+    """Lower Cholesky factor of K (overwritten), or a ValueError saying what to do."""
+    try:
+        return cho_factor(K, lower=True, overwrite_a=True, check_finite=False)
+    except LinAlgError:
+        raise ValueError(f"{_NAME}: the Kriging covariance matrix is not positive definite "
+                         "(stars at the same position in one exposure without noise?). Merge "
+                         "such stars or give noise_var.") from None
+
+
 def _inverse_diagonal(L):
     """diag(K^-1) from the lower Cholesky factor L of K (the upper triangle is ignored)."""
     Linv = np.tril(lapack.dtrtri(L, lower=1)[0])
@@ -279,16 +321,7 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
 
     # ------------------------------------------------------------------ input
     def _split(self, X, reset):
-        if X.shape[1] < 2:
-            raise ValueError(f"{_NAME}: X must hold positions and an exposure column, got "
-                             f"n_features = {X.shape[1]}.")
-        col = self.exposure_column % X.shape[1]
-        exposure = X[:, col]
-        if not np.array_equal(exposure, np.round(exposure)):
-            raise ValueError(f"{_NAME}: column {col} of X (exposure_column) must hold integer "
-                             "exposure indices.")
-        exposure = exposure.astype(np.int64)
-        pos = np.delete(X, col, axis=1)
+        pos, exposure = split_exposure_column(X, self.exposure_column, f"{_NAME}: ")
         if not reset:
             unknown = np.setdiff1d(exposure, self.exposures_)
             if len(unknown):
@@ -310,11 +343,7 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
     def _fit(self, X, Y, noise):
         self._check_params()
         _check_n_samples(_NAME, X.shape[0], 3, "")
-        if X.shape[1] < 2:
-            raise ValueError(f"{_NAME}: X must hold positions and an exposure column, got "
-                             f"n_features = {X.shape[1]}.")
-        col = self.exposure_column % X.shape[1]
-        pos = np.delete(X, col, axis=1)
+        pos, _ = split_exposure_column(X, self.exposure_column, f"{_NAME}: ")
         self._lo = pos.min(axis=0)
         span = pos.max(axis=0) - self._lo
         self._span = np.where(span > 0, span, 1.0)
@@ -371,12 +400,7 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
         for t in range(T):
             K = self.static_sill_[t] * Rs + self.atmosphere_sill_[t] * Ra
             K[np.diag_indices(n)] += self._diagonal(noise, t, n)
-            try:
-                L = cho_factor(K, lower=True, overwrite_a=True, check_finite=False)
-            except LinAlgError:
-                raise ValueError(f"{_NAME}: the Kriging covariance matrix is not positive "
-                                 "definite (stars at the same position in one exposure "
-                                 "without noise?). Merge such stars or give noise_var.") from None
+            L = _factor(K)
             sol = cho_solve(L, rhs[:, [0, t + 1]], check_finite=False)
             self._set_target(t, sol[:, 0], sol[:, 1], Y[:, t], _inverse_diagonal(L[0]))
 
@@ -423,12 +447,7 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
             for idx, (S, A) in zip(blocks, parts):
                 B = p * S + q * A
                 B[np.diag_indices(len(idx))] += diag[idx]
-                try:
-                    Lb = cho_factor(B, lower=True, overwrite_a=True, check_finite=False)
-                except LinAlgError:
-                    raise ValueError(f"{_NAME}: an exposure's covariance block is not positive "
-                                     "definite (stars at the same position without noise?). "
-                                     "Merge such stars or give noise_var.") from None
+                Lb = _factor(B)
                 lam_rhs[idx] = cho_solve(Lb, rhs[idx], check_finite=False)
                 lam_V[idx] = cho_solve(Lb, V[:, idx].T, check_finite=False)
                 lam_diag[idx] = _inverse_diagonal(Lb[0])

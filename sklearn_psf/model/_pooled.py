@@ -17,6 +17,7 @@ from sklearn.metrics import r2_score
 from sklearn.utils.validation import check_is_fitted, validate_data
 
 from ..interpolate import ExposureKrigingRegressor
+from ..interpolate._exposure_kriging import split_exposure_column
 from ..preprocessing import StampNormalizer
 from ._file import read_exposure_model, save_exposure_model
 from ._psf_model import PSFModel
@@ -42,18 +43,11 @@ class _ExposureModel(RegressorMixin, BaseEstimator):
         else:
             check_is_fitted(self)
             X = validate_data(self, X, dtype=np.float64, reset=False)
-        if X.shape[1] < 2:
-            raise ValueError("X must hold positions and an exposure column, got "
-                             f"n_features = {X.shape[1]}.")
         if reset and X.shape[0] < 3:
             raise ValueError(f"{type(self).__name__} needs at least 3 stars, got "
                              f"n_samples = {X.shape[0]}.")
-        col = self.exposure_column % X.shape[1]
-        exposure = X[:, col]
-        if not np.array_equal(exposure, np.round(exposure)):
-            raise ValueError(f"Column {col} of X (exposure_column) must hold integer exposure "
-                             "indices.")
-        return np.delete(X, col, axis=1), exposure.astype(np.int64), y
+        pos, exposure = split_exposure_column(X, self.exposure_column)
+        return pos, exposure, y
 
     def _groups(self, exposure, reset=False):
         if not reset:
