@@ -26,7 +26,7 @@ import numbers
 import warnings
 
 import numpy as np
-from scipy.linalg import LinAlgError, cho_factor, cho_solve, lapack, solve_triangular
+from scipy.linalg import LinAlgError, blas, cho_factor, cho_solve, lapack, solve_triangular
 from scipy.optimize import minimize
 from scipy.spatial.distance import cdist
 from sklearn.utils import check_random_state
@@ -274,6 +274,8 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
     log_likelihood_ : float
         Maximum log-likelihood (on the maximum-likelihood subset).
     noise_var_ : ndarray of shape (n_stars, n_targets) or None
+    X_fit_ : ndarray of shape (n_stars, n_features)
+        The stars given to fit (positions and exposure), rows of :meth:`loo_predict`.
     n_features_in_ : int
 
     Notes
@@ -352,6 +354,7 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
         self.exposures_ = np.unique(exposure)
         self._fit_hyperparameters(U, exposure, Y, noise)
         self.noise_var_ = noise
+        self.X_fit_ = X
         self._U_fit, self._e_fit, self._y_fit = U, exposure, Y
         self.exact_ = n <= self.max_exact_samples
         (self._fit_exact if self.exact_ else self._fit_inducing)(U, exposure, Y, noise)
@@ -437,27 +440,36 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
                           _correlation(self.variogram, D, self.atmosphere_range_)))
         self.mean_, self.dual_coef_ = np.empty(T), np.empty((n, T))
         self._loo_pdiag = np.empty((n, T))
-        ones = np.ones(n)
+        VT = np.asfortranarray(V.T)  # (n, m): rows of each block contiguous per column
+        G = np.empty((n, m), order="F")  # L_e^-1 V_e^T, block by block
         for t in range(T):
             p, q = self.static_sill_[t], self.atmosphere_sill_[t]
             diag = self._diagonal(noise, t, n)
-            rhs = np.column_stack([ones, Y[:, t]])
-            lam_rhs, lam_V = np.empty((n, 2)), np.empty((n, m))
-            lam_diag = np.empty(n)
+            rhs = np.column_stack([np.ones(n), Y[:, t]])
+            r, lam_diag, factors = np.empty((n, 2)), np.empty(n), []
             for idx, (S, A) in zip(blocks, parts):
                 B = p * S + q * A
                 B[np.diag_indices(len(idx))] += diag[idx]
-                Lb = _factor(B)
-                lam_rhs[idx] = cho_solve(Lb, rhs[idx], check_finite=False)
-                lam_V[idx] = cho_solve(Lb, V[:, idx].T, check_finite=False)
-                lam_diag[idx] = _inverse_diagonal(Lb[0])
-            # Woodbury: K^-1 = L^-1 - L^-1 V^T M^-1 V L^-1, M = I / p + V L^-1 V^T
-            M = V @ lam_V
+                Lb = _factor(B)[0]
+                factors.append(Lb)
+                G[idx] = solve_triangular(Lb, VT[idx], lower=True, check_finite=False)
+                r[idx] = solve_triangular(Lb, rhs[idx], lower=True, check_finite=False)
+                lam_diag[idx] = _inverse_diagonal(Lb)
+            M = blas.dsyrk(1.0, G, trans=1, lower=1)
+            # Woodbury: K^-1 = L^-T (I - G M^-1 G^T) L^-1 with L = blockdiag(L_e),
+            # G = L^-1 V^T and M = I / p + G^T G (lower triangle)
             M[np.diag_indices(m)] += 1.0 / p
-            Lm = cho_factor(M, lower=True, overwrite_a=True, check_finite=False)
-            sol = lam_rhs - lam_V @ cho_solve(Lm, V @ lam_rhs, check_finite=False)
-            W = solve_triangular(Lm[0], lam_V.T, lower=True, check_finite=False)  # (m, n)
-            diag_inv = lam_diag - np.einsum("ij,ij->j", W, W)
+            Lm = _factor(M)
+            z = r - G @ cho_solve(Lm, G.T @ r, check_finite=False)
+            sol = np.empty_like(z)
+            for idx, Lb in zip(blocks, factors):
+                sol[idx] = solve_triangular(Lb, z[idx], lower=True, trans=1, check_finite=False)
+                G[idx] = solve_triangular(Lb, G[idx], lower=True, trans=1, check_finite=False)
+            # leave-one-out diagonal: diag(K^-1) = diag(L^-T L^-1) - |Lm^-1 (L^-T G)_i|^2, in
+            # single precision (a variance for the outlier test, not a solution)
+            W = solve_triangular(Lm[0].astype(np.float32), G.T.astype(np.float32), lower=True,
+                                 check_finite=False)
+            diag_inv = lam_diag - np.einsum("ij,ij->j", W, W, dtype=np.float64)
             self._set_target(t, sol[:, 0], sol[:, 1], Y[:, t], diag_inv)
         self._Z, self._Lu, self._V = Z, Lu, V
         # the static part through the inducing points: Q(x, X) p alpha = V_x^T (V p alpha)
