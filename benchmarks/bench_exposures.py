@@ -28,7 +28,6 @@ import argparse
 import tempfile
 import time
 
-import numpy as np
 from threadpoolctl import threadpool_limits
 
 from sklearn_psf.study.exposures import regime_summary, run_exposure_study, write_exposure_report

@@ -10,7 +10,7 @@ from scipy.stats import multivariate_normal
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
 from sklearn_psf.interpolate import ExposureKrigingRegressor
-from sklearn_psf.interpolate._exposure_kriging import _JointLikelihood
+from sklearn_psf.interpolate._exposure_kriging_ml import _JointLikelihood
 
 
 def _stars(n_exp=4, per=30, seed=0):

@@ -1,4 +1,4 @@
-"""The multi-exposure study: regimes, pooled against per-exposure and the oracle, figure, verdict."""
+"""The multi-exposure study: regimes, pooled vs per-exposure and the oracle, figure, verdict."""
 
 import matplotlib
 

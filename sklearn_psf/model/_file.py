@@ -622,8 +622,8 @@ def read_exposure_model(path, model_class, psf_class):
     if kind != wanted:
         how = {None: "load_model", "pooled": "PooledPSFModel.load",
                "per-exposure": "PerExposurePSFModel.load"}.get(kind, "the matching class")
-        raise ValueError(f"{path!r} holds {'a single PSFModel' if kind is None else f'a {kind} model'}"
-                         f", not a {wanted} model: load it with {how}.")
+        held = "a single PSFModel" if kind is None else f"a {kind} model"
+        raise ValueError(f"{path!r} holds {held}, not a {wanted} model: load it with {how}.")
     try:
         exposures = np.asarray(content["EXPOSURES"]["exposure"], dtype=np.int64)
     except KeyError:

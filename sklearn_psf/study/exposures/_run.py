@@ -1,4 +1,4 @@
-"""The multi-exposure study: sigma_sys^2 of exposure-averaged PSF residuals against N, per regime."""
+"""The multi-exposure study: sigma_sys^2 of exposure-averaged PSF residuals against N by regime."""
 
 from __future__ import annotations
 
