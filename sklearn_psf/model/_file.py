@@ -68,10 +68,11 @@ __all__ = ["save_model", "read_model", "read_model_validation", "MODEL_FORMAT",
 
 #: Value of the ``SKPSFFMT`` keyword of a model file.
 MODEL_FORMAT = "SKPSF-MODEL"
-#: Newest format version written by this version of the package (``FORMAT`` keyword):
-#: PSFModel files are format 2, multi-exposure model files format 3.
-MODEL_FORMAT_VERSION = 3
-_PSF_MODEL_FORMAT = 2
+#: Format version of the PSF model files written by this version of the package (``FORMAT``).
+MODEL_FORMAT_VERSION = 2
+#: Format version of multi-exposure model files (``PooledPSFModel.save``,
+#: ``PerExposurePSFModel.save``): readers of PSF model files only refuse them.
+_EXPOSURE_MODEL_FORMAT = 3
 _ALLOWED_MODULES = ("sklearn", "sklearn_psf")
 
 
@@ -290,7 +291,7 @@ def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = F
     primary = fits.PrimaryHDU()
     h = primary.header
     h["SKPSFFMT"] = (MODEL_FORMAT, "sklearn_psf PSF model file")
-    h["FORMAT"] = (_PSF_MODEL_FORMAT, "format version of this model file")
+    h["FORMAT"] = (MODEL_FORMAT_VERSION, "format version of this model file")
     h["SKPSFVER"] = (__version__, "sklearn_psf version that wrote the file")
     cards, hdus = _model_hdus(model, summary=summary)
     for key, value in cards.items():
@@ -436,16 +437,16 @@ def _open_checked(path):
         ) from None
 
 
-def _check_format(header, path):
+def _check_format(header, path, newest=MODEL_FORMAT_VERSION):
     version = header.get("FORMAT")
     if not isinstance(version, (int, np.integer)) or isinstance(version, bool):
         raise ValueError(f"{path!r} has no integer FORMAT keyword: not a valid model file.")
     version = int(version)
-    if version > MODEL_FORMAT_VERSION:
+    if version > newest:
         raise ValueError(
             f"{path!r} is a model file of format version {version}, written by sklearn_psf "
             f"{header.get('SKPSFVER', '?')}; this sklearn_psf reads format versions up to "
-            f"{MODEL_FORMAT_VERSION}: upgrade sklearn_psf to read it."
+            f"{newest}: upgrade sklearn_psf to read it."
         )
     if version not in _READERS:
         raise ValueError(
@@ -534,10 +535,10 @@ def read_model(path, model_class):
     """
     path = os.fspath(path)
     header, content = _open_checked(path)
-    version = _check_format(header, path)
     if "MULTIEXP" in header:
         raise ValueError(f"{path!r} holds a multi-exposure model ({header['MULTIEXP']}): load "
                          "it with PooledPSFModel.load or PerExposurePSFModel.load.")
+    version = _check_format(header, path)
     return _READERS[version](header, content, path, model_class)
 
 
@@ -570,7 +571,7 @@ def save_exposure_model(model, path, *, overwrite: bool = False) -> None:
     primary = fits.PrimaryHDU()
     h = primary.header
     h["SKPSFFMT"] = (MODEL_FORMAT, "sklearn_psf PSF model file")
-    h["FORMAT"] = (MODEL_FORMAT_VERSION, "format version of this model file")
+    h["FORMAT"] = (_EXPOSURE_MODEL_FORMAT, "format version of this model file")
     h["SKPSFVER"] = (__version__, "sklearn_psf version that wrote the file")
     h["EXPCOL"] = (int(model.exposure_column), "column of X holding the exposure")
     h["NFEAT"] = (int(model.n_features_in_), "columns of X (positions and exposure)")
@@ -616,7 +617,7 @@ def read_exposure_model(path, model_class, psf_class):
     """
     path = os.fspath(path)
     header, content = _open_checked(path)
-    version = _check_format(header, path)
+    version = _check_format(header, path, newest=_EXPOSURE_MODEL_FORMAT)
     kind = header.get("MULTIEXP")
     wanted = "per-exposure" if "PerExposure" in model_class.__name__ else "pooled"
     if kind != wanted:
