@@ -28,9 +28,10 @@ STUDY_SCHEMES = ("polynomial", "delaunay", "kriging")
 REFERENCES = {"default": 5, "paper13": 13}
 # The smallest scale of the simulated PSF variation (arcsec) tried by the "scale" study.
 SCALE_STUDY = (4.0, 8.0, 16.0)
-# The "exposures" study under --quick (otherwise run_exposure_study's defaults: 6 simulations,
-# 1-20 exposures of 120 and 240 stars, about 10 minutes on 2 cores).
-EXPOSURES_QUICK = {"n_exposures": (1, 2, 5), "n_stars": (120,), "n_simulations": 2}
+# The "exposures" study under --quick: the three variance ratios at one dither (otherwise
+# run_exposure_study's defaults: 9 regimes x 3 simulations, 1-8 exposures of 120 and 240 stars).
+EXPOSURES_QUICK = {"n_exposures": (1, 2, 4), "n_stars": (120,), "n_simulations": 1,
+                   "dithers": (300.0,)}
 
 
 def _snr(text):

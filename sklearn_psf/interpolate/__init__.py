@@ -6,6 +6,7 @@ Each regressor maps star positions ``X`` (n_samples, n_features) to values ``y``
 
 from ._base import DuplicateStarsWarning, FewStarsWarning, RankDeficientWarning
 from ._delaunay import DelaunayRegressor
+from ._exposure_kriging import ExposureKrigingRegressor
 from ._kriging import KrigingRegressor
 from ._variogram import (
     exponential_variogram,
@@ -21,6 +22,7 @@ __all__ = [
     "ChebyshevRegressor",
     "DelaunayRegressor",
     "DuplicateStarsWarning",
+    "ExposureKrigingRegressor",
     "FewStarsWarning",
     "KrigingRegressor",
     "PolynomialRegressor",

@@ -25,6 +25,13 @@ HDU 0 (primary, no data)
 ``RHO1`` (binary table, optional)
     rho1 on the reserved stars (``theta``, ``xi``, ``sigma_xi``, ``npairs``).
 
+Format 3 (multi-exposure models, :func:`save_exposure_model`): the primary header adds
+``MULTIEXP`` (``'pooled'`` or ``'per-exposure'``), ``EXPCOL`` and ``NFEAT``; a pooled model is
+the HDUs above for its one model (``STARS`` with an ``exposure`` column) plus an ``EXPOSURES``
+table; a per-exposure model has an ``EXPOSURES`` table (``exposure``, ``ncomp``) and the HDUs
+of each exposure's model with names prefixed by ``E<i>_`` (``E0_SPEC``, ``E0_STARS``, ...).
+PSFModel files stay format 2.
+
 Format 2 adds the noise-aware basis (``SPEC`` entry ``basis_kind``: ``"stamppca"``, with
 ``stamppca`` holding its noise level and variances; the basis is then rebuilt as a fitted
 :class:`~sklearn_psf.preprocessing.StampPCA`).
@@ -61,8 +68,11 @@ __all__ = ["save_model", "read_model", "read_model_validation", "MODEL_FORMAT",
 
 #: Value of the ``SKPSFFMT`` keyword of a model file.
 MODEL_FORMAT = "SKPSF-MODEL"
-#: Format version written by this version of the package (``FORMAT`` keyword).
+#: Format version of the PSF model files written by this version of the package (``FORMAT``).
 MODEL_FORMAT_VERSION = 2
+#: Format version of multi-exposure model files (``PooledPSFModel.save``,
+#: ``PerExposurePSFModel.save``): readers of PSF model files only refuse them.
+_EXPOSURE_MODEL_FORMAT = 3
 _ALLOWED_MODULES = ("sklearn", "sklearn_psf")
 
 
@@ -278,8 +288,42 @@ def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = F
     >>> fits.getheader(path)["FORMAT"], [h.name for h in fits.open(path)][1:3]
     (2, ['SPEC', 'BASIS_MEAN'])
     """
-    from sklearn.utils.validation import check_is_fitted
+    primary = fits.PrimaryHDU()
+    h = primary.header
+    h["SKPSFFMT"] = (MODEL_FORMAT, "sklearn_psf PSF model file")
+    h["FORMAT"] = (MODEL_FORMAT_VERSION, "format version of this model file")
+    h["SKPSFVER"] = (__version__, "sklearn_psf version that wrote the file")
+    cards, hdus = _model_hdus(model, summary=summary)
+    for key, value in cards.items():
+        h[key] = value
+    _stamp_date(h)
+    hdus = [primary, *hdus]
+    if residuals is not None:
+        res = fits.table_to_hdu(Table(residuals))
+        res.name = "RESERVED"
+        hdus.append(res)
+    if summary is not None and isinstance(summary.get("rho1"), dict):
+        r = summary["rho1"]
+        rho = fits.table_to_hdu(Table({key: np.asarray(r[key], dtype=np.float64)
+                                       for key in ("theta", "xi", "sigma_xi", "npairs")
+                                       if key in r}))
+        rho.name = "RHO1"
+        hdus.append(rho)
+    write_fits_atomic(fits.HDUList(hdus), path, overwrite=overwrite)
 
+
+def _stamp_date(header):
+    header["DATE"] = (datetime.datetime.now(datetime.timezone.utc).strftime(
+        "%Y-%m-%dT%H:%M:%S"), "UTC time of writing")
+
+
+def _model_hdus(model, *, summary=None, prefix="", exposure=False):
+    """(primary-header cards, HDUs) describing one fitted PSFModel; HDU names get ``prefix``.
+
+    With ``exposure``, the model's positions end with an exposure column (stored as the STARS
+    table's ``exposure``).
+    """
+    from sklearn.utils.validation import check_is_fitted
 
     if not all(hasattr(model, name) for name in ("basis", "interpolator", "outliers")):
         raise TypeError(f"save_model needs a PSFModel, got {type(model).__name__}.")
@@ -287,9 +331,9 @@ def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = F
     if not hasattr(model, "coefficients_"):
         raise ValueError("This PSFModel was fitted by an older sklearn_psf without the stars' "
                          "coefficients (coefficients_): refit it, or use joblib.dump.")
-    if model.X_fit_.shape[1] != 2:
-        raise ValueError(f"Model files (format {MODEL_FORMAT_VERSION}) hold (x, y) star positions; "
-                         f"this model was fitted on {model.X_fit_.shape[1]} position columns: "
+    if model.X_fit_.shape[1] != 2 + bool(exposure):
+        raise ValueError(f"Model files hold (x, y) star positions{' and an exposure' * exposure}"
+                         f"; this model was fitted on {model.X_fit_.shape[1]} position columns: "
                          "use joblib.dump.")
     s, k = int(model.stamp_size_), int(model.n_components_)
     kind, normalizers, mean, comps, state = _describe_basis(model.basis_, s)
@@ -310,27 +354,19 @@ def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = F
         spec["validation_summary"] = summary
     rows = [(key, json.dumps(value, default=_json_default, allow_nan=True))
             for key, value in spec.items()]
-
-    primary = fits.PrimaryHDU()
-    h = primary.header
-    h["SKPSFFMT"] = (MODEL_FORMAT, "sklearn_psf PSF model file")
-    h["FORMAT"] = (MODEL_FORMAT_VERSION, "format version of this model file")
-    h["SKPSFVER"] = (__version__, "sklearn_psf version that wrote the file")
-    h["STAMPSZ"] = (s, "stamp side in pixels")
-    h["NCOMP"] = (k, "number of basis components")
-    h["NSTARS"] = (len(model.inlier_mask_), "stars given to fit")
-    h["NINLIER"] = (int(np.sum(model.inlier_mask_)), "stars kept for the interpolation")
     interp = model.interpolator_
     last = interp.steps[-1][1] if isinstance(interp, Pipeline) else interp
-    h["INTERP"] = (type(last).__name__, "interpolator of the coefficients")
-    h["DATE"] = (datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S"),
-                 "UTC time of writing")
+    cards = {"STAMPSZ": (s, "stamp side in pixels"),
+             "NCOMP": (k, "number of basis components"),
+             "NSTARS": (len(model.inlier_mask_), "stars given to fit"),
+             "NINLIER": (int(np.sum(model.inlier_mask_)), "stars kept for the interpolation"),
+             "INTERP": (type(last).__name__, "interpolator of the coefficients")}
     spec_hdu = fits.table_to_hdu(Table({"key": [r[0] for r in rows],
                                         "json": [r[1] for r in rows]}))
-    spec_hdu.name = "SPEC"
-    hdus = [primary, spec_hdu,
-            fits.ImageHDU(mean.reshape(s, s), name="BASIS_MEAN"),
-            fits.ImageHDU(comps.reshape(k, s, s), name="BASIS_COMPONENTS")]
+    spec_hdu.name = f"{prefix}SPEC"
+    hdus = [spec_hdu,
+            fits.ImageHDU(mean.reshape(s, s), name=f"{prefix}BASIS_MEAN"),
+            fits.ImageHDU(comps.reshape(k, s, s), name=f"{prefix}BASIS_COMPONENTS")]
     columns = {
         "x": np.asarray(model.X_fit_[:, 0], dtype=np.float64),
         "y": np.asarray(model.X_fit_[:, 1], dtype=np.float64),
@@ -338,27 +374,18 @@ def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = F
         "inlier": np.asarray(model.inlier_mask_, dtype=bool),
         "fit_flag": np.asarray(model.fit_flag_, dtype=np.int64),
     }
+    if exposure:
+        columns["exposure"] = np.asarray(model.X_fit_[:, 2], dtype=np.int64)
     if model.coefficient_var_ is not None:
         columns["coeff_var"] = np.asarray(model.coefficient_var_, dtype=np.float64).reshape(-1, k)
     if model.outlier_score_ is not None:
         columns["outlier_score"] = np.asarray(model.outlier_score_, dtype=np.float64)
     stars = fits.table_to_hdu(Table(columns))
-    stars.name = "STARS"
+    stars.name = f"{prefix}STARS"
     hdus.append(stars)
     for i, arr in enumerate(arrays):
-        hdus.append(fits.ImageHDU(np.asarray(arr), name=f"ARRAY_{i}"))
-    if residuals is not None:
-        res = fits.table_to_hdu(Table(residuals))
-        res.name = "RESERVED"
-        hdus.append(res)
-    if summary is not None and isinstance(summary.get("rho1"), dict):
-        r = summary["rho1"]
-        rho = fits.table_to_hdu(Table({key: np.asarray(r[key], dtype=np.float64)
-                                       for key in ("theta", "xi", "sigma_xi", "npairs")
-                                       if key in r}))
-        rho.name = "RHO1"
-        hdus.append(rho)
-    write_fits_atomic(fits.HDUList(hdus), path, overwrite=overwrite)
+        hdus.append(fits.ImageHDU(np.asarray(arr), name=f"{prefix}ARRAY_{i}"))
+    return cards, hdus
 
 
 def _versions():
@@ -410,16 +437,16 @@ def _open_checked(path):
         ) from None
 
 
-def _check_format(header, path):
+def _check_format(header, path, newest=MODEL_FORMAT_VERSION):
     version = header.get("FORMAT")
     if not isinstance(version, (int, np.integer)) or isinstance(version, bool):
         raise ValueError(f"{path!r} has no integer FORMAT keyword: not a valid model file.")
     version = int(version)
-    if version > MODEL_FORMAT_VERSION:
+    if version > newest:
         raise ValueError(
             f"{path!r} is a model file of format version {version}, written by sklearn_psf "
             f"{header.get('SKPSFVER', '?')}; this sklearn_psf reads format versions up to "
-            f"{MODEL_FORMAT_VERSION}: upgrade sklearn_psf to read it."
+            f"{newest}: upgrade sklearn_psf to read it."
         )
     if version not in _READERS:
         raise ValueError(
@@ -447,8 +474,8 @@ def _read(header, content, path, model_class):
     interpolator = _decode(spec["interpolator"], arrays)
     model = model_class(interpolator=interpolator, basis=_decode(spec["basis"], arrays),
                         outliers=_decode(spec["outliers"], arrays))
-    X = np.column_stack([np.asarray(stars["x"], dtype=np.float64),
-                         np.asarray(stars["y"], dtype=np.float64)])
+    X = np.column_stack([np.asarray(stars[c], dtype=np.float64)
+                         for c in ("x", "y", "exposure") if c in stars.colnames])
     n = len(X)
     coef = np.asarray(stars["coeffs"], dtype=np.float64).reshape(n, k)
     mask = np.asarray(stars["inlier"], dtype=bool)
@@ -476,14 +503,14 @@ def _read(header, content, path, model_class):
                             if "outlier_score" in stars.colnames else None)
     model.n_components_ = k
     model.stamp_size_ = s
-    model.n_features_in_ = 2
+    model.n_features_in_ = X.shape[1]
     model.X_fit_ = X
     model.coefficients_ = coef
     model.coefficient_var_ = var
     return model
 
 
-_READERS = {1: _read, 2: _read}
+_READERS = {1: _read, 2: _read, 3: _read}
 
 
 def read_model(path, model_class):
@@ -508,8 +535,131 @@ def read_model(path, model_class):
     """
     path = os.fspath(path)
     header, content = _open_checked(path)
+    if "MULTIEXP" in header:
+        raise ValueError(f"{path!r} holds a multi-exposure model ({header['MULTIEXP']}): load "
+                         "it with PooledPSFModel.load or PerExposurePSFModel.load.")
     version = _check_format(header, path)
     return _READERS[version](header, content, path, model_class)
+
+
+# ----------------------------------------------------------------------------- many exposures
+def save_exposure_model(model, path, *, overwrite: bool = False) -> None:
+    """Write a fitted multi-exposure model to a FITS model file (format 3).
+
+    The implementation of ``PooledPSFModel.save`` and ``PerExposurePSFModel.save``. The
+    primary header has ``MULTIEXP`` (``"pooled"`` or ``"per-exposure"``), ``EXPCOL`` (the
+    model's ``exposure_column``) and ``NFEAT`` (its number of input columns).
+
+    - pooled: the HDUs of its one :class:`PSFModel` (``model_``), whose ``STARS`` table has an
+      ``exposure`` column when it was fitted on several exposures;
+    - per-exposure: an ``EXPOSURES`` table (``exposure``, ``ncomp``) and, for exposure row
+      ``i``, the HDUs of its model with names prefixed by ``E<i>_``.
+
+    Loading refits each interpolator on the stored stars (deterministic), so the loaded model
+    predicts exactly as the saved one.
+
+    Parameters
+    ----------
+    model : PooledPSFModel or PerExposurePSFModel
+        Fitted.
+    path : str or os.PathLike
+    overwrite : bool, default=False
+    """
+    from sklearn.utils.validation import check_is_fitted
+
+    check_is_fitted(model)
+    primary = fits.PrimaryHDU()
+    h = primary.header
+    h["SKPSFFMT"] = (MODEL_FORMAT, "sklearn_psf PSF model file")
+    h["FORMAT"] = (_EXPOSURE_MODEL_FORMAT, "format version of this model file")
+    h["SKPSFVER"] = (__version__, "sklearn_psf version that wrote the file")
+    h["EXPCOL"] = (int(model.exposure_column), "column of X holding the exposure")
+    h["NFEAT"] = (int(model.n_features_in_), "columns of X (positions and exposure)")
+    if hasattr(model, "models_"):
+        h["MULTIEXP"] = ("per-exposure", "one PSF model per exposure")
+        table = fits.table_to_hdu(Table({
+            "exposure": np.asarray(model.exposures_, dtype=np.int64),
+            "ncomp": np.array([m.n_components_ for m in model.models_], dtype=np.int64)}))
+        table.name = "EXPOSURES"
+        hdus = [table]
+        for i, m in enumerate(model.models_):
+            cards, parts = _model_hdus(m, prefix=f"E{i}_")
+            hdus += parts
+    else:
+        h["MULTIEXP"] = ("pooled", "one PSF model over all exposures")
+        cards, hdus = _model_hdus(model.model_, exposure=len(model.exposures_) > 1)
+        for key, value in cards.items():
+            h[key] = value
+        exposures = fits.table_to_hdu(Table({"exposure": np.asarray(model.exposures_,
+                                                                    dtype=np.int64)}))
+        exposures.name = "EXPOSURES"
+        hdus.append(exposures)
+    h["STAMPSZ"] = cards["STAMPSZ"]
+    _stamp_date(h)
+    write_fits_atomic(fits.HDUList([primary, *hdus]), path, overwrite=overwrite)
+
+
+def read_exposure_model(path, model_class, psf_class):
+    """Read a file written by :func:`save_exposure_model` into a ``model_class`` instance.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    model_class : type
+        :class:`~sklearn_psf.model.PooledPSFModel` or
+        :class:`~sklearn_psf.model.PerExposurePSFModel`, matching the file's ``MULTIEXP``.
+    psf_class : type
+        :class:`~sklearn_psf.model.PSFModel`.
+
+    Returns
+    -------
+    model : fitted ``model_class``
+    """
+    path = os.fspath(path)
+    header, content = _open_checked(path)
+    version = _check_format(header, path, newest=_EXPOSURE_MODEL_FORMAT)
+    kind = header.get("MULTIEXP")
+    wanted = "per-exposure" if "PerExposure" in model_class.__name__ else "pooled"
+    if kind != wanted:
+        how = {None: "load_model", "pooled": "PooledPSFModel.load",
+               "per-exposure": "PerExposurePSFModel.load"}.get(kind, "the matching class")
+        held = "a single PSFModel" if kind is None else f"a {kind} model"
+        raise ValueError(f"{path!r} holds {held}, not a {wanted} model: load it with {how}.")
+    try:
+        exposures = np.asarray(content["EXPOSURES"]["exposure"], dtype=np.int64)
+    except KeyError:
+        raise ValueError(f"The model file {path!r} is incomplete (no EXPOSURES table): write "
+                         "it again.") from None
+    model = model_class(exposure_column=int(header["EXPCOL"]))
+    if kind == "per-exposure":
+        ncomp = np.asarray(content["EXPOSURES"]["ncomp"], dtype=np.int64)
+        models = []
+        for i, k in enumerate(ncomp):
+            prefix = f"E{i}_"
+            part = {name[len(prefix):]: value for name, value in content.items()
+                    if name.startswith(prefix)}
+            models.append(_READERS[version]({"STAMPSZ": header["STAMPSZ"], "NCOMP": int(k)},
+                                            part, path, psf_class))
+        model.models_ = models
+        model.inlier_mask_ = np.concatenate([m.inlier_mask_ for m in models])
+        model.set_params(model=_template(models[0], psf_class))
+    else:
+        inner = _READERS[version](header, content, path, psf_class)
+        model.model_ = inner
+        model.inlier_mask_ = inner.inlier_mask_
+        model.n_components_ = inner.n_components_
+        model.set_params(model=_template(inner, psf_class),
+                         interpolator=inner.interpolator if len(exposures) > 1 else None)
+    model.exposures_ = exposures
+    model.n_features_in_ = int(header["NFEAT"])
+    return model
+
+
+def _template(model, psf_class):
+    """The unfitted PSFModel template of a loaded model (its parameters but the interpolator)."""
+    params = model.get_params(deep=False)
+    params["interpolator"] = None
+    return psf_class(**params)
 
 
 def read_model_validation(path):

@@ -1,22 +1,25 @@
 """PSF models across exposures (exposure index as a column of X) and focal-plane positions.
 
 :class:`PerExposurePSFModel` fits one :class:`PSFModel` per exposure (the paper's way);
-:class:`PooledPSFModel` fits a mean pattern on the stars of every exposure plus a residual
-interpolation per exposure (the mean-field approach of PIFF, MCCD-like models);
+:class:`PooledPSFModel` fits one model on the stars of every exposure whose interpolation
+learns the static pattern they share and each exposure's own (atmospheric) pattern;
 :class:`FocalPlaneMapper` maps (x, y, ccd) to focal-plane positions so that the CCDs of one
-exposure share one model. Save and load these with ``joblib.dump`` / ``joblib.load``.
+exposure share one model. Save and load the multi-exposure models with their ``save`` /
+``load`` (the package's FITS model format) or ``joblib.dump`` / ``joblib.load``.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from joblib import Parallel, delayed
 from sklearn.base import BaseEstimator, RegressorMixin, TransformerMixin, clone
 from sklearn.metrics import r2_score
 from sklearn.utils.validation import check_is_fitted, validate_data
 
+from ..interpolate import ExposureKrigingRegressor
+from ..interpolate._exposure_kriging import split_exposure_column
 from ..preprocessing import StampNormalizer
-from ._defaults import make_default_interpolator
-from ._noise import fit_interpolator
+from ._file import read_exposure_model, save_exposure_model
 from ._psf_model import PSFModel
 
 __all__ = ["FocalPlaneMapper", "PerExposurePSFModel", "PooledPSFModel"]
@@ -40,18 +43,11 @@ class _ExposureModel(RegressorMixin, BaseEstimator):
         else:
             check_is_fitted(self)
             X = validate_data(self, X, dtype=np.float64, reset=False)
-        if X.shape[1] < 2:
-            raise ValueError("X must hold positions and an exposure column, got "
-                             f"n_features = {X.shape[1]}.")
         if reset and X.shape[0] < 3:
             raise ValueError(f"{type(self).__name__} needs at least 3 stars, got "
                              f"n_samples = {X.shape[0]}.")
-        col = self.exposure_column % X.shape[1]
-        exposure = X[:, col]
-        if not np.array_equal(exposure, np.round(exposure)):
-            raise ValueError(f"Column {col} of X (exposure_column) must hold integer exposure "
-                             "indices.")
-        return np.delete(X, col, axis=1), exposure.astype(np.int64), y
+        pos, exposure = split_exposure_column(X, self.exposure_column)
+        return pos, exposure, y
 
     def _groups(self, exposure, reset=False):
         if not reset:
@@ -83,6 +79,57 @@ class _ExposureModel(RegressorMixin, BaseEstimator):
         return float(r2_score(truth, self.predict(X), sample_weight=sample_weight,
                               multioutput="variance_weighted"))
 
+    def save(self, path, *, overwrite: bool = False) -> None:
+        """Write the fitted model to a FITS model file (format 3, written atomically).
+
+        The file holds the basis, the stars (positions, exposure, coefficients and their
+        noise, inlier flags) and the parameters of every model; see
+        :mod:`sklearn_psf.model` (module ``_file``) for the format. :meth:`load` reads it back
+        and predicts identically.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+        overwrite : bool, default=False
+
+        Examples
+        --------
+        >>> import os, tempfile
+        >>> import numpy as np
+        >>> from sklearn_psf.model import PooledPSFModel
+        >>> from sklearn_psf.simulate import make_exposures
+        >>> exp = make_exposures(2, n_stars=30, n_galaxies=5, image_shape=(500, 500),
+        ...                      random_state=0)
+        >>> X, stamps = exp.star_data()
+        >>> model = PooledPSFModel().fit(X, stamps)
+        >>> path = os.path.join(tempfile.mkdtemp(), "pooled.fits")
+        >>> model.save(path)
+        >>> back = PooledPSFModel.load(path)
+        >>> bool(np.array_equal(back.predict(X[:5]), model.predict(X[:5])))
+        True
+        """
+        save_exposure_model(self, path, overwrite=overwrite)
+
+    @classmethod
+    def load(cls, path):
+        """Read a model written by :meth:`save`.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+
+        Returns
+        -------
+        model
+            Fitted, of this class; predictions identical to the saved model's.
+
+        Raises
+        ------
+        ValueError
+            For a missing, damaged or newer file, or a file of another kind of model.
+        """
+        return read_exposure_model(path, cls, PSFModel)
+
     def __sklearn_tags__(self):
         tags = super().__sklearn_tags__()
         tags.target_tags.multi_output = True
@@ -100,6 +147,9 @@ class PerExposurePSFModel(_ExposureModel):
     exposure_column : int, default=-1
         Column of X holding the integer exposure index; the other columns (e.g. x, y) are the
         positions given to each exposure's model.
+    n_jobs : int or None, default=None
+        Exposures fitted in parallel through joblib (``-1``: all cores; a Dask cluster inside
+        ``joblib.parallel_backend("dask")``). The fitted models do not depend on it.
 
     Attributes
     ----------
@@ -123,9 +173,10 @@ class PerExposurePSFModel(_ExposureModel):
     ([0, 1], (3, 625))
     """
 
-    def __init__(self, model=None, exposure_column=-1):
+    def __init__(self, model=None, exposure_column=-1, n_jobs=None):
         self.model = model
         self.exposure_column = exposure_column
+        self.n_jobs = n_jobs
 
     def fit(self, X, y, weights=None):
         """Fit one model per exposure.
@@ -146,11 +197,13 @@ class PerExposurePSFModel(_ExposureModel):
         pos, exposure, y = self._split_X(X, y)
         w = None if weights is None else np.asarray(weights, dtype=np.float64).reshape(y.shape)
         template = PSFModel() if self.model is None else self.model
-        self.exposures_, self.models_ = np.unique(exposure), []
+        groups = list(self._groups(exposure, reset=True))
+        self.exposures_ = np.unique(exposure)
+        self.models_ = Parallel(n_jobs=self.n_jobs)(
+            delayed(clone(template).fit)(pos[idx], y[idx], None if w is None else w[idx])
+            for _, idx in groups)
         self.inlier_mask_ = np.zeros(len(pos), dtype=bool)
-        for e, idx in self._groups(exposure, reset=True):
-            model = clone(template).fit(pos[idx], y[idx], None if w is None else w[idx])
-            self.models_.append(model)
+        for (_, idx), model in zip(groups, self.models_):
             self.inlier_mask_[idx] = model.inlier_mask_
         return self
 
@@ -175,39 +228,44 @@ class PerExposurePSFModel(_ExposureModel):
 
 
 class PooledPSFModel(_ExposureModel):
-    """A mean PSF pattern fitted on the stars of all exposures plus a residual per exposure.
+    """One PSF model on the stars of every exposure: a static pattern plus each exposure's own.
 
-    1. ``model`` (a :class:`PSFModel`) is fitted on the stars of every exposure together at
-       their chip positions: the basis, the outlier rejection and the mean (static, optical)
-       pattern, from all the stars at once;
-    2. for each exposure, ``residual_interpolator`` is fitted on its inlier stars'
-       coefficients minus the mean pattern there, with their coefficient noise: the
-       exposure's own (atmospheric) pattern.
-
-    ``predict`` adds the mean pattern and the exposure's residual and rebuilds the stamps
-    with the shared basis. With one exposure the static and atmospheric parts cannot be told
-    apart: the model is then ``model`` fitted on that exposure (no residual step), identical to
-    a single :class:`PSFModel`.
+    A :class:`PSFModel` (``model``: basis, outlier rejection) fitted on all the stars at once,
+    whose interpolator is an :class:`~sklearn_psf.interpolate.ExposureKrigingRegressor` on
+    (position, exposure): the covariance of two stars' coefficients is a static part (chip
+    or focal-plane frame, shared by every exposure) plus, for stars of the same exposure, an
+    atmospheric part, plus each star's coefficient noise. The variance and correlation
+    length of each part are fitted by maximum likelihood from the stars of all exposures, so
+    the model reduces to one model per exposure when the atmosphere dominates and to one
+    static model when it does not. The outlier test's leave-one-out is the regressor's
+    closed form. With one exposure the two parts cannot be told apart: the model is then
+    ``model`` fitted on that exposure, identical to a single :class:`PSFModel`.
 
     Parameters
     ----------
     model : PSFModel, optional
-        Template of the mean model; default ``PSFModel()``.
-    residual_interpolator : regressor, optional
-        Template of the per-exposure residual interpolator; default
-        :func:`make_default_interpolator` (Kriging with maximum-likelihood hyperparameters).
+        Template of the model (its basis, outliers, cv, random_state); default ``PSFModel()``.
+        With several exposures its interpolator is replaced by ``interpolator``.
+    interpolator : regressor, optional
+        Regressor of coefficients on (positions, exposure) with the exposure as last column;
+        default ``ExposureKrigingRegressor()``.
     exposure_column : int, default=-1
         Column of X holding the integer exposure index.
 
     Attributes
     ----------
-    mean_model_ : PSFModel
-    residual_interpolators_ : list
-        Fitted residual interpolator of each of ``exposures_`` (empty with one exposure).
+    model_ : PSFModel
+        The fitted model (on positions and exposure, the exposure last, with several
+        exposures; on positions with one).
     exposures_ : ndarray of int
     inlier_mask_ : ndarray of shape (n_stars,), bool
     n_components_ : int
     n_features_in_ : int
+
+    See Also
+    --------
+    PerExposurePSFModel : one model per exposure.
+    sklearn_psf.interpolate.ExposureKrigingRegressor : the default interpolator.
 
     Examples
     --------
@@ -217,17 +275,23 @@ class PooledPSFModel(_ExposureModel):
     ...                      random_state=0)
     >>> X, stamps = exp.star_data()
     >>> model = PooledPSFModel().fit(X, stamps)
-    >>> len(model.residual_interpolators_), model.predict(X[:3]).shape
-    (2, (3, 625))
+    >>> interp = model.model_.interpolator_
+    >>> type(interp).__name__, model.predict(X[:3]).shape
+    ('ExposureKrigingRegressor', (3, 625))
     """
 
-    def __init__(self, model=None, residual_interpolator=None, exposure_column=-1):
+    def __init__(self, model=None, interpolator=None, exposure_column=-1):
         self.model = model
-        self.residual_interpolator = residual_interpolator
+        self.interpolator = interpolator
         self.exposure_column = exposure_column
 
+    def _positions(self, pos, exposure):
+        if len(self.exposures_) < 2:
+            return pos
+        return np.column_stack([pos, exposure.astype(np.float64)])
+
     def fit(self, X, y, weights=None):
-        """Fit the mean pattern on all the stars, then each exposure's residual.
+        """Fit the basis, the outlier test and the joint interpolation on all the stars.
 
         Parameters
         ----------
@@ -241,36 +305,20 @@ class PooledPSFModel(_ExposureModel):
         Returns
         -------
         self
-
-        Raises
-        ------
-        ValueError
-            When an exposure keeps fewer than 3 inlier stars for its residual.
         """
         pos, exposure, y = self._split_X(X, y)
-        mean = clone(PSFModel() if self.model is None else self.model)
-        self.mean_model_ = mean.fit(pos, y, weights)
         self.exposures_ = np.unique(exposure)
-        self.inlier_mask_ = mean.inlier_mask_
-        self.n_components_ = mean.n_components_
-        self.residual_interpolators_ = []
-        if len(self.exposures_) < 2:
-            return self
-        template = (make_default_interpolator() if self.residual_interpolator is None
-                    else self.residual_interpolator)
-        resid = mean.coefficients_ - mean.predict_coefficients(pos)
-        var = mean.coefficient_var_
-        for e, idx in self._groups(exposure, reset=True):
-            idx = idx[mean.inlier_mask_[idx]]
-            if len(idx) < 3:
-                raise ValueError(f"Exposure {e} keeps {len(idx)} inlier stars: at least 3 are "
-                                 "needed to fit its residual pattern.")
-            self.residual_interpolators_.append(fit_interpolator(
-                clone(template), pos[idx], resid[idx], None if var is None else var[idx]))
+        model = clone(PSFModel() if self.model is None else self.model)
+        if len(self.exposures_) > 1:
+            model.set_params(interpolator=ExposureKrigingRegressor() if self.interpolator is None
+                             else clone(self.interpolator))
+        self.model_ = model.fit(self._positions(pos, exposure), y, weights)
+        self.inlier_mask_ = model.inlier_mask_
+        self.n_components_ = model.n_components_
         return self
 
     def predict_coefficients(self, X):
-        """Mean pattern plus the exposure's residual: coefficients in ``mean_model_``'s basis.
+        """Interpolated coefficients in ``model_``'s basis.
 
         Parameters
         ----------
@@ -281,14 +329,8 @@ class PooledPSFModel(_ExposureModel):
         coefficients : ndarray of shape (m, n_components_)
         """
         pos, exposure, _ = self._split_X(X, reset=False)
-        coef = self.mean_model_.predict_coefficients(pos)
-        if self.residual_interpolators_:
-            for e, idx in self._groups(exposure):
-                interp = self.residual_interpolators_[int(np.searchsorted(self.exposures_, e))]
-                coef[idx] += np.asarray(interp.predict(pos[idx])).reshape(len(idx), -1)
-        else:
-            list(self._groups(exposure))  # unknown exposures still fail
-        return coef
+        list(self._groups(exposure))  # unknown exposures fail with a clear message
+        return self.model_.predict_coefficients(self._positions(pos, exposure))
 
     def predict(self, X):
         """Normalised PSF stamps at X.
@@ -302,7 +344,7 @@ class PooledPSFModel(_ExposureModel):
         stamps : ndarray of shape (m, s*s)
         """
         coef = self.predict_coefficients(X)
-        return np.asarray(self.mean_model_.basis_.inverse_transform(coef), dtype=np.float64)
+        return np.asarray(self.model_.basis_.inverse_transform(coef), dtype=np.float64)
 
 
 class FocalPlaneMapper(TransformerMixin, BaseEstimator):

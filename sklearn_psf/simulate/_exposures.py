@@ -48,12 +48,16 @@ class ExposureSet:
         observed in every exposure.
     meta : dict
         The settings (``atmosphere_ratio``, ``atmosphere_slope``, ``dither``, ...).
+    patterns : list
+        The weight fields of each exposure (static and atmospheric random fields), for
+        :meth:`weight_covariance`.
     """
 
     exposures: list
     dithers: np.ndarray
     galaxies: Table
     meta: dict = field(default_factory=dict)
+    patterns: list = field(default_factory=list, repr=False)
 
     def __len__(self) -> int:
         return len(self.exposures)
@@ -62,6 +66,82 @@ class ExposureSet:
     def pixel_scale(self) -> float:
         """Arcsec per pixel."""
         return self.exposures[0].pixel_scale
+
+    @property
+    def reference(self):
+        """The reference basis of the exposures' PSF (:class:`ReferenceBasis`)."""
+        return self.exposures[0].reference
+
+    def weight_covariance(self, X_a, X_b=None) -> np.ndarray:
+        """True covariance of the PSF weights (PCA coefficients) between (x, y, exposure) rows.
+
+        Weight ``k`` of exposure ``e`` at chip position ``r`` is ``coeff_mean_k + coeff_std_k
+        (g_k(r) + a h_{k,e}(r)) / sqrt(1 + a^2)`` (see :func:`make_exposures`), so the
+        covariance is ``coeff_std_k^2 / (1 + a^2) (C_k(r, r') + a^2 [e = e'] H_{k,e}(r, r'))``
+        with ``C`` and ``H`` the covariances of the drawn static and atmospheric fields
+        (:meth:`RandomFieldSampler.covariance` with ``field=k``: given each draw's
+        normalisation). With :meth:`coefficient_noise_var` this is what the best linear
+        unbiased predictor of the coefficients over all exposures (an oracle) needs.
+
+        Parameters
+        ----------
+        X_a : array-like of shape (n_a, 3)
+            Chip positions (x, y) and exposure index.
+        X_b : array-like of shape (n_b, 3), optional
+            Default ``X_a``.
+
+        Returns
+        -------
+        cov : ndarray of shape (n_components, n_a, n_b)
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from sklearn_psf.simulate import make_exposures
+        >>> exp = make_exposures(2, n_stars=5, n_galaxies=2, image_shape=(600, 600),
+        ...                      atmosphere_ratio=1.0, random_state=0)
+        >>> c = exp.weight_covariance(np.array([[300.0, 300.0, 0], [300.0, 300.0, 1]]))
+        >>> c.shape, bool(np.all(c[:, 0, 0] > c[:, 0, 1]))   # the atmospheres differ
+        ((5, 2, 2), True)
+        """
+        if not self.patterns:
+            raise ValueError("This ExposureSet holds no weight fields (patterns): make it with "
+                             "make_exposures.")
+        A = np.asarray(X_a, dtype=np.float64)
+        B = A if X_b is None else np.asarray(X_b, dtype=np.float64)
+        for name, M in (("X_a", A), ("X_b", B)):
+            if M.ndim != 2 or M.shape[1] != 3:
+                raise ValueError(f"{name} must have shape (n, 3): x, y, exposure; got {M.shape}.")
+        a2 = float(self.meta["atmosphere_ratio"]) ** 2
+        std2 = np.asarray(self.reference.coeff_std, dtype=np.float64) ** 2 / (1.0 + a2)
+        static = self.patterns[0].static
+        out = _per_field(static, A[:, :2], B[:, :2]) * std2[:, None, None]
+        if a2 == 0:
+            return out
+        ea, eb = A[:, 2].astype(np.int64), B[:, 2].astype(np.int64)
+        for e in np.intersect1d(ea, eb):
+            ia, ib = np.flatnonzero(ea == e), np.flatnonzero(eb == e)
+            atm = _per_field(self.patterns[e].atmosphere, A[ia, :2], B[ib, :2])
+            out[:, ia[:, None], ib[None, :]] += a2 * std2[:, None, None] * atm
+        return out
+
+    def coefficient_noise_var(self, exposures=None) -> np.ndarray:
+        """True coefficient noise variance of the stars of :meth:`star_data`, in its order.
+
+        Parameters
+        ----------
+        exposures : sequence of int, optional
+            Exposures to use (default all).
+
+        Returns
+        -------
+        noise_var : ndarray of shape (n_stars, n_components)
+            :meth:`PSFField.coefficient_noise_var` of each exposure's stars whose stamp was
+            cut.
+        """
+        idx = range(len(self)) if exposures is None else exposures
+        return np.concatenate([self.exposures[i].coefficient_noise_var()[
+            np.asarray(self.exposures[i].star_stamps()[-1]) == 0] for i in idx])
 
     def star_data(self, exposures=None, *, return_weights: bool = False):
         """Stars of the exposures for a multi-exposure model: X = (x, y, exposure), stamps.
@@ -110,6 +190,12 @@ class ExposureSet:
             rows.append(Table({"galaxy": np.arange(len(g)), "exposure": np.full(len(g), i),
                                "e1": g["e1"], "e2": g["e2"], "coeffs": g["coeffs"]}))
         return np.concatenate(Xs), vstack(rows)
+
+
+def _per_field(sampler, a, b):
+    """(n_fields, n_a, n_b) covariance of each drawn field of ``sampler`` (given its draw)."""
+    base = sampler.covariance(a, b, field=0) * sampler.scales[0] ** 2
+    return base[None] / sampler.scales[:, None, None] ** 2
 
 
 def make_exposures(
@@ -214,7 +300,7 @@ def make_exposures(
     gal_rng = np.random.default_rng(gal_seed)
     sky = np.column_stack([gal_rng.uniform(margin, nx - 1 - margin, n_galaxies),
                            gal_rng.uniform(margin, ny - 1 - margin, n_galaxies)])
-    exposures, dithers = [], []
+    exposures, dithers, patterns = [], [], []
     for s in exp_seeds:
         dither_rng, atm_rng, snr_rng, field_seed = s.spawn(4)
         d = np.random.default_rng(dither_rng).uniform(-dither, dither, 2)
@@ -222,15 +308,16 @@ def make_exposures(
                                  random_state=np.random.default_rng(atm_rng))
         star_snr = realistic_snr(n_stars, np.random.default_rng(snr_rng)) \
             if isinstance(snr, str) and snr == "realistic" else snr
+        patterns.append(_ExposurePattern(static, atm, atmosphere_ratio))
         exposures.append(make_psf_field(
             reference, n_stars=n_stars, snr=star_snr, image_shape=(ny, nx),
             smallest_scale=smallest_scale, random_state=field_seed,
-            galaxy_snr=galaxy_snr, galaxy_positions=sky - d,
-            weight_fields=_ExposurePattern(static, atm, atmosphere_ratio), **field_kwargs))
+            galaxy_snr=galaxy_snr, galaxy_positions=sky - d, weight_fields=patterns[-1],
+            **field_kwargs))
         dithers.append(d)
     meta = {"atmosphere_ratio": float(atmosphere_ratio),
             "atmosphere_slope": float(atmosphere_slope), "dither": float(dither),
             "smallest_scale": float(smallest_scale), "n_stars": int(n_stars),
             "snr": snr if isinstance(snr, str) else float(np.mean(snr))}
     return ExposureSet(exposures, np.array(dithers), Table({"x": sky[:, 0], "y": sky[:, 1]}),
-                       meta)
+                       meta, patterns)

@@ -17,17 +17,17 @@ def _median_band(scores, scheme, n_stars):
                             ).reshape(len(counts), 3)
 
 
-def plot_sigma_sys_vs_exposures(result, ax=None, surveys=None):
+def plot_sigma_sys_vs_exposures(result, surveys=None):
     """sigma_sys^2 of the exposure-averaged residual against the number of exposures.
 
-    Median over simulations with the 16-84% band, per scheme and number of stars per
-    exposure, log-log, with the survey requirements (:func:`~sklearn_psf.metrics.survey_table`)
-    as horizontal lines.
+    One panel per regime (rows: atmospheric / static variance; columns: dither): median over
+    simulations with the 16-84% band, per scheme and number of stars per exposure, log-log,
+    with the survey requirements (:func:`~sklearn_psf.metrics.survey_table`) as horizontal
+    lines.
 
     Parameters
     ----------
     result : ExposureStudyResult
-    ax : matplotlib Axes, optional
     surveys : astropy.table.Table, optional
         Columns ``survey`` and ``sigma_sys2``; default the paper's three surveys.
 
@@ -50,37 +50,50 @@ def plot_sigma_sys_vs_exposures(result, ax=None, surveys=None):
     """
     import matplotlib.pyplot as plt
 
-    fig, ax = (plt.subplots(figsize=(8.6, 4.6)) if ax is None else (ax.figure, ax))
-    scores = result.scores
-    styles = {"per-exposure": ("C0", "o"), "pooled": ("C3", "s")}
-    stars = np.unique(np.asarray(scores["n_stars"]))
-    for j, scheme in enumerate(dict.fromkeys(np.asarray(scores["scheme"]).astype(str))):
-        color, marker = styles.get(scheme, (f"C{j + 4}", "^"))
-        for k, m in enumerate(stars):
-            counts, band = _median_band(scores, scheme, m)
-            if not len(counts):
-                continue
-            line = ("-", "--", ":", "-.")[k % 4]
-            ax.plot(counts, band[:, 1], line, color=color, marker=marker,
-                    label=f"{scheme}, {m} stars/exposure")
-            ax.fill_between(counts, band[:, 0], band[:, 2], color=color, alpha=0.15)
+    from ._report import _regimes
+
+    regimes = _regimes(result.scores)
+    ratios = list(dict.fromkeys(v for v, _ in regimes))
+    dithers = list(dict.fromkeys(d for _, d in regimes))
+    fig, axes = plt.subplots(len(ratios), len(dithers), squeeze=False, sharex=True, sharey=True,
+                             figsize=(3.3 * len(dithers) + 2.4, 2.6 * len(ratios) + 0.9))
     table = survey_table() if surveys is None else surveys
-    for i, row in enumerate(table):
-        ax.axhline(row["sigma_sys2"], color="0.4", ls=("--", ":", "-.")[i % 3], lw=1)
-        ax.annotate(f"{row['survey']} {row['sigma_sys2']:.1e}", (1.0, row["sigma_sys2"]),
-                    xycoords=("axes fraction", "data"), ha="right", va="bottom", fontsize=8,
-                    color="0.3")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    counts = np.unique(np.asarray(scores["n_exposures"]))
-    ax.set_xlim(counts.min() / 1.15, counts.max() * 2.2)  # room for the survey labels
-    ax.set_xticks(counts)
-    ax.set_xticklabels([str(int(n)) for n in counts])
-    ax.minorticks_off()
-    ax.set_xlabel("number of exposures")
-    ax.set_ylabel(r"$\sigma^2_{\rm sys}$ of the exposure-averaged residual")
-    ax.set_title("PSF systematics against the number of exposures\n"
-                 "(median over simulations, 16-84% band)", fontsize=10)
-    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
-    fig.tight_layout()
+    all_scores = result.scores
+    styles = {"per-exposure": ("C0", "o"), "pooled": ("C3", "s"), "oracle": ("0.3", "^")}
+    schemes = list(dict.fromkeys(np.asarray(all_scores["scheme"]).astype(str)))
+    stars = np.unique(np.asarray(all_scores["n_stars"]))
+    for (v, d), scores in regimes.items():
+        ax = axes[ratios.index(v), dithers.index(d)]
+        for j, scheme in enumerate(schemes):
+            color, marker = styles.get(scheme, (f"C{j + 4}", "v"))
+            for k, m in enumerate(stars):
+                counts, band = _median_band(scores, scheme, m)
+                if not len(counts):
+                    continue
+                line = ("-", "--", ":", "-.")[k % 4]
+                ax.plot(counts, band[:, 1], line, color=color, marker=marker, ms=4,
+                        label=f"{scheme}, {m} stars/exposure")
+                ax.fill_between(counts, band[:, 0], band[:, 2], color=color, alpha=0.12)
+        for i, row in enumerate(table):
+            ax.axhline(row["sigma_sys2"], color="0.5", ls=("--", ":", "-.")[i % 3], lw=0.8,
+                       label=f"{row['survey']} requirement {row['sigma_sys2']:.1e}")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        if np.isfinite(v):
+            ax.set_title(f"atm/static variance {v:g}, dither {d:g} px", fontsize=8)
+        ax.tick_params(labelsize=7)
+    counts = np.unique(np.asarray(all_scores["n_exposures"]))
+    for ax in axes[-1]:
+        ax.set_xticks(counts)
+        ax.set_xticklabels([str(int(n)) for n in counts])
+        ax.minorticks_off()
+        ax.set_xlabel("number of exposures N", fontsize=8)
+    for ax in axes[:, 0]:
+        ax.set_ylabel(r"$\sigma^2_{\rm sys}$ (exposure-averaged)", fontsize=8)
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=7, loc="upper left", bbox_to_anchor=(0.80, 0.95),
+               frameon=False)
+    fig.suptitle("PSF systematics against the number of exposures (median over simulations, "
+                 "16-84% band)", fontsize=9)
+    fig.tight_layout(rect=(0, 0, 0.80, 0.96))
     return fig

@@ -1,4 +1,5 @@
-"""The report section of the multi-exposure study: verdict against Stage IV, paired gains."""
+"""The report section of the multi-exposure study: per regime, the exponent with N, the
+correlation between exposures, the ratio to the exposure oracle and the verdict against Stage IV."""
 
 from __future__ import annotations
 
@@ -8,8 +9,49 @@ import numpy as np
 from astropy.table import Table
 
 from ...metrics import ELL_RANGE, survey_table
+from .._names import ORACLE
 
 STAGE_IV = float(survey_table()["sigma_sys2"][2])
+
+#: Where the regimes come from (the report's "Assumptions" paragraph).
+LITERATURE = (
+    "Regimes. The simulated PSF of exposure e is a static (optical) pattern fixed to the chip "
+    "plus an atmospheric pattern drawn afresh for each exposure, both Gaussian random fields "
+    "with the same power spectrum (P(k) ~ k^-11/4, Kolmogorov-like, after Rowe 2010) and the "
+    "same smallest scale (8 arcsec), hence the same correlation lengths; only their variances "
+    "differ. The simulation's default, atmospheric / static rms 0.5 (variance ratio 0.25: 80% "
+    "of the PSF variance static), is the long-exposure regime: Heymans et al. (2012, MNRAS "
+    "421, 381; CFHT) measure the amplitude of the atmospheric PSF ellipticity pattern to fall "
+    "as t^-1/2 with exposure time t (its variance as 1/t), negligible beyond t = 180 s, "
+    "correlated on scales below a few arcmin and uncorrelated between exposures more than "
+    "50 s apart (which the simulation's independent atmospheres assume). Shorter exposures "
+    "move towards the atmosphere: DES (90 s exposures) models the PSF of every exposure on "
+    "its own for that reason (PSFEx per CCD, Jarvis et al. 2016, MNRAS 460, 2245; Piff over "
+    "the focal plane, Jarvis et al. 2021, MNRAS 501, 1282), HSC (Mandelbaum et al. 2018, "
+    "PASJ 70, S25) fits PSFEx per CCD and exposure, and Rubin's 15 s exposures may be "
+    "dominated by the atmosphere (Chang et al. 2012, MNRAS 427, 2572). The study sweeps the "
+    "variance ratio over 0.2, 1 and 5 (static 83%, 50%, 17%): with variance ~ 1/t, a factor "
+    "25 in exposure time. None of these papers gives the ratio for a given telescope and "
+    "time in the simulation's units: the ratios are a bracket, not a calibration.")
+
+
+def _regime_key(row):
+    cols = row.colnames
+    return (float(row["variance_ratio"]) if "variance_ratio" in cols else float("nan"),
+            float(row["dither"]) if "dither" in cols else float("nan"))
+
+
+def _regimes(scores):
+    """(variance ratio, dither) -> rows of that regime (one regime, NaN, without the columns)."""
+    if "variance_ratio" not in scores.colnames:
+        return {(float("nan"), float("nan")): scores}
+    out = {}
+    for key in dict.fromkeys(zip(np.asarray(scores["variance_ratio"], float),
+                                 np.asarray(scores["dither"], float))):
+        sel = (np.asarray(scores["variance_ratio"], float) == key[0]) & (
+            np.asarray(scores["dither"], float) == key[1])
+        out[key] = scores[sel]
+    return out
 
 
 def _medians(scores) -> Table:
@@ -24,18 +66,30 @@ def _medians(scores) -> Table:
                                    "n_simulations"])
 
 
+def _slope(med, scheme, m):
+    """Exponent of a power law in N fitted to a scheme's medians at N >= 2 (and intercept)."""
+    sub = med[(med["scheme"] == scheme) & (med["n_stars"] == m) & (med["n_exposures"] >= 2)]
+    if len(sub) < 2:
+        return np.nan, np.nan
+    slope, icpt = np.polyfit(np.log(np.asarray(sub["n_exposures"], float)),
+                             np.log(np.asarray(sub["sigma_sys2_median"], float)), 1)
+    return float(slope), float(icpt)
+
+
 def cheapest_configuration(result, requirement: float = STAGE_IV) -> dict:
     """The cheapest configuration whose median sigma_sys^2 meets a requirement.
 
-    Cheapest = fewest exposures, then fewest stars per exposure. When none meets it, each
-    (scheme, stars per exposure) is given at its largest number of exposures with its
-    shortfall (median / requirement) and the number of exposures a power law
-    sigma_sys^2 ~ N^slope fitted to its medians (N >= 2) would need, an extrapolation (inf
-    beyond 10^4 exposures or when sigma_sys^2 does not fall).
+    Over the schemes a user can run (the exposure oracle, which knows the truth, is left
+    out). Cheapest = fewest stars in all (stars per exposure x exposures), then fewest
+    exposures. When none meets it, each (scheme, stars per exposure) is given at its largest
+    number of exposures with its shortfall (median / requirement) and the number of exposures
+    a power law sigma_sys^2 ~ N^slope fitted to its medians (N >= 2) would need, an
+    extrapolation (inf beyond 10^4 exposures or when sigma_sys^2 does not fall).
 
     Parameters
     ----------
     result : ExposureStudyResult
+        Of one regime (or a table without regime columns).
     requirement : float, default=Stage IV's (1.25e-7, :func:`~sklearn_psf.metrics.survey_table`)
 
     Returns
@@ -57,10 +111,12 @@ def cheapest_configuration(result, requirement: float = STAGE_IV) -> dict:
     (False, 8.0, 32)
     """
     med = _medians(result.scores)
+    med = med[med["scheme"] != ORACLE]
     ok = med[med["sigma_sys2_median"] < requirement]
     best = None
     if len(ok):
-        ok.sort(["n_exposures", "n_stars", "sigma_sys2_median"])
+        ok["total_stars"] = ok["n_stars"] * ok["n_exposures"]
+        ok.sort(["total_stars", "n_exposures", "sigma_sys2_median"])
         best = {k: ok[0][k].item() if hasattr(ok[0][k], "item") else ok[0][k]
                 for k in ok.colnames}
     shortfalls = []
@@ -71,11 +127,9 @@ def cheapest_configuration(result, requirement: float = STAGE_IV) -> dict:
                 continue
             sub.sort("n_exposures")
             last = sub[-1]
-            fit = sub[sub["n_exposures"] >= 2]
-            slope, n_needed = np.nan, np.nan
-            if len(fit) >= 2:
-                slope, icpt = np.polyfit(np.log(fit["n_exposures"]),
-                                         np.log(fit["sigma_sys2_median"]), 1)
+            slope, icpt = _slope(med, scheme, m)
+            n_needed = np.nan
+            if np.isfinite(slope):
                 n_needed = np.inf
                 if slope < 0:
                     n_needed = float(np.exp((np.log(requirement) - icpt) / slope))
@@ -89,8 +143,9 @@ def cheapest_configuration(result, requirement: float = STAGE_IV) -> dict:
             "requirement": requirement}
 
 
-def _paired(scores, a="pooled", b="per-exposure"):
-    """Per (n_stars, n_exposures): fraction of simulations where a < b, median ratio a / b."""
+def _paired(scores, a, b):
+    """Per (n_stars, n_exposures): fraction of simulations where a < b, median ratio a / b,
+    and the 16-84% range of the ratio."""
     rows = []
     s = np.asarray(scores["scheme"]).astype(str)
     for m in np.unique(scores["n_stars"]):
@@ -102,8 +157,69 @@ def _paired(scores, a="pooled", b="per-exposure"):
             pa.sort("simulation")
             pb.sort("simulation")
             ratio = np.asarray(pa["sigma_sys2"]) / np.asarray(pb["sigma_sys2"])
-            rows.append((int(m), int(n), float(np.mean(ratio < 1)), float(np.median(ratio))))
+            rows.append((int(m), int(n), float(np.mean(ratio < 1)), float(np.median(ratio)),
+                         float(np.percentile(ratio, 16)), float(np.percentile(ratio, 84))))
     return rows
+
+
+def regime_summary(result) -> Table:
+    """One row per (regime, scheme, stars per exposure): the exponent of sigma_sys^2 with N,
+    the correlation between exposures and the ratio to the exposure oracle.
+
+    Parameters
+    ----------
+    result : ExposureStudyResult
+
+    Returns
+    -------
+    table : astropy.table.Table
+        ``variance_ratio``, ``dither``, ``scheme``, ``n_stars``, ``slope`` (power law in N
+        fitted to the medians at N >= 2), ``rho_exposures`` (median over simulations at the
+        largest N), ``n_exposures`` (that N), ``sigma_sys2_median`` (at that N),
+        ``oracle_ratio`` (median over simulations of sigma_sys^2 / the oracle's, paired, at
+        that N; NaN without oracle), ``oracle_ratio_max`` (largest median ratio over N >= 2).
+
+    Examples
+    --------
+    >>> from astropy.table import Table
+    >>> from sklearn_psf.study.exposures import ExposureStudyResult, regime_summary
+    >>> scores = Table({"scheme": ["pooled"] * 2, "n_stars": [100] * 2, "simulation": [0, 0],
+    ...                 "n_exposures": [2, 8], "sigma_sys2": [4e-6, 1e-6],
+    ...                 "rho_exposures": [0.1, 0.1]})
+    >>> float(regime_summary(ExposureStudyResult(scores, Table(), None))["slope"][0])
+    -1.0
+    """
+    rows = []
+    for (v, d), scores in _regimes(result.scores).items():
+        med = _medians(scores)
+        schemes = list(dict.fromkeys(np.asarray(scores["scheme"]).astype(str)))
+        for scheme in schemes:
+            for m in np.unique(scores["n_stars"]):
+                sel = (np.asarray(scores["scheme"]).astype(str) == scheme) & (
+                    np.asarray(scores["n_stars"]) == m)
+                if not sel.any():
+                    continue
+                n_max = int(np.max(scores["n_exposures"][sel]))
+                last = scores[sel & (np.asarray(scores["n_exposures"]) == n_max)]
+                ratio = ratio_max = np.nan
+                if scheme != ORACLE and ORACLE in schemes:
+                    paired = [r for r in _paired(scores, scheme, ORACLE) if r[0] == m]
+                    ratio = next((r[3] for r in paired if r[1] == n_max), np.nan)
+                    ratio_max = max((r[3] for r in paired if r[1] >= 2), default=np.nan)
+                rows.append((v, d, scheme, int(m), _slope(med, scheme, m)[0],
+                             float(np.nanmedian(last["rho_exposures"]))
+                             if "rho_exposures" in last.colnames and n_max > 1 else np.nan,
+                             n_max, float(np.median(last["sigma_sys2"])), ratio, ratio_max))
+    return Table(rows=rows, names=["variance_ratio", "dither", "scheme", "n_stars", "slope",
+                                   "rho_exposures", "n_exposures", "sigma_sys2_median",
+                                   "oracle_ratio", "oracle_ratio_max"])
+
+
+def _regime_title(v, d):
+    if not np.isfinite(v):
+        return ""
+    return (f"### Atmospheric / static variance {v:g} (static {100 / (1 + v):.0f}% of the PSF "
+            f"variance), dithers up to {d:g} pixels")
 
 
 def exposure_report_section(result, figure: str | None = "sigma_sys_vs_exposures.png") -> str:
@@ -127,64 +243,99 @@ def exposure_report_section(result, figure: str | None = "sigma_sys_vs_exposures
     >>> scores = Table({"scheme": ["pooled"] * 2, "n_stars": [100] * 2, "simulation": [0, 0],
     ...                 "n_exposures": [1, 10], "sigma_sys2": [5e-6, 1e-7]})
     >>> text = exposure_report_section(ExposureStudyResult(scores, Table(), None))
-    >>> "pooled with 10 exposures" in text
+    >>> "pooled, 10 exposures of 100 stars" in text
     True
     """
-    cfg = result.config
-    verdict = cheapest_configuration(result)
-    lines = ["## Many exposures: what reaches Stage IV", ""]
+    cfg = result.config or {}
+    lines = ["## Many exposures: the regime, the pooled model and Stage IV", ""]
+    lines += ["sigma_sys^2 (dimensionless) is that of the galaxy-PSF ellipticity residual "
+              "averaged over a galaxy's exposures; `per-exposure` fits one PSF model per "
+              "exposure, `pooled` one model on the stars of all exposures whose interpolation "
+              "has a static and an atmospheric part with their variances and correlation "
+              "lengths fitted by maximum likelihood, `oracle` is the "
+              "best linear unbiased predictor from the stars of all exposures with the true "
+              "static and atmospheric covariances and each star's true coefficient noise "
+              "(given the stars' coefficients on the simulation's basis). slope: exponent of a "
+              "power law sigma_sys^2 ~ N^slope fitted to the medians at N >= 2; rho: "
+              "correlation of a galaxy's residuals between two of its exposures (the averaged "
+              "residual's variance goes as 1/N + rho (1 - 1/N)); / oracle: median over "
+              "simulations of sigma_sys^2 over the oracle's on the same simulation."
+              + (" Both models use one basis, a StampPCA fitted on the stars of all the "
+                 "simulation's exposures (so that they differ only in their interpolation)."
+                 if cfg.get("shared_basis") else ""), ""]
     if figure:
-        lines += [f"![sigma_sys^2 against the number of exposures]({figure})", ""]
-    med = _medians(result.scores)
-    lines += ["| scheme | stars/exposure | exposures | sigma_sys^2 median | 84% | simulations |",
-              "|---|---|---|---|---|---|"]
-    lines += [f"| {r['scheme']} | {r['n_stars']} | {r['n_exposures']} | "
-              f"{r['sigma_sys2_median']:.2e} | {r['sigma_sys2_p84']:.2e} | {r['n_simulations']} |"
-              for r in med]
-    paired = _paired(result.scores) if "simulation" in result.scores.colnames else []
-    if paired:
-        lines += ["", "Pooled against per-exposure models, paired over simulations:", ""]
-        lines += [f"- {m} stars/exposure, {n} exposure{'s' * (n > 1)}: " + (
-            f"pooled lower in {100 * f:.0f}% of the simulations, median ratio pooled / "
-            f"per-exposure {r:.2f}" + (" (one exposure: nothing to pool, both are one PSFModel, "
-                                       "differing only by their interpolators)" if n == 1
-                                       else "")) for m, n, f, r in paired]
+        lines += [f"![sigma_sys^2 against the number of exposures, per regime]({figure})", ""]
+    summary = regime_summary(result)
+    for (v, d), scores in _regimes(result.scores).items():
+        title = _regime_title(v, d)
+        lines += [title, ""] if title else []
+        sub = summary[(np.isnan(summary["variance_ratio"]) if np.isnan(v)
+                       else summary["variance_ratio"] == v)
+                      & (np.isnan(summary["dither"]) if np.isnan(d) else summary["dither"] == d)]
+        lines += ["| scheme | stars/exposure | slope | rho at largest N | sigma_sys^2 at largest "
+                  "N | / oracle at largest N | largest / oracle, N >= 2 |",
+                  "|---|---|---|---|---|---|---|"]
+        lines += [f"| {r['scheme']} | {r['n_stars']} | {r['slope']:.2f} | "
+                  f"{r['rho_exposures']:.3f} | {r['sigma_sys2_median']:.2e} (N = "
+                  f"{r['n_exposures']}) | {r['oracle_ratio']:.2f} | {r['oracle_ratio_max']:.2f} |"
+                  for r in sub]
+        lines += _paired_lines(scores)
+        lines += ["", _verdict_text(cheapest_configuration(
+            type(result)(scores, Table(), None)))]
+        lines.append("")
+    lines += _assumptions(result, cfg)
+    return "\n".join(lines) + "\n"
+
+
+def _paired_lines(scores):
+    schemes = set(np.asarray(scores["scheme"]).astype(str))
+    if not {"pooled", "per-exposure"} <= schemes or "simulation" not in scores.colnames:
+        return []
+    rows = [r for r in _paired(scores, "pooled", "per-exposure") if r[1] > 1]
+    if not rows:
+        return []
+    return ["", "Pooled / per-exposure sigma_sys^2, paired over simulations: " + "; ".join(
+        f"{m} stars x {n}: median {r:.2f} [{lo:.2f}, {hi:.2f}], pooled lower in "
+        f"{100 * f:.0f}%" for m, n, f, r, lo, hi in rows) + "."]
+
+
+def _verdict_text(verdict):
     req = verdict["requirement"]
-    lines.append("")
     if verdict["met"]:
         b = verdict["best"]
-        lines.append(f"**Verdict.** The cheapest configuration found to meet Stage IV "
-                     f"(sigma_sys^2 < {req:.1e}, median over simulations) is {b['scheme']} with "
-                     f"{b['n_exposures']} exposures of {b['n_stars']} stars each "
-                     f"(sigma_sys^2 = {b['sigma_sys2_median']:.2e}).")
-    else:
-        lines.append(f"**Verdict.** No configuration of this study meets Stage IV "
-                     f"(sigma_sys^2 < {req:.1e}, median over simulations). Shortfalls:")
-        lines.append("")
-        for s in verdict["shortfalls"]:
-            need = ""
-            if np.isfinite(s["n_needed"]):
-                need = (f"; a power law N^{s['slope']:.2f} fitted to its medians would reach it "
-                        f"near {s['n_needed']:.0f} exposures (an extrapolation)")
-            elif np.isfinite(s["slope"]):
-                need = (f"; at its fitted rate N^{s['slope']:.2f} it would not reach it within "
-                        "10^4 exposures")
-            lines.append(f"- {s['scheme']}, {s['n_stars']} stars/exposure, {s['n_exposures']} "
-                         f"exposures: sigma_sys^2 = {s['sigma_sys2_median']:.2e}, "
-                         f"{s['factor']:.1f} times the requirement{need}.")
-    if cfg:
-        shape = cfg.get("image_shape", ("?", "?"))
-        lines += ["", f"Assumptions: {cfg.get('n_simulations')} simulations per configuration; "
-                  f"chips of {shape[1]} x {shape[0]} pixels "
-                  f"({cfg.get('area_arcmin2', float('nan')):.0f} arcmin^2), "
-                  f"{cfg.get('n_galaxies')} galaxy-PSFs, star S/N {cfg.get('snr')}, dithers up "
-                  f"to {cfg.get('dither')} pixels, atmospheric / static pattern rms "
-                  f"{cfg.get('atmosphere_ratio')}, PSF variations down to 8 arcsec; D1 over "
-                  f"{cfg['theta_bins'][0]}-{cfg['theta_bins'][1]} arcmin, sigma_sys^2 over "
-                  f"multipoles {ELL_RANGE[0]:.0f}-{ELL_RANGE[1]:.0f} (D1 held constant below "
-                  "the smallest separation and tapered to zero above twice the largest); "
-                  "galaxy residuals are averaged with equal weights over the exposures."]
-    return "\n".join(lines) + "\n"
+        return (f"**Stage IV** (sigma_sys^2 < {req:.1e}, median over simulations): cheapest "
+                f"configuration {b['scheme']}, {b['n_exposures']} exposures of {b['n_stars']} "
+                f"stars (sigma_sys^2 = {b['sigma_sys2_median']:.2e}).")
+    parts = []
+    for s in verdict["shortfalls"]:
+        need = ""
+        if np.isfinite(s["n_needed"]):
+            need = (f", N^{s['slope']:.2f} would reach it near {s['n_needed']:.0f} exposures "
+                    "(extrapolated)")
+        elif np.isfinite(s["slope"]):
+            need = f", not within 10^4 exposures at N^{s['slope']:.2f}"
+        parts.append(f"{s['scheme']}, {s['n_exposures']} exposures of {s['n_stars']} stars: "
+                     f"{s['factor']:.1f}x the requirement{need}")
+    return (f"**Stage IV** (sigma_sys^2 < {req:.1e}, median over simulations) is not met; "
+            "shortfalls: " + "; ".join(parts) + ".")
+
+
+def _assumptions(result, cfg):
+    if not cfg:
+        return []
+    shape = cfg.get("image_shape", ("?", "?"))
+    theta = cfg.get("theta_bins", ("?", "?"))
+    return ["### Assumptions", "",
+            f"{cfg.get('n_simulations')} simulations per regime and number of stars (the same "
+            f"seeds in every regime); chips of {shape[1]} x {shape[0]} pixels "
+            f"({cfg.get('area_arcmin2', float('nan')):.0f} arcmin^2); "
+            f"{cfg.get('n_galaxies')} galaxy-PSFs in the part of the sky every exposure sees; "
+            f"star S/N {cfg.get('snr')}; dithers uniform within +-dither pixels along x and y; "
+            f"PSF variations down to 8 arcsec; D1 over {theta[0]}-{theta[1]} arcmin, "
+            f"sigma_sys^2 over multipoles {ELL_RANGE[0]:.0f}-{ELL_RANGE[1]:.0f} (D1 held "
+            "constant below the smallest separation and tapered to zero above twice the "
+            "largest); galaxy residuals averaged with equal weights over the exposures.", "",
+            LITERATURE]
 
 
 def write_exposure_report(result, directory) -> Path:
@@ -207,8 +358,9 @@ def write_exposure_report(result, directory) -> Path:
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
     result.scores.write(out / "exposure_scores.csv", overwrite=True)
+    regime_summary(result).write(out / "exposure_regimes.csv", overwrite=True)
     fig = plot_sigma_sys_vs_exposures(result)
-    fig.savefig(out / "sigma_sys_vs_exposures.png", dpi=120)
+    fig.savefig(out / "sigma_sys_vs_exposures.png", dpi=110)
     plt.close(fig)
     path = out / "exposures.md"
     path.write_text(exposure_report_section(result), encoding="utf-8")

@@ -1,0 +1,415 @@
+"""Kriging across exposures: a static pattern shared by every exposure plus each exposure's own.
+
+Model of target ``t`` at star ``i`` (position ``x_i``, exposure ``e_i``)::
+
+    y_t(i) = mu_t + s_t(x_i) + a_{t, e_i}(x_i) + eps_t(i)
+    cov    = p_t R(|x_i - x_j| / a_s) + q_t [e_i = e_j] R(|x_i - x_j| / a_a) + diag(noise_t)
+
+``s_t`` is the static (optical) pattern in chip (or focal-plane) coordinates, ``a_{t,e}`` the
+atmospheric pattern of exposure ``e``, independent from exposure to exposure. Within one
+exposure the dither is a constant shift, so sky and chip separations are equal: the
+atmospheric term needs no dither. Ranges ``a_s``, ``a_a`` (shared by the targets) and the
+sills ``p_t``, ``q_t`` are fitted by maximum likelihood with the mean ``mu_t`` profiled out
+(generalised least squares); ``R`` is a variogram's correlation (:mod:`._variogram`).
+
+Exact solve up to ``max_exact_samples`` stars; beyond, the static part across exposures goes
+through a grid of inducing points while every exposure's block (its atmosphere, its noise and
+the static part between its own stars) stays exact (the partially independent training
+conditional of Quinonero-Candela & Rasmussen 2005, with exposures as blocks), solved by
+Woodbury's identity: cost ``O(n m^2 + n n_e^2)`` for ``n`` stars, ``m`` inducing points and
+``n_e`` stars per exposure, memory ``O(n m)``.
+"""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+from scipy.linalg import LinAlgError, blas, cho_factor, cho_solve, lapack, solve_triangular
+from scipy.spatial.distance import cdist
+from sklearn.utils import check_random_state
+
+from ._base import _check_n_samples, _NoiseAwareInterpolator, _query_chunks
+from ._exposure_kriging_ml import JITTER, fit_joint_hyperparameters
+from ._variogram import _CORRELATIONS
+
+__all__ = ["ExposureKrigingRegressor"]
+
+_NAME = "ExposureKrigingRegressor"
+_MIN_ML_STARS = 10
+
+
+def _correlation(variogram, D, a):
+    return _CORRELATIONS[variogram](D / a)
+
+
+def split_exposure_column(X, column, owner=""):
+    """(positions, integer exposure indices) of X whose column ``column`` holds the exposure.
+
+    Parameters
+    ----------
+    X : ndarray of shape (n, n_features)
+    column : int
+        Column of the exposure index (negative counts from the end).
+    owner : str, default=""
+        Prefix of the error messages.
+
+    Returns
+    -------
+    positions : ndarray of shape (n, n_features - 1)
+    exposure : ndarray of shape (n,), int
+
+    Raises
+    ------
+    ValueError
+        With fewer than 2 columns, or when the exposure column is not integer.
+    """
+    if X.shape[1] < 2:
+        raise ValueError(f"{owner}X must hold positions and an exposure column, got "
+                         f"n_features = {X.shape[1]}.")
+    col = column % X.shape[1]
+    exposure = X[:, col]
+    if not np.array_equal(exposure, np.round(exposure)):
+        raise ValueError(f"{owner}column {col} of X (exposure_column) must hold integer "
+                         "exposure indices.")
+    return np.delete(X, col, axis=1), exposure.astype(np.int64)
+
+
+def _factor(K):
+    """Lower Cholesky factor of K (overwritten), or a ValueError saying what to do."""
+    try:
+        return cho_factor(K, lower=True, overwrite_a=True, check_finite=False)
+    except LinAlgError:
+        raise ValueError(f"{_NAME}: the Kriging covariance matrix is not positive definite "
+                         "(stars at the same position in one exposure without noise?). Merge "
+                         "such stars or give noise_var.") from None
+
+
+def _inverse_diagonal(L):
+    """diag(K^-1) from the lower Cholesky factor L of K (the upper triangle is ignored)."""
+    Linv = np.tril(lapack.dtrtri(L, lower=1)[0])
+    return np.einsum("ij,ij->j", Linv, Linv)
+
+
+def _check_positive(value, name, auto=True):
+    if auto and isinstance(value, str) and value == "auto":
+        return
+    if not (isinstance(value, numbers.Real) and not isinstance(value, bool)
+            and np.isfinite(value) and value > 0):
+        raise ValueError(f"{_NAME}: {name} must be a positive number{' or auto' * auto}, got "
+                         f"{value!r}.")
+
+
+def _check_int(value, name, low):
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < low:
+        raise ValueError(f"{_NAME}: {name} must be an integer >= {low}, got {value!r}.")
+
+
+class ExposureKrigingRegressor(_NoiseAwareInterpolator):
+    """Kriging over several exposures: a static pattern plus each exposure's own pattern.
+
+    ``X`` holds the positions and an integer exposure column. The covariance of targets
+    ``t`` at stars ``i`` and ``j`` is ``static_sill_[t] R(h / range_) + [same exposure]
+    atmosphere_sill_[t] R(h / atmosphere_range_)`` plus each star's measurement noise
+    (``noise_var``), with ``h`` the distance between the stars' positions scaled to the unit
+    square and ``R`` the variogram's correlation. The ranges and sills are fitted by maximum
+    likelihood on the stars of all exposures, so the model learns how much of the pattern
+    every exposure shares: with no static part it predicts each exposure from its own stars
+    (per-exposure Kriging); with no atmospheric part, from all stars as one static field.
+
+    Predictions are the best linear unbiased predictor of the noise-free value at
+    ``(position, exposure)``, for exposures seen in ``fit``.
+
+    Parameters
+    ----------
+    variogram : {"exponential", "spherical", "gaussian"}, default="exponential"
+        Correlation of both parts.
+    range : float or "auto", default="auto"
+        Range of the static part, in units of the unit square the positions are scaled to;
+        "auto": maximum likelihood. The sills are always fitted by maximum likelihood.
+    atmosphere_range : float or "auto", default="auto"
+        Range of the atmospheric part.
+    exposure_column : int, default=-1
+        Column of X holding the integer exposure index.
+    max_ml_samples : int, default=300
+        Maximum likelihood uses at most this many stars: every exposure's when there are few,
+        otherwise the same number from each of at most ``max_ml_samples // 40`` exposures
+        drawn at random (with ``random_state``), so that pairs of stars within and across
+        exposures both inform the split.
+    max_exact_samples : int, default=2000
+        Up to this many stars the Kriging system is solved exactly; beyond, the static part
+        between exposures goes through ``n_inducing`` inducing points (see Notes).
+    n_inducing : int, default=900
+        Inducing points on a square grid over the unit square (rounded to a square number).
+    random_state : int, RandomState instance or None, default=0
+        Seed of the maximum-likelihood subset.
+
+    Attributes
+    ----------
+    range_, atmosphere_range_ : float
+        Fitted ranges (unit-square units).
+    static_sill_, atmosphere_sill_ : ndarray of shape (n_targets,)
+        Fitted sills of the two parts.
+    mean_ : ndarray of shape (n_targets,)
+        Generalised-least-squares mean.
+    exposures_ : ndarray of int
+        Exposures seen in fit.
+    exact_ : bool
+        Whether the Kriging system was solved exactly.
+    log_likelihood_ : float
+        Maximum log-likelihood (on the maximum-likelihood subset).
+    noise_var_ : ndarray of shape (n_stars, n_targets) or None
+    X_fit_ : ndarray of shape (n_stars, n_features)
+        The stars given to fit (positions and exposure), rows of :meth:`loo_predict`.
+    n_features_in_ : int
+
+    Notes
+    -----
+    Above ``max_exact_samples`` the prior covariance is replaced by one that is exact within
+    each exposure and goes through inducing points ``u`` between exposures:
+    ``K ~ Q + blockdiag_e(K_ee - Q_ee + A_ee + N_e)`` with ``Q = p K_xu K_uu^-1 K_ux`` (the
+    partially independent training conditional, Quinonero-Candela & Rasmussen 2005, with
+    exposures as blocks); ``K^-1`` follows from Woodbury's identity with one factorisation per
+    exposure block and one of size ``m = n_inducing``. Predictions use the same covariance:
+    exact towards the query's own exposure, through the inducing points towards the others.
+
+    The closed-form leave-one-out of :meth:`loo_predict` is Dubrule's (1983) with the
+    generalised-least-squares mean, in both modes.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from sklearn_psf.interpolate import ExposureKrigingRegressor
+    >>> rng = np.random.default_rng(0)
+    >>> xy = rng.uniform(0, 1000, (120, 2))
+    >>> exposure = np.repeat([0, 1, 2], 40)
+    >>> static = np.sin(xy[:, 0] / 300.0)               # shared by every exposure
+    >>> atmosphere = np.array([0.3, -0.2, 0.1])[exposure] * np.cos(xy[:, 1] / 200.0)
+    >>> X = np.column_stack([xy, exposure])
+    >>> reg = ExposureKrigingRegressor().fit(X, static + atmosphere,
+    ...                                      noise_var=np.full(120, 1e-4))
+    >>> bool(reg.static_sill_[0] > reg.atmosphere_sill_[0])
+    True
+    >>> reg.predict([[500.0, 500.0, 1]]).shape
+    (1,)
+    """
+
+    def __init__(self, variogram="exponential", range="auto", atmosphere_range="auto",
+                 exposure_column=-1, max_ml_samples=300, max_exact_samples=2000,
+                 n_inducing=900, random_state=0):
+        self.variogram = variogram
+        self.range = range
+        self.atmosphere_range = atmosphere_range
+        self.exposure_column = exposure_column
+        self.max_ml_samples = max_ml_samples
+        self.max_exact_samples = max_exact_samples
+        self.n_inducing = n_inducing
+        self.random_state = random_state
+
+    # ------------------------------------------------------------------ input
+    def _split(self, X, reset):
+        pos, exposure = split_exposure_column(X, self.exposure_column, f"{_NAME}: ")
+        if not reset:
+            unknown = np.setdiff1d(exposure, self.exposures_)
+            if len(unknown):
+                raise ValueError(f"{_NAME}: exposures {unknown.tolist()} were not in the fit: "
+                                 "a model predicts only the exposures its stars came from.")
+        return (pos - self._lo) / self._span, exposure
+
+    def _check_params(self):
+        if self.variogram not in _CORRELATIONS:
+            raise ValueError(f"{_NAME}: variogram must be one of {sorted(_CORRELATIONS)}, got "
+                             f"{self.variogram!r}.")
+        _check_positive(self.range, "range")
+        _check_positive(self.atmosphere_range, "atmosphere_range")
+        _check_int(self.max_ml_samples, "max_ml_samples", _MIN_ML_STARS)
+        _check_int(self.max_exact_samples, "max_exact_samples", 0)
+        _check_int(self.n_inducing, "n_inducing", 4)
+
+    # ------------------------------------------------------------------ fit
+    def _fit(self, X, Y, noise):
+        self._check_params()
+        _check_n_samples(_NAME, X.shape[0], 3, "")
+        pos, _ = split_exposure_column(X, self.exposure_column, f"{_NAME}: ")
+        self._lo = pos.min(axis=0)
+        span = pos.max(axis=0) - self._lo
+        self._span = np.where(span > 0, span, 1.0)
+        U, exposure = self._split(X, reset=True)
+        n, T = Y.shape
+        self.exposures_ = np.unique(exposure)
+        self._fit_hyperparameters(U, exposure, Y, noise)
+        self.noise_var_ = noise
+        self.X_fit_ = X
+        self._U_fit, self._e_fit, self._y_fit = U, exposure, Y
+        self.exact_ = n <= self.max_exact_samples
+        (self._fit_exact if self.exact_ else self._fit_inducing)(U, exposure, Y, noise)
+        return self
+
+    def _ml_subset(self, exposure):
+        n = len(exposure)
+        if n <= self.max_ml_samples:
+            return np.arange(n)
+        rng = check_random_state(self.random_state)
+        groups = [np.flatnonzero(exposure == e) for e in self.exposures_]
+        n_exp = min(len(groups), max(2, self.max_ml_samples // 40))
+        chosen = np.sort(rng.choice(len(groups), n_exp, replace=False))
+        pool = np.concatenate([groups[g] for g in chosen])
+        if len(pool) <= self.max_ml_samples:
+            return pool
+        per = self.max_ml_samples // n_exp
+        return np.sort(np.concatenate([rng.choice(groups[g], min(per, len(groups[g])),
+                                                  replace=False) for g in chosen]))
+
+    def _fit_hyperparameters(self, U, exposure, Y, noise):
+        sub = self._ml_subset(exposure)
+        _check_n_samples(_NAME, len(sub), _MIN_ML_STARS,
+                         "to fit the sills by maximum likelihood")
+        fit = fit_joint_hyperparameters(
+            U[sub], exposure[sub], Y[sub], None if noise is None else noise[sub],
+            self.variogram, range_=self.range, atmosphere_range=self.atmosphere_range)
+        self.range_, self.atmosphere_range_ = fit["range"], fit["atmosphere_range"]
+        self.static_sill_, self.atmosphere_sill_ = fit["static_sill"], fit["atmosphere_sill"]
+        self.log_likelihood_ = fit["log_likelihood"]
+
+    def _diagonal(self, noise, t, n):
+        p, q = self.static_sill_[t], self.atmosphere_sill_[t]
+        return (0.0 if noise is None else noise[:, t]) + JITTER * (p + q) * np.ones(n)
+
+    def _fit_exact(self, U, exposure, Y, noise):
+        n, T = Y.shape
+        D = cdist(U, U)
+        Rs = _correlation(self.variogram, D, self.range_)
+        Ra = _correlation(self.variogram, D, self.atmosphere_range_)
+        Ra *= exposure[:, None] == exposure[None, :]
+        del D
+        self.mean_, self.dual_coef_ = np.empty(T), np.empty((n, T))
+        self._loo_pdiag = np.empty((n, T))
+        rhs = np.column_stack([np.ones(n), Y])
+        for t in range(T):
+            K = self.static_sill_[t] * Rs + self.atmosphere_sill_[t] * Ra
+            K[np.diag_indices(n)] += self._diagonal(noise, t, n)
+            L = _factor(K)
+            sol = cho_solve(L, rhs[:, [0, t + 1]], check_finite=False)
+            self._set_target(t, sol[:, 0], sol[:, 1], Y[:, t], _inverse_diagonal(L[0]))
+
+    def _set_target(self, t, k1, ky, y, diag_inv):
+        """Mean, dual coefficients and leave-one-out diagonal of target t from ``K^-1 1``,
+        ``K^-1 y`` and ``diag(K^-1)``."""
+        s = k1.sum()
+        self.mean_[t] = (k1 @ y) / s
+        self.dual_coef_[:, t] = ky - self.mean_[t] * k1  # K^-1 (y - mu)
+        self._loo_pdiag[:, t] = diag_inv - k1 * k1 / s
+
+    # -- inducing points (PITC over exposure blocks)
+    def _inducing_grid(self, d):
+        g = max(2, int(round(self.n_inducing ** (1.0 / d))))
+        axes = [np.linspace(0.0, 1.0, g)] * d
+        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, d)
+
+    def _fit_inducing(self, U, exposure, Y, noise):
+        n, T = Y.shape
+        Z = self._inducing_grid(U.shape[1])
+        m = len(Z)
+        Kuu = _correlation(self.variogram, cdist(Z, Z), self.range_)
+        Kuu[np.diag_indices(m)] += 1e-8
+        Lu = cho_factor(Kuu, lower=True)[0]
+        V = solve_triangular(Lu, _correlation(self.variogram, cdist(Z, U), self.range_),
+                             lower=True, check_finite=False)  # (m, n): Q = p V^T V
+        blocks = [np.flatnonzero(exposure == e) for e in self.exposures_]
+        # per exposure: static minus its inducing-point part, and the atmosphere (unit sills)
+        parts = []
+        for idx in blocks:
+            D = cdist(U[idx], U[idx])
+            Vb = V[:, idx]
+            parts.append((_correlation(self.variogram, D.copy(), self.range_) - Vb.T @ Vb,
+                          _correlation(self.variogram, D, self.atmosphere_range_)))
+        self.mean_, self.dual_coef_ = np.empty(T), np.empty((n, T))
+        self._loo_pdiag = np.empty((n, T))
+        VT = np.asfortranarray(V.T)  # (n, m): rows of each block contiguous per column
+        G = np.empty((n, m), order="F")  # L_e^-1 V_e^T, block by block
+        for t in range(T):
+            p, q = self.static_sill_[t], self.atmosphere_sill_[t]
+            diag = self._diagonal(noise, t, n)
+            rhs = np.column_stack([np.ones(n), Y[:, t]])
+            r, lam_diag, factors = np.empty((n, 2)), np.empty(n), []
+            for idx, (S, A) in zip(blocks, parts):
+                B = p * S + q * A
+                B[np.diag_indices(len(idx))] += diag[idx]
+                Lb = _factor(B)[0]
+                factors.append(Lb)
+                G[idx] = solve_triangular(Lb, VT[idx], lower=True, check_finite=False)
+                r[idx] = solve_triangular(Lb, rhs[idx], lower=True, check_finite=False)
+                lam_diag[idx] = _inverse_diagonal(Lb)
+            M = blas.dsyrk(1.0, G, trans=1, lower=1)
+            # Woodbury: K^-1 = L^-T (I - G M^-1 G^T) L^-1 with L = blockdiag(L_e),
+            # G = L^-1 V^T and M = I / p + G^T G (lower triangle)
+            M[np.diag_indices(m)] += 1.0 / p
+            Lm = _factor(M)
+            z = r - G @ cho_solve(Lm, G.T @ r, check_finite=False)
+            sol = np.empty_like(z)
+            for idx, Lb in zip(blocks, factors):
+                sol[idx] = solve_triangular(Lb, z[idx], lower=True, trans=1, check_finite=False)
+                G[idx] = solve_triangular(Lb, G[idx], lower=True, trans=1, check_finite=False)
+            # leave-one-out diagonal: diag(K^-1) = diag(L^-T L^-1) - |Lm^-1 (L^-T G)_i|^2, in
+            # single precision (a variance for the outlier test, not a solution)
+            W = solve_triangular(Lm[0].astype(np.float32), G.T.astype(np.float32), lower=True,
+                                 check_finite=False)
+            diag_inv = lam_diag - np.einsum("ij,ij->j", W, W, dtype=np.float64)
+            self._set_target(t, sol[:, 0], sol[:, 1], Y[:, t], diag_inv)
+        self._Z, self._Lu, self._V = Z, Lu, V
+        # the static part through the inducing points: Q(x, X) p alpha = V_x^T (V p alpha)
+        self._static_u = V @ (self.dual_coef_ * self.static_sill_)  # (m, T)
+
+    # ------------------------------------------------------------------ predict
+    def _predict(self, X):
+        U, exposure = self._split(X, reset=False)
+        out = np.empty((len(U), self.dual_coef_.shape[1]))
+        if self.exact_:
+            for sl in _query_chunks(len(U), len(self._U_fit)):
+                out[sl] = self._predict_exact(U[sl], exposure[sl])
+            return out
+        for e in np.unique(exposure):
+            rows = np.flatnonzero(exposure == e)
+            stars = np.flatnonzero(self._e_fit == e)
+            for sl in _query_chunks(len(rows), max(len(stars), len(self._Z))):
+                out[rows[sl]] = self._predict_inducing(U[rows[sl]], stars)
+        return out
+
+    def _predict_exact(self, U, exposure):
+        D = cdist(U, self._U_fit)
+        same = exposure[:, None] == self._e_fit[None, :]
+        Ra = _correlation(self.variogram, D.copy(), self.atmosphere_range_) * same
+        Rs = _correlation(self.variogram, D, self.range_)
+        return (self.mean_ + Ra @ (self.dual_coef_ * self.atmosphere_sill_)
+                + Rs @ (self.dual_coef_ * self.static_sill_))
+
+    def _predict_inducing(self, U, stars):
+        """Queries of one exposure: exact towards its own stars, inducing points beyond."""
+        D = cdist(U, self._U_fit[stars])
+        alpha = self.dual_coef_[stars]
+        Vq = solve_triangular(self._Lu, _correlation(self.variogram, cdist(self._Z, U),
+                                                     self.range_),
+                              lower=True, check_finite=False)  # (m, q)
+        Rs = _correlation(self.variogram, D.copy(), self.range_) - Vq.T @ self._V[:, stars]
+        Ra = _correlation(self.variogram, D, self.atmosphere_range_)
+        return (self.mean_ + Vq.T @ self._static_u + Rs @ (alpha * self.static_sill_)
+                + Ra @ (alpha * self.atmosphere_sill_))
+
+    def loo_predict(self, return_std=False):
+        """Leave-one-out predictions at the stars, in closed form.
+
+        Parameters
+        ----------
+        return_std : bool, default=False
+            Also return the standard deviation of ``y_i - prediction`` (the Kriging variance
+            at the star plus its own noise).
+
+        Returns
+        -------
+        y_loo : ndarray of shape (n_stars,) or (n_stars, n_targets)
+        y_std : ndarray, same shape (only with ``return_std=True``)
+        """
+        pred = self._format_output(self._y_fit - self.dual_coef_ / self._loo_pdiag)
+        if not return_std:
+            return pred
+        return pred, self._format_output(np.sqrt(1.0 / self._loo_pdiag))
