@@ -502,3 +502,20 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         tags = super().__sklearn_tags__()
         tags.input_tags.allow_nan = True
         return tags
+
+
+def _stamp_pca_on_basis(mean, components, guess_sigma: float = 3.0) -> StampPCA:
+    """A fitted :class:`StampPCA` whose basis is given, not learnt (e.g. a simulation's
+    reference): ``project`` fits stars on it by weighted least squares.
+
+    ``mean`` (p,) must sum to 1 and the ``components`` (k, p) be orthonormal and sum to 0
+    (the convention of the bases :class:`StampPCA` fits).
+    """
+    mean = np.asarray(mean, dtype=np.float64).reshape(-1)
+    comps = np.asarray(components, dtype=np.float64).reshape(-1, mean.size)
+    basis = StampPCA(n_components=comps.shape[0], guess_sigma=guess_sigma)
+    basis.mean_, basis.components_ = mean / mean.sum(), comps
+    basis.n_components_ = basis._n_features_out = comps.shape[0]
+    basis.stamp_size_ = int(round(np.sqrt(mean.size)))
+    basis.n_features_in_ = mean.size
+    return basis

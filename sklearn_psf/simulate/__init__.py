@@ -15,9 +15,9 @@ Conventions
   the smallest scale of PSF variation (no power at wavelengths below two cells). Their true
   covariance between any positions is :meth:`RandomFieldSampler.covariance` (per field) and
   :meth:`PSFField.weight_covariance` (per component, given the field's draw by default), with
-  :meth:`PSFField.coefficient_noise_var` the stars' true coefficient noise: what a
-  best-linear-unbiased oracle needs (tested: its predicted error variance matches its actual
-  error). Each synthesised stamp is passed through ``StampNormalizer(flux=True,
+  :meth:`PSFField.coefficient_noise_cov` the stars' true coefficient noise covariance: what
+  a best-linear-unbiased oracle needs (tested: its predicted error variance matches its
+  actual error over noise draws). Each synthesised stamp is passed through ``StampNormalizer(flux=True,
   center=True)`` (unit sum, adaptive centroid at the stamp centre), the package-wide
   convention; the true ``coeffs`` are the projection of that normalised stamp on the basis,
   i.e. what the measurement pipeline returns for a noiseless star.
@@ -56,7 +56,7 @@ Conventions
   usually holds; ``numpy.nan`` is the alternative), and saturated pixels (above
   ``saturation``), clipped to the saturation level as in real data.
   :meth:`PSFField.star_stamps` returns the weight stamps with ``return_weights=True`` and
-  :meth:`PSFField.coefficient_noise_var` each star's true coefficient noise.
+  :meth:`PSFField.coefficient_noise_cov` each star's true coefficient noise covariance.
 - **Seeds.** ``random_state`` (int, SeedSequence or Generator) seeds one generator that
   spawns seven independent streams: random fields, star positions, galaxy-PSF positions,
   noise, sub-pixel offsets, contaminants, detector defects. The same seed gives an identical
