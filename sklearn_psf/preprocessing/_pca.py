@@ -8,6 +8,7 @@ from typing import NamedTuple
 
 import numpy as np
 from scipy.linalg import eigh
+from scipy.optimize import minimize_scalar
 from sklearn.base import BaseEstimator, ClassNamePrefixFeaturesOutMixin, TransformerMixin
 from sklearn.utils.validation import check_is_fitted, validate_data
 
@@ -27,6 +28,7 @@ FIT_NO_CENTROID = 1
 FIT_NO_FLUX = 2
 
 _CHUNK = 256  # stars per batch of shifted basis images
+_TRACY_WIDOM_99 = 2.0234  # 99th percentile of the Tracy-Widom law (real case, TW1)
 _REFINE_STEPS = 3  # Gauss-Newton steps on the offsets of stars with masked pixels
 
 
@@ -85,6 +87,78 @@ def _weighted_pca(x, u, n_top):
     return mean, axes, lam, float(np.trace(small))
 
 
+def _star_weights(v, usable, cap):
+    """PCA weight of each star, ``1 / v`` (its S/N), capped at ``cap`` times the median of
+    the usable stars; 0 for unusable ones."""
+    u = np.where(usable, 1.0 / np.maximum(v, 1e-300), 0.0)
+    return np.minimum(u, cap * np.median(u[usable]))
+
+
+def _sum_zero(axes, mean):
+    """Orthonormal components summing to zero that span, with the unit-sum ``mean``, what the
+    ``axes`` span with it (in their order)."""
+    if not len(axes):
+        return axes
+    q, r = np.linalg.qr((axes - np.outer(axes.sum(axis=1), mean)).T)
+    return (q * np.where(np.diag(r) < 0, -1.0, 1.0)).T
+
+
+def noise_edge(contributions, p: int, quantile: bool = False) -> float:
+    """Largest eigenvalue of ``sum_i c_i z_i z_i^T`` for ``z_i`` standard normal in ``p``
+    dimensions, as the number of terms and ``p`` grow (the edge of the generalised
+    Marchenko-Pastur law), or its 99th percentile for a finite sample.
+
+    The upper edge of the support is ``p * min x(m)`` over ``-1 / max(c) < m < 0`` with
+    ``x(m) = -1/m + sum_i c_i / (1 + c_i m) / p`` (Silverstein & Choi 1995). For equal
+    ``c_i = sigma^2 / n`` this is Marchenko-Pastur's ``sigma^2 (1 + sqrt(p / n))^2``. With
+    ``quantile=True``, the edge is raised by the 99th percentile of the Tracy-Widom law on
+    Johnstone's (2001) scale, with ``n`` the effective number of terms
+    ``(sum c)^2 / sum c^2`` less one (a mean removed): pure noise exceeds it in 1% of
+    samples.
+
+    Parameters
+    ----------
+    contributions : array-like of shape (n,)
+        ``c_i >= 0``: each term's weight times its noise variance.
+    p : int
+        Dimension.
+    quantile : bool, default=False
+        The 99th percentile for a finite sample instead of the asymptotic edge.
+
+    Returns
+    -------
+    edge : float
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from sklearn_psf.preprocessing._pca import noise_edge
+    >>> round(noise_edge(np.full(1000, 1e-3), 625) / (1 + np.sqrt(0.625)) ** 2, 6)
+    1.0
+    """
+    c = np.asarray(contributions, dtype=np.float64)
+    c = c[c > 0]
+    if not c.size:
+        return 0.0
+    c_max = c.max()
+
+    def x(t):  # t = m * c_max in (-1, 0)
+        m = t / c_max
+        return -1.0 / m + np.sum(c / (1.0 + c * m)) / p
+
+    t = minimize_scalar(x, bounds=(-1.0 + 1e-12, -1e-12), method="bounded",
+                        options={"xatol": 1e-12}).x
+    edge = float(p * x(t))
+    if not quantile:
+        return edge
+    # Johnstone (2001): the largest eigenvalue fluctuates about the edge on the scale
+    # (1/sqrt(n) + 1/sqrt(p))^(1/3) / (sqrt(n) + sqrt(p)) (relative), n the effective number
+    # of terms less the one the mean removes, following the Tracy-Widom law
+    n = max(c.sum() ** 2 / (c**2).sum() - 1.0, 1.0)
+    scale = (1.0 / np.sqrt(n) + 1.0 / np.sqrt(p)) ** (1.0 / 3.0) / (np.sqrt(n) + np.sqrt(p))
+    return edge * (1.0 + _TRACY_WIDOM_99 * scale)
+
+
 class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator):
     """PCA basis of noisy, masked star stamps, with as many components as the signal holds.
 
@@ -94,18 +168,41 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
 
     1. measures each star's adaptive centroid on its unmasked pixels;
     2. iterates (``n_iter`` times): fills masked pixels with the current model of the star,
-       normalises (flux) and centres (Fourier shift) the stamps, and computes a PCA weighted by
-       each star's S/N (weight ``1 / v_i``, ``v_i`` the noise variance per pixel of the
-       normalised stamp, capped at ``max_star_weight`` times the median so that a few bright
-       stars do not make the basis); then fits every star by weighted least squares as
+       centres the stamps (Fourier shift), normalises each by its projection on the current
+       mean stamp (a matched-filter flux: the noise of a flux measured so takes the noise
+       along the star's own shape out of the normalised stamp, where the stamp's sum or a
+       fitted flux would add a spurious "flux" component, 5-19 times the noise edge on
+       stars of one PSF), and computes a PCA weighted by each star's S/N (weight
+       ``u_i = 1 / v_i``, ``v_i`` the noise variance per pixel of the normalised stamp,
+       capped at ``max_star_weight`` times the median so that a few bright stars do not
+       make the basis); the principal axes are made to sum to zero (the same space with the
+       mean) and every star is fitted by weighted least squares as
        ``flux * shift(mean + c @ components, centroid offset)`` on its unmasked pixels: the
        basis is moved to the star, never the masked data to the basis;
     3. keeps, with ``n_components="noise"``, the components whose variance is above the noise
-       edge ``sigma^2 (1 + sqrt(p / n_eff))^2`` (the largest eigenvalue of the sample covariance
-       of pure noise, Marchenko-Pastur), where ``sigma^2`` is the weighted mean noise variance
-       per pixel of the normalised stamps, ``p`` the number of pixels and ``n_eff`` the
-       effective number of stars ``(sum u)^2 / sum u^2``: noise alone cannot make such a
-       component, and a component below it is mostly noise. At most ``max_components``.
+       edge: the 99th percentile of the largest eigenvalue that the stars' noise alone gives
+       the weighted covariance of ``p - 1`` dimensions (``p`` pixels, one taken by the
+       normalisation). Star i contributes ``u_i v_i / sum(u)`` to it; with such unequal
+       contributions (stars of different S/N) the edge is that of the generalised
+       Marchenko-Pastur law (``sigma^2 (1 + sqrt(p / n))^2`` when the
+       contributions are equal), raised by the Tracy-Widom 99th percentile for ``n_eff``
+       stars, ``n_eff = (sum c)^2 / sum c^2`` from the contributions ``c_i``. Pure noise
+       (stars of one PSF, 1000 stars at S/N 100 or 20-1000) puts the top eigenvalue at
+       0.95-0.99 of the edge. At most ``max_components``.
+
+    The noise of the adaptive centroids needs no allowance: centring by the adaptive
+    centroid of a near-Gaussian star takes the noise along the shift directions out, as the
+    matched-filter flux does along the star (one PSF at S/N 1e4: top eigenvalue 0.97-0.99 of
+    the edge). What is kept is then structure of the stamps: PSF variations, and, at high
+    S/N, whatever else the stamps really vary by. For the package's simulated stars
+    (:func:`~sklearn_psf.simulate.make_psf_field`), the true components are the reference's
+    5 and two shift modes: each synthesised stamp is normalised and re-centred, which adds to
+    it the gradient of the mean stamp along x and y (variances ~1e-10 in unit-flux units,
+    2000 times below the weakest physical component), so that the noiseless stamps span 7
+    dimensions; 1000 stars keep 5 components at S/N 100-3000 and at the realistic mix
+    (20-1000), 3 at S/N 50, and 7 at S/N 1e4. Stars drawn at sub-pixel offsets from a PSF that is not band-limited (sampled, not
+    pixel-integrated, cores) also vary with the offset: components that a fit at high S/N
+    rightly keeps.
 
     ``transform`` gives the weighted-least-squares coefficients (the stamps' coefficient
     noise, flux and offsets come from :meth:`project`), ``inverse_transform`` normalised
@@ -131,7 +228,8 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
     mean_ : ndarray of shape (p,)
         Mean normalised stamp (sums to 1).
     components_ : ndarray of shape (n_components_, p)
-        Orthonormal principal stamps.
+        Orthonormal stamps summing to zero, in order of variance: the principal axes of the
+        normalised stamps, less their mean-stamp part (see above).
     explained_variance_ : ndarray
         Weighted variance along every principal axis (kept or not), largest first.
     noise_variance_ : float
@@ -295,14 +393,14 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         var[~good] = np.nan
         return flux, coef, np.maximum(var, 0.0), good
 
-    def _choose(self, lam, total, noise, n_eff, p):
+    def _choose(self, lam, total, noise, contributions, p):
         cap = lam.size
         if not isinstance(self.n_components, numbers.Integral):
             cap = min(int(self.max_components), cap)
         lam = lam[:cap]
         real = lam > 1e-12 * lam[0] if lam.size and lam[0] > 0 else np.zeros(0, bool)
         if isinstance(self.n_components, str):
-            edge = noise * (1.0 + np.sqrt(p / n_eff)) ** 2
+            edge = noise_edge(contributions, p - 1, quantile=True)
             k = int(np.count_nonzero((lam > edge) & real))
         elif isinstance(self.n_components, numbers.Integral):
             edge = np.nan
@@ -346,32 +444,40 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         comps = np.zeros((0, p))
         a = None
         model = np.zeros((n, p))  # the stars' current model: fills their masked pixels
+        pixel_var = np.where(w > 0, 1.0 / np.where(w > 0, w, 1.0), 0.0).mean(axis=1)
         for _ in range(int(self.n_iter)):
             safe = np.where(usable, flux, 1.0)
-            x = self._centred(np.where(w > 0, d, model), offsets, s) / safe[:, None]
-            # per-pixel noise variance of each normalised stamp (0 on filled pixels)
-            v = np.where(w > 0, 1.0 / np.where(w > 0, w, 1.0), 0.0).mean(axis=1) / safe**2
-            u = np.where(usable, 1.0 / np.maximum(v, 1e-300), 0.0)
-            med = np.median(u[usable])
-            u = np.minimum(u, self.max_star_weight * med)
             if a is None and (w == 0).any():
                 # first round with masked pixels: fill them from the weighted mean of the
-                # stars that have those pixels (sub-pixel offsets neglected), then re-centre
+                # stars that have those pixels (sub-pixel offsets neglected)
+                x = self._centred(np.where(w > 0, d, model), offsets, s) / safe[:, None]
+                u = _star_weights(pixel_var / safe**2, usable, self.max_star_weight)
                 have = (w > 0) & usable[:, None]
                 mean = (u[:, None] * have * x).sum(0) / np.maximum((u[:, None] * have).sum(0),
                                                                    1e-300)
                 model = flux[:, None] * fourier_shift(
                     np.broadcast_to(mean.reshape(1, s, s), (n, s, s)), offsets[:, 0],
                     offsets[:, 1]).reshape(n, p)
-                x = self._centred(np.where(w > 0, d, model), offsets, s) / safe[:, None]
+            centred = self._centred(np.where(w > 0, d, model), offsets, s)
+            if mean is None:  # first round: the weighted mean of the sum-normalised stamps
+                u = _star_weights(pixel_var / safe**2, usable, self.max_star_weight)
+                mean = u[usable] @ (centred[usable] / safe[usable, None]) / u[usable].sum()
+            # normalise each stamp by its projection on the mean stamp (a matched filter):
+            # the flux's noise then takes the noise along the star's shape out of the
+            # normalised stamp instead of adding a spurious "flux" component to it
+            proj = centred @ mean / (mean @ mean)
+            scale = np.where(usable & (proj > 0), proj, safe)
+            x = centred / scale[:, None]
+            v = pixel_var / scale**2  # noise variance per pixel of each normalised stamp
+            u = _star_weights(v, usable, self.max_star_weight)
             n_top = int(self.max_components) + 1
             if isinstance(self.n_components, numbers.Integral):
                 n_top = max(n_top, int(self.n_components))
             mean, axes, lam, total = _weighted_pca(x[usable], u[usable], n_top)
             noise = float((u * v).sum() / u.sum())
-            n_eff = float(u.sum() ** 2 / (u**2).sum())
-            k, edge = self._choose(lam, total, noise, n_eff, p)
-            comps = axes[:k]
+            k, edge = self._choose(lam, total, noise, u[usable] * v[usable] / u.sum(), p)
+            mean = mean / mean.sum()
+            comps = _sum_zero(axes[:k], mean)
             a, cov, model, offsets = self._fit_stamps(d, w, offsets, mean, comps, s)
             flux_new, _, _, good = self._coefficients(a, cov)
             usable = ok & good
