@@ -206,7 +206,8 @@ class FieldOracle:
             weights = w[rows] if weights is None else weights
         elif weights is None:
             weights = self.field.star_stamps(normalize=False, return_weights=True)[1][rows]
-        self.basis_ = _stamp_pca_on_basis(ref.mean, ref.components)
+        # the simulations have no background: the fit knows it (as coefficient_noise_cov)
+        self.basis_ = _stamp_pca_on_basis(ref.mean, ref.components, background=False)
         fit = self.basis_.project(y, weights)
         used = fit.flag == FIT_OK
         if used.sum() < 2:
