@@ -99,22 +99,36 @@ def companion_log_p(basis, coefficients, departure, noise, floors, reference=Non
     Returns
     -------
     log_p : ndarray of shape (n,)
+        0 for a star without a finite departure (its prediction failed).
     """
     n, k = departure.shape
-    g = companion_signatures(basis, coefficients)
     cov = np.einsum("nk,kl->nkl", floors, np.eye(k))
     if noise is not None:
         cov += noise if noise.ndim == 3 else np.einsum("nk,kl->nkl", noise, np.eye(k))
+    known = np.isfinite(cov).all(axis=(1, 2)) & np.isfinite(departure).all(axis=1)
+    known &= np.einsum("nkk->n", cov) > 0
+    log_p = np.zeros(n)  # no prediction (e.g. an interpolator that failed on a fold)
+    ref = known if reference is None else known & np.asarray(reference, bool)
+    if ref.sum() < 2:
+        return log_p
+    log_p[known] = _log_p(basis, coefficients, departure[known], cov[known], ref[known])
+    return log_p
+
+
+def _log_p(basis, coefficients, departure, cov, ref):
+    """companion_log_p on stars with a finite departure and covariance."""
+    n, k = departure.shape
+    g = companion_signatures(basis, coefficients)
     # whitened: z = u . eta with u = S^-1/2 g / |S^-1/2 g| and eta = S^-1/2 r
     values, vectors = np.linalg.eigh(cov)
     scale = 1.0 / np.sqrt(np.maximum(values, 1e-12 * values.max(axis=1, keepdims=True)))
     inv_root = np.einsum("nkl,nl,nml->nkm", vectors, scale, vectors)  # S^-1/2, symmetric
     u = np.einsum("nkm,jm->njk", inv_root, g)
     u /= np.maximum(np.linalg.norm(u, axis=2, keepdims=True), 1e-300)
-    eta = np.einsum("nkm,nm->nk", inv_root, np.where(np.isfinite(departure), departure, 0.0))
+    eta = np.einsum("nkm,nm->nk", inv_root, departure)
     z_all = np.einsum("njk,nk->nj", u, eta)
     z = z_all.max(axis=1)
-    ref = np.flatnonzero(np.ones(n, bool) if reference is None else reference)
+    ref = np.flatnonzero(ref)
     draws = max(10, -(-20000 // max(len(ref), 1)))
     null = np.einsum("njk,dnk->dnj", u[ref], np.random.default_rng(0).standard_normal(
         (draws, len(ref), k))).max(axis=2)

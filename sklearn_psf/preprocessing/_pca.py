@@ -237,7 +237,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
 
     The noise of the adaptive centroids needs no allowance: centring by the adaptive
     centroid of a near-Gaussian star takes the noise along the shift directions out, as the
-    matched-filter flux does along the star (one PSF at S/N 1e4: top eigenvalue 0.97-0.99 of
+    matched-filter flux does along the star (one PSF at S/N 1e4: top eigenvalue 0.95-0.97 of
     the edge). What is kept is then structure of the stamps: PSF variations, and, at high
     S/N, whatever else the stamps really vary by. For the package's simulated stars
     (:func:`~sklearn_psf.simulate.make_psf_field`), the true components are the reference's
@@ -471,7 +471,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         if not isinstance(self.n_components, numbers.Integral):
             cap = min(int(self.max_components), cap)
         lam = lam[:cap]
-        real = lam > 1e-12 * lam[0] if lam.size and lam[0] > 0 else np.zeros(0, bool)
+        real = lam > 1e-12 * lam[0] if lam.size and lam[0] > 0 else np.zeros(lam.size, bool)
         if isinstance(self.n_components, str):
             edge = noise_edge(contributions, p - 1, quantile=True)
             k = int(np.count_nonzero((lam > edge) & real))
