@@ -177,7 +177,7 @@ def noise_edge(contributions, p: int, quantile: bool = False) -> float:
     --------
     >>> import numpy as np
     >>> from sklearn_psf.preprocessing._pca import noise_edge
-    >>> round(noise_edge(np.full(1000, 1e-3), 625) / (1 + np.sqrt(0.625)) ** 2, 6)
+    >>> round(float(noise_edge(np.full(1000, 1e-3), 625) / (1 + np.sqrt(0.625)) ** 2), 6)
     1.0
     """
     c = np.asarray(contributions, dtype=np.float64)
