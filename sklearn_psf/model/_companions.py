@@ -2,8 +2,8 @@
 
 A faint companion (a few per cent of the star's flux, 1-3 pixels away) is absorbed by the
 star's own fit on the basis: the fit widens the star and elongates it along the separation,
-so its pixel residual shows almost nothing (a 1-3 px companion adds mostly second moments,
-which the basis holds). What gives it away is that the star's coefficients then depart from
+so its pixel residual shows little (the basis holds 40-80% of such a companion's second
+moments; the chi^2 test of the pixels catches a few per cent of them). What gives it away is that the star's coefficients then depart from
 their interpolation from the other stars in the direction a companion moves them: a larger
 size and an ellipticity along the separation. :func:`companion_log_p` is the matched-filter
 (likelihood-ratio) test of that departure for a companion of positive flux at each offset of
@@ -19,8 +19,8 @@ from scipy import stats
 
 from ..preprocessing import fourier_shift
 
-#: Level of the companion test: the fraction of clean stars it rejects. A clean star lost
-#: costs the model one star of hundreds; a companion kept biases the PSF's size.
+#: Level of the companion test: the fraction of clean stars it rejects at most. A clean star
+#: lost costs the model one star of hundreds; a companion kept biases the PSF's size.
 COMPANION_P_VALUE = 0.01
 #: Offsets (pixels) of the companions searched: a grid of step 1 px, 1-4 px from the star.
 _STEP, _MIN_SEP, _MAX_SEP = 1.0, 0.5, 4.0
