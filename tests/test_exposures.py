@@ -312,7 +312,8 @@ def test_weight_covariance_matches_the_simulated_truth():
     X = np.array([[300.0, 400.0, 0], [300.0, 400.0, 1]])
     c = static.weight_covariance(X)
     np.testing.assert_allclose(c[:, 0, 1], c[:, 0, 0], rtol=1e-12)
-    noise = static.coefficient_noise_var()
-    assert noise.shape == (len(static.star_data()[0]), static.reference.n_components)
+    noise = static.coefficient_noise_cov()
+    k = static.reference.n_components
+    assert noise.shape == (len(static.star_data()[0]), k, k)
     with pytest.raises(ValueError, match=r"shape \(n, 3\)"):
         static.weight_covariance(X[:, :2])

@@ -180,7 +180,7 @@ def _leaf_steps(transformer):
     return [transformer]
 
 
-_STAMPPCA_STATE = ("explained_variance_", "noise_variance_", "noise_edge_")
+_STAMPPCA_STATE = ("explained_variance_", "noise_variance_", "noise_edge_", "background_")
 
 
 def _describe_basis(basis, s):
@@ -228,8 +228,10 @@ def _rebuild_basis(kind, normalizer_params, mean, comps, params, state):
         basis.n_components_, basis.stamp_size_, basis.n_features_in_ = len(comps), s, s * s
         basis._n_features_out = len(comps)
         for name in _STAMPPCA_STATE:
-            setattr(basis, name, np.asarray(state[name], dtype=np.float64)
-                    if name == "explained_variance_" else float(state[name]))
+            if name in state:  # files written before background_ existed: no background
+                setattr(basis, name, np.asarray(state[name], dtype=np.float64)
+                        if name == "explained_variance_" else float(state[name]))
+        basis.background_ = bool(getattr(basis, "background_", False))
         return basis
     steps = [(f"stampnormalizer{i or ''}", StampNormalizer(**p))
              for i, p in enumerate(normalizer_params)]

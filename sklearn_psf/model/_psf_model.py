@@ -17,6 +17,7 @@ from ..preprocessing import (
     StampNormalizer,
 )
 from .._validation import rows_text
+from ._companions import COMPANION_P_VALUE, companion_log_p
 from ._defaults import make_default_basis, make_default_interpolator
 from ._file import read_model, save_model
 from ._galsim import to_galsim
@@ -50,8 +51,10 @@ class PSFModel(RegressorMixin, BaseEstimator):
        ``outliers="chi2"`` (the default), a star is rejected when its pixels differ from its
        own fit on the basis, or its coefficients from their interpolation from the other
        stars (5-fold cross-prediction), by more than its noise and the model's own error
-       allow (:class:`~sklearn_psf.preprocessing.ChiSquareOutlierDetector`); the basis is
-       then fitted again without the rejected stars;
+       allow (:class:`~sklearn_psf.preprocessing.ChiSquareOutlierDetector`), or when that
+       departure has the shape an unresolved companion gives a star (a larger size, an
+       ellipticity along the separation; see the user guide); the basis is then fitted
+       again without the rejected stars;
     3. fits ``interpolator`` on (positions, coefficients) of the kept stars, passing each
        star's coefficient noise as ``noise_var`` when the interpolator takes it (Kriging
        with a measurement-error term, weighted least squares for polynomials, smoothing for
@@ -195,10 +198,10 @@ class PSFModel(RegressorMixin, BaseEstimator):
         if y.ndim != 2:
             raise ValueError("y must hold flattened stamps of shape (n_stars, s*s).")
         s = int(round(np.sqrt(y.shape[1])))
-        if s * s != y.shape[1] or s % 2 == 0:
+        if s * s != y.shape[1]:
             raise ValueError(
-                f"y has {y.shape[1]} pixels per star: pass flattened square stamps of odd side "
-                "(n_stars, s*s), s odd, so that the stamp has a central pixel."
+                f"y has {y.shape[1]} pixels per star: pass flattened square stamps "
+                "(n_stars, s*s)."
             )
         n = X.shape[0]
         if n < 3:
@@ -221,7 +224,10 @@ class PSFModel(RegressorMixin, BaseEstimator):
             Star positions, usually (x, y) in pixels; further columns (e.g. an exposure
             index for a multi-exposure model) are passed to the interpolator as they are.
         y : array-like of shape (n_stars, s*s) or (n_stars, s, s)
-            Star stamps (raw, any flux units; s odd), NaN for masked pixels. Not modified.
+            Star stamps (raw, any flux units), NaN for masked pixels. Not modified. The PSF's
+            centre is the stamp's centre, pixel ``((s - 1) / 2, (s - 1) / 2)`` (0-based):
+            the central pixel for odd s, the corner shared by the four central pixels for
+            even s (GalSim's ``true_center``).
         weights : array-like of the shape of y, optional
             Inverse variance of each pixel, 0 for masked ones. Default: estimated from each
             stamp's border (see :func:`~sklearn_psf.preprocessing.estimate_pixel_weights`).
@@ -235,7 +241,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
         Raises
         ------
         ValueError
-            For NaN positions, non-square or even-sided stamps, too few stars for the basis,
+            For NaN positions, non-square stamps, too few stars for the basis,
             or when outlier rejection leaves too few stars; rows are named in the caller's
             numbering.
         """
@@ -264,7 +270,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
                                  f"{k} components: need at least {k + 2}.")
             trusted = usable & keep
             inliers, score, fitted = self._reject(detector, X, y, coef, var, trusted, usable,
-                                                  interp, stamp_fit)
+                                                  interp, stamp_fit, basis)
             mask = usable & inliers
             if round_ == 1 or not noise_aware or (mask == trusted).all():
                 break
@@ -336,7 +342,8 @@ class PSFModel(RegressorMixin, BaseEstimator):
         coef = coef.reshape(len(y), -1)
         return coef, None, np.zeros(len(y), dtype=np.int64), None
 
-    def _reject(self, detector, X, y, coef, var, trusted, usable, interp, stamp_fit):
+    def _reject(self, detector, X, y, coef, var, trusted, usable, interp, stamp_fit,
+                basis=None):
         """Inlier mask over all stars, the detector's score (NaN where unusable) and the
         interpolator fitted on the trusted stars (None unless the test is chi^2).
 
@@ -367,12 +374,17 @@ class PSFModel(RegressorMixin, BaseEstimator):
         if rel is not None:  # stars judged from outside: as far as the worst trusted one
             relative[ref] = rel
             relative[~ref] = rel.max(axis=0)
-        z_coef, _ = coefficient_residuals(X[idx], coef[idx], predicted,
-                                          None if var is None else var[idx], reference=ref,
-                                          relative=relative)
+        z_coef, floors = coefficient_residuals(X[idx], coef[idx], predicted,
+                                               None if var is None else var[idx],
+                                               reference=ref, relative=relative)
         detector.fit(z_coef)
         ok = detector.predict(z_coef) == 1
         score[idx] = detector.score_samples(z_coef)
+        if basis is not None:  # an unresolved companion: see model/_companions.py
+            log_p = companion_log_p(basis, coef[idx], coef[idx] - predicted,
+                                    None if var is None else var[idx], floors, ref)
+            ok &= log_p >= np.log10(COMPANION_P_VALUE)
+            score[idx] = np.minimum(score[idx], log_p)
         if stamp_fit is not None:
             z_pix, _ = pixel_residuals(np.where(np.isnan(y[idx]), 0.0, y[idx]),
                                        stamp_fit.model[idx], stamp_fit.weights[idx],

@@ -22,6 +22,9 @@ class CentringWarning(UserWarning):
 def fourier_shift(cube, dx, dy):
     """Shift stamps by (dx, dy) pixels with a Fourier phase ramp (periodic, flux-conserving).
 
+    Any side s: for even s the Nyquist frequency, which cannot carry a real shift, is left
+    unshifted (see :func:`phase_ramp`); a sampled PSF has next to no power there.
+
     Parameters
     ----------
     cube : ndarray of shape (n, s, s)
@@ -72,8 +75,11 @@ class StampNormalizer(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
     1. flux: each stamp is divided by the sum of its pixels (sum = 1 afterwards);
     2. centring: the adaptive-moment centroid (Gaussian-weighted, robust to noise; see
        :func:`sklearn_psf.measure.adaptive_moments`) is moved to the stamp centre
-       ((s-1)/2, (s-1)/2) by a sub-pixel Fourier shift, which conserves the flux exactly and
-       treats the stamp as periodic (stamps should go to ~0 at their border). The shift is
+       ((s-1)/2, (s-1)/2) (0-based; for an even side s, the corner shared by the four
+       central pixels, GalSim's ``true_center``) by a sub-pixel Fourier shift, which
+       conserves the flux exactly and treats the stamp as periodic (stamps should go to ~0
+       at their border; for even s the Nyquist frequency, which cannot carry a real shift,
+       is left unshifted: negligible for a sampled PSF). The shift is
        repeated (at most ``max_centring_steps`` times) until the centroid is within
        ``center_tol`` pixels of the centre; stamps already centred within ``center_tol`` are
        not shifted, which makes the transform idempotent.

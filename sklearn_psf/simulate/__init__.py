@@ -15,9 +15,9 @@ Conventions
   the smallest scale of PSF variation (no power at wavelengths below two cells). Their true
   covariance between any positions is :meth:`RandomFieldSampler.covariance` (per field) and
   :meth:`PSFField.weight_covariance` (per component, given the field's draw by default), with
-  :meth:`PSFField.coefficient_noise_var` the stars' true coefficient noise: what a
-  best-linear-unbiased oracle needs (tested: its predicted error variance matches its actual
-  error). Each synthesised stamp is passed through ``StampNormalizer(flux=True,
+  :meth:`PSFField.coefficient_noise_cov` the stars' true coefficient noise covariance: what
+  a best-linear-unbiased oracle needs (tested: its predicted error variance matches its
+  actual error over noise draws). Each synthesised stamp is passed through ``StampNormalizer(flux=True,
   center=True)`` (unit sum, adaptive centroid at the stamp centre), the package-wide
   convention; the true ``coeffs`` are the projection of that normalised stamp on the basis,
   i.e. what the measurement pipeline returns for a noiseless star.
@@ -56,7 +56,7 @@ Conventions
   usually holds; ``numpy.nan`` is the alternative), and saturated pixels (above
   ``saturation``), clipped to the saturation level as in real data.
   :meth:`PSFField.star_stamps` returns the weight stamps with ``return_weights=True`` and
-  :meth:`PSFField.coefficient_noise_var` each star's true coefficient noise.
+  :meth:`PSFField.coefficient_noise_cov` each star's true coefficient noise covariance.
 - **Seeds.** ``random_state`` (int, SeedSequence or Generator) seeds one generator that
   spawns seven independent streams: random fields, star positions, galaxy-PSF positions,
   noise, sub-pixel offsets, contaminants, detector defects. The same seed gives an identical
@@ -76,22 +76,26 @@ and ``field.contaminants`` (one row each). Strengths are drawn from realistic ra
   (log-uniform; typical hits of a few thousand electrons over a sky noise of ~10-30 e-) and
   20-100% of the star's peak (a fainter hit on a bright star's core is hidden by it);
 - ``"neighbour"``: a fainter star 3-8 pixels away (inside the stamp, unresolved by a
-  detection with a 5-pixel minimum area) with 10-50% of the flux, same PSF;
+  detection with a 5-pixel minimum area) with 10-50% of the star's flux (log-uniform), same
+  PSF;
 - ``"galaxy"``: the star replaced by an exponential galaxy of the same flux, half-light
   radius 1-3 times the PSF's (1.18 x its moments sigma), axis ratio 0.4-0.9, random
   orientation, convolved with the local PSF (a compact galaxy on the stellar locus);
-- ``"binary"``: two PSFs 1-3 pixels apart (unresolved), flux ratio 0.3-1, total flux kept.
+- ``"binary"``: an unresolved companion 0.5-4 pixels away (uniform) with 1-20% of the
+  star's flux (log-uniform), same PSF, total flux kept: most are faint, and a companion of
+  a few per cent at 1-3 pixels widens the star by more than the noise of a bright star.
 
-A contaminant that the data could not reveal is no test of a detector, and one that is
-invisible at the star's S/N does not bias the PSF beyond the star's own noise. So each
-contaminant's signal, the square root of the chi^2 it adds to the star's stamp after the
-flux and centroid are matched (column ``contaminant_snr``), is raised to at least
-``contaminant_min_snr`` (default 20: chi^2 excess 400 on a 625-pixel stamp, 11 times the
-chi^2 scatter of a clean stamp) by strengthening it (amplitude x2, neighbour flux x1.5,
-galaxy radius x1.4, binary separation and ratio x1.3, up to 6 times within caps). This
-matters for the faint stars only. ``n_field_cosmic_rays`` and ``n_field_galaxies`` put
-cosmic rays and galaxies (S/N from :func:`realistic_snr`) elsewhere in the image, away
-from stars, for catalogue-level tests.
+``contaminant_ranges`` sets other flux ratios and separations for binaries and neighbours
+(e.g. ``{"binary": {"flux_ratio": (0.02, 0.08), "separation": (1, 3)}}``). Contaminants come
+at this natural strength, many below the star's noise: a detector is judged on what it
+catches of those that move the PSF (size, ellipticity), not on all. ``contaminant_min_snr``
+(default 0: off) strengthens each contaminant whose own signal, the square root of the
+chi^2 it adds to the star's stamp after the flux and centroid are matched (column
+``contaminant_snr``), is below it (amplitude x2, neighbour flux x1.5, galaxy radius x1.4,
+binary separation and ratio x1.3, up to 6 times within caps), for tests on contaminants the
+data reveal. ``n_field_cosmic_rays`` and ``n_field_galaxies`` put cosmic rays and galaxies
+(S/N from :func:`realistic_snr`) elsewhere in the image, away from stars, for
+catalogue-level tests.
 
 Relation to :mod:`sklearn_psf.datasets`: the reference bases are data
 (:class:`~sklearn_psf.datasets.ReferenceBasis`, re-exported here); ``simulate`` imports

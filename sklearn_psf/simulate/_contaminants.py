@@ -14,10 +14,17 @@ from scipy.signal import fftconvolve
 from ..measure import adaptive_moments
 from ..preprocessing import CentringWarning, StampNormalizer, fourier_shift
 
-__all__ = ["CONTAMINANT_KINDS"]
+__all__ = ["CONTAMINANT_KINDS", "CONTAMINANT_RANGES"]
 
 #: Kinds of contaminant that ``make_psf_field(contaminants={kind: fraction})`` puts on stars.
 CONTAMINANT_KINDS = ("cosmic_ray", "neighbour", "galaxy", "binary")
+
+#: Default ranges of the companions' flux ratio (companion / star, log-uniform) and
+#: separation (pixels, uniform): an unresolved binary and a neighbour inside the stamp.
+CONTAMINANT_RANGES = {
+    "binary": {"flux_ratio": (0.01, 0.2), "separation": (0.5, 4.0)},
+    "neighbour": {"flux_ratio": (0.1, 0.5), "separation": (3.0, 8.0)},
+}
 
 _GALAXY_SIDE_EXTRA = 16  # galaxies are drawn on stamps 16 pixels wider than the PSF's
 _HLR_PER_SIGMA = 1.1774  # half-light radius / Gaussian sigma (the PSF's hlr from its moments)
@@ -85,14 +92,17 @@ def _cosmic_ray(rng, shape_side, peak, noise_rms):
     return stamp, length
 
 
-def contaminate_stars(image, stars, kinds, rng, noise_rms, min_snr):
+def contaminate_stars(image, stars, kinds, rng, noise_rms, min_snr, ranges=None):
     """Render each star of ``stars`` (truth table) with its contaminant ``kinds[i]``.
 
     Returns the contaminant truth rows (list of dicts) and each star's contaminant S/N (the
     norm of the difference between the contaminated and the clean, flux- and centroid-matched
     noiseless stamp over the sky rms: the square root of the chi^2 the contaminant adds).
-    Contaminants below ``min_snr`` are strengthened (up to 6 times) until they reach it.
+    Contaminants below ``min_snr`` are strengthened (up to 6 times) until they reach it;
+    ``ranges`` (``CONTAMINANT_RANGES``' layout) replaces the default companions' ranges.
     """
+    ranges = {kind: {**r, **(ranges or {}).get(kind, {})}
+              for kind, r in CONTAMINANT_RANGES.items()}
     s = int(round(np.sqrt(len(stars["stamp"][0])))) if len(stars) else 0
     rows, snrs = [], []
     norm = StampNormalizer()
@@ -103,7 +113,7 @@ def contaminate_stars(image, stars, kinds, rng, noise_rms, min_snr):
         truth = np.asarray(star["stamp"], dtype=np.float64)
         flux = float(star["flux"])
         psf_hlr = _HLR_PER_SIGMA * float(star["sigma"])
-        p = _draw_params(kind, rng, truth, flux, psf_hlr, noise_rms, s)
+        p = _draw_params(kind, rng, truth, flux, psf_hlr, noise_rms, s, ranges)
         for _ in range(7):
             parts = _parts(kind, p, pos, truth, flux, s)
             local = np.zeros((s, s))
@@ -127,18 +137,16 @@ def contaminate_stars(image, stars, kinds, rng, noise_rms, min_snr):
     return rows, snrs
 
 
-def _draw_params(kind, rng, truth, flux, psf_hlr, noise_rms, s):
+def _draw_params(kind, rng, truth, flux, psf_hlr, noise_rms, s, ranges):
     if kind == "cosmic_ray":
         st, length = _cosmic_ray(rng, s, flux * truth.max(), noise_rms)
         return {"stamp": st, "size": length, "cflux": st.sum()}
-    if kind == "neighbour":
-        return {"dist": rng.uniform(3.0, 8.0), "angle": rng.uniform(0, 2 * np.pi),
-                "frac": rng.uniform(0.1, 0.5)}
     if kind == "galaxy":
         return {"hlr": psf_hlr * rng.uniform(1.0, 3.0), "q": rng.uniform(0.4, 0.9),
                 "pa": rng.uniform(0, np.pi), "psf_hlr": psf_hlr}
-    return {"dist": rng.uniform(1.0, 3.0), "angle": rng.uniform(0, 2 * np.pi),  # binary
-            "frac": rng.uniform(0.3, 1.0)}
+    ratio, sep = ranges[kind]["flux_ratio"], ranges[kind]["separation"]  # binary, neighbour
+    return {"dist": rng.uniform(*sep), "angle": rng.uniform(0, 2 * np.pi),
+            "frac": np.exp(rng.uniform(*np.log(ratio)))}
 
 
 def _strengthen(kind, p):

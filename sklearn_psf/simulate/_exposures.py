@@ -80,7 +80,7 @@ class ExposureSet:
         covariance is ``coeff_std_k^2 / (1 + a^2) (C_k(r, r') + a^2 [e = e'] H_{k,e}(r, r'))``
         with ``C`` and ``H`` the covariances of the drawn static and atmospheric fields
         (:meth:`RandomFieldSampler.covariance` with ``field=k``: given each draw's
-        normalisation). With :meth:`coefficient_noise_var` this is what the best linear
+        normalisation). With :meth:`coefficient_noise_cov` this is what the best linear
         unbiased predictor of the coefficients over all exposures (an oracle) needs.
 
         Parameters
@@ -125,22 +125,24 @@ class ExposureSet:
             out[:, ia[:, None], ib[None, :]] += a2 * std2[:, None, None] * atm
         return out
 
-    def coefficient_noise_var(self, exposures=None) -> np.ndarray:
-        """True coefficient noise variance of the stars of :meth:`star_data`, in its order.
+    def coefficient_noise_cov(self, exposures=None, measurement: str = "wls") -> np.ndarray:
+        """True coefficient noise covariance of the stars of :meth:`star_data`, in its order.
 
         Parameters
         ----------
         exposures : sequence of int, optional
             Exposures to use (default all).
+        measurement : {"wls", "paper"}, default="wls"
+            See :meth:`PSFField.coefficient_noise_cov`.
 
         Returns
         -------
-        noise_var : ndarray of shape (n_stars, n_components)
-            :meth:`PSFField.coefficient_noise_var` of each exposure's stars whose stamp was
+        noise_cov : ndarray of shape (n_stars, n_components, n_components)
+            :meth:`PSFField.coefficient_noise_cov` of each exposure's stars whose stamp was
             cut.
         """
         idx = range(len(self)) if exposures is None else exposures
-        return np.concatenate([self.exposures[i].coefficient_noise_var()[
+        return np.concatenate([self.exposures[i].coefficient_noise_cov(measurement)[
             np.asarray(self.exposures[i].star_stamps()[-1]) == 0] for i in idx])
 
     def star_data(self, exposures=None, *, return_weights: bool = False):

@@ -19,6 +19,7 @@ from ..measure import adaptive_moments
 from ..preprocessing import StampNormalizer, cut_stamps
 from ._contaminants import (
     CONTAMINANT_KINDS,
+    CONTAMINANT_RANGES,
     apply_defects,
     contaminate_stars,
     field_cosmic_rays,
@@ -137,6 +138,28 @@ def _check_contaminants(contaminants):
     return out
 
 
+def _check_ranges(ranges):
+    if ranges is None:
+        return None
+    if not isinstance(ranges, dict):
+        raise TypeError("contaminant_ranges must be a dict {kind: {'flux_ratio': (lo, hi), "
+                        f"'separation': (lo, hi)}}, got {type(ranges).__name__}.")
+    out = {}
+    for kind, values in ranges.items():
+        if kind not in CONTAMINANT_RANGES:
+            raise ValueError(f"contaminant_ranges has no ranges for {kind!r}: give them for "
+                             f"{sorted(CONTAMINANT_RANGES)}.")
+        for name, (lo, hi) in values.items():
+            if name not in CONTAMINANT_RANGES[kind]:
+                raise ValueError(f"Unknown range {name!r} for {kind!r}: choose among "
+                                 f"{sorted(CONTAMINANT_RANGES[kind])}.")
+            if not 0 < float(lo) <= float(hi):
+                raise ValueError(f"The {kind} {name} range must be 0 < lo <= hi, got "
+                                 f"({lo}, {hi}).")
+        out[kind] = {name: (float(lo), float(hi)) for name, (lo, hi) in values.items()}
+    return out
+
+
 def _star_kinds(n, fractions, rng):
     """Contaminant kind of each star ("" = clean): exact counts, random stars."""
     kinds = np.full(n, "", dtype=object)
@@ -167,7 +190,8 @@ def make_psf_field(
     smallest_scale: float = DEFAULT_SMALLEST_SCALE,
     subpixel: bool = True,
     contaminants: dict | None = None,
-    contaminant_min_snr: float = 20.0,
+    contaminant_min_snr: float = 0.0,
+    contaminant_ranges: dict | None = None,
     n_field_cosmic_rays: int = 0,
     n_field_galaxies: int = 0,
     masked_fraction: float = 0.0,
@@ -227,9 +251,17 @@ def make_psf_field(
         ``{kind: fraction of the stars}`` with kinds "cosmic_ray", "neighbour", "galaxy",
         "binary" (see the module documentation for what each is and its strength); default
         none. Truth: ``stars["contaminant"]`` and ``field.contaminants``.
-    contaminant_min_snr : float, default=20
-        A contaminant whose own signal (square root of the chi^2 it adds to the star's stamp,
-        after flux and centroid matching) is below this is strengthened until it reaches it.
+    contaminant_min_snr : float, default=0
+        Contaminants come at their natural strength (the ranges of the module
+        documentation). A positive value strengthens each contaminant whose own signal (the
+        square root of the chi^2 it adds to the star's stamp, after flux and centroid
+        matching) is below it until it reaches it (e.g. 20, for tests of a detector on
+        contaminants the data reveal).
+    contaminant_ranges : dict, optional
+        ``{"binary": {"flux_ratio": (lo, hi), "separation": (lo, hi)}, "neighbour": ...}``:
+        other ranges for the companions' flux ratio (companion / star, log-uniform) and
+        separation (pixels, uniform); by default binaries of 1-20% at 0.5-4 px and
+        neighbours of 10-50% at 3-8 px.
     n_field_cosmic_rays, n_field_galaxies : int, default=0
         Cosmic rays and extended galaxies (S/N drawn from :func:`realistic_snr`) elsewhere in
         the image, away from the stars (for catalogue-level tests).
@@ -441,7 +473,8 @@ def make_psf_field(
     if galaxy_snr is not None:
         render(canvas, gal_pos, gal_stamps, gal_flux)
     rows, cont_snr = contaminate_stars(canvas, stars, kinds, cont_rng, noise_rms,
-                                       float(contaminant_min_snr))
+                                       float(contaminant_min_snr),
+                                       _check_ranges(contaminant_ranges))
     if n_field_galaxies or n_field_cosmic_rays:
         taken = np.vstack([star_pos, gal_pos])
         fg = _draw_positions(n_field_galaxies, taken, lo, hi_x, hi_y, s + 12, cont_rng,

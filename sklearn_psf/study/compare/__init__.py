@@ -29,7 +29,7 @@ from ._configs import (
     scale_study_configs,
     snr_study_configs,
 )
-from ._oracle import FieldOracle
+from ._oracle import FieldOracle, oracle_e_rms_ratio
 from ._run import StudyResult, combine_results, run_study
 from ._schemes import (
     ARCMIN,
@@ -41,10 +41,12 @@ from ._schemes import (
 from ._tuning import PARAM_GRIDS, tune_schemes
 
 __all__ = [
+    "FieldOracle",
     "SimulationConfig",
     "StudyResult",
     "default_schemes",
     "make_psf_model",
+    "oracle_e_rms_ratio",
     "paper_split",
     "run_study",
     "snr_study_configs",

@@ -184,7 +184,6 @@ def _run_one(regime, sim, seed, n_stars, schemes, settings):
             schemes = default_exposure_schemes(_SharedBasis(StampPCA().fit(stamps)))
         if settings["oracle"]:
             schemes = {**schemes, ORACLE: None}
-            noise = exp.coefficient_noise_var()
         rows, theta = [], None
         for name, scheme in schemes.items():
             # exposures are fitted independently by a per-exposure model: fit once on all
@@ -194,7 +193,7 @@ def _run_one(regime, sim, seed, n_stars, schemes, settings):
                 if fitted is None or not separable:
                     start = time.perf_counter()
                     sel = X[:, -1] < n if not separable else slice(None)
-                    fitted = (FieldOracle(exp, noise[sel]) if scheme is None
+                    fitted = (FieldOracle(exp) if scheme is None
                               else clone(scheme)).fit(X[sel], stamps[sel])
                     fit_seconds = time.perf_counter() - start
                 scores, d1, theta = _scores(_residuals(fitted, exp, n), exp,
