@@ -253,13 +253,17 @@ def _about(path):
 
 
 def _image_hdus(path):
-    """Indices and names of the 2-D image HDUs of a FITS file (the CCDs)."""
+    """Indices and names of the 2-D image HDUs of a FITS file (the CCDs), from its headers
+    alone: astropy's notes on them are left to the reading of each CCD, which reports them,
+    and the library is not imported here (the fits of several CCDs import it in their own
+    processes)."""
+    import warnings
+
     from astropy.io import fits
 
-    from ..io._image import _tolerant_fits
-
     try:
-        with _tolerant_fits(path), fits.open(path, memmap=False) as hdul:
+        with warnings.catch_warnings(), fits.open(path, memmap=False) as hdul:
+            warnings.simplefilter("ignore")
             return [(i, h.name or str(i)) for i, h in enumerate(hdul)
                     if h.is_image and h.header.get("NAXIS", 0) == 2]
     except OSError as exc:
@@ -316,26 +320,21 @@ def _fit_jobs(args):
     if not images:
         units = [(None, args.hdu, None)] * len(catalogs)
     catalogs = catalogs or [None] * len(units)
-    jobs = []
+    named = len(set(images or catalogs)) > 1  # outputs named after the input files
+    jobs, seen = [], {}
     for (image, hdu, hdu_name), catalog in zip(units, catalogs):
-        source = image or catalog
-        if hdu_name is not None:
-            source = f"{image}[{hdu_name}]"
-        label = "_".join(part for part in (
-            _name(image or catalog) if len(set(images or catalogs)) > 1 else None,
-            hdu_name) if part)
+        output = args.output
+        if every_hdu or len(units) > 1:
+            label = "_".join(p for p in (_name(image or catalog) if named else None, hdu_name)
+                             if p)
+            output = f"{_stem(args.output)}_{label}.fits"
+        source = image or catalog if hdu_name is None else f"{image}[{hdu_name}]"
+        if output in seen:
+            raise CLIInputError(f"{seen[output]} and {source} would both be written to "
+                                f"{output!r}: give input files distinct names")
+        seen[output] = source
         jobs.append(argparse.Namespace(**{**vars(args), "image": image, "stars": catalog,
-                                          "hdu": hdu, "source": source, "label": label}))
-    if len(jobs) == 1:
-        jobs[0].output, jobs[0].label = args.output, None
-        return jobs
-    seen = {}
-    for job in jobs:
-        job.output = f"{_stem(args.output)}_{job.label}.fits"
-        if job.output in seen:
-            raise CLIInputError(f"{seen[job.output]} and {job.source} would both be written "
-                                f"to {job.output!r}: give input files distinct names")
-        seen[job.output] = job.source
+                                          "hdu": hdu, "output": output, "source": source}))
     return jobs
 
 
@@ -528,12 +527,16 @@ def _skipped_text(counts):
 
 
 class _FitOutcome(NamedTuple):
-    """A fit's report lines, its warnings (``(message, category, filename, lineno)``: those
-    of the fit itself apart), the files written and the error that stopped it (or None)."""
+    """What a fit prints: its report ``lines``; the ``warnings`` to replay, each
+    ``(message, category, filename, lineno)``, and this package's warnings about the fitted
+    model (``notes``, plain text: the command prints them, and the process showing them need
+    not import the library), in the order of printing; the files written and the error that
+    stopped the fit (or None)."""
 
     lines: list
     warnings: list
-    fit_warnings: list
+    notes: list
+    later_warnings: list
     written: list
     error: Exception | None
 
@@ -554,7 +557,10 @@ def _fit_one(args, quiet=False) -> _FitOutcome:
             written = _fit_steps(args, lines, fit_warnings, quiet)
         except (CLIInputError, ValueError, OSError) as exc:
             error = exc
-    return _FitOutcome(lines, _plain(caught), _plain(fit_warnings), written, error)
+    ours = [w.category.__module__.startswith("sklearn_psf") for w in fit_warnings]
+    notes = [str(w.message) for w, mine in zip(fit_warnings, ours) if mine]
+    others = _plain(w for w, mine in zip(fit_warnings, ours) if not mine)
+    return _FitOutcome(lines, _plain(caught), notes, others, written, error)
 
 
 def _fit_of_many(args) -> _FitOutcome:
@@ -580,11 +586,10 @@ def _show(outcome, warnings_registry, shown_output=None):
         replay(*w)
     if outcome.lines:
         print("\n".join(outcome.lines))
-    for message, category, filename, lineno in outcome.fit_warnings:
-        if category.__module__.startswith("sklearn_psf"):
-            print(f"sklearn-psf: warning: {message}", file=sys.stderr)
-        else:
-            replay(message, category, filename, lineno)
+    for note in outcome.notes:
+        print(f"sklearn-psf: warning: {note}", file=sys.stderr)
+    for w in outcome.later_warnings:
+        replay(*w)
     if outcome.written:
         written = outcome.written
         if shown_output is not None:  # the model file first, its figures named after it
