@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -72,16 +73,21 @@ def write_exposure(path, n_ccds, n_stars, shape):
 
 
 def run_command(exposure, out, extra):
-    """Wall time of ``sklearn-psf fit EXPOSURE --hdu all`` in a fresh process."""
+    """Wall time of ``sklearn-psf fit EXPOSURE --hdu all`` in a fresh process, the CPU time of
+    the command and of the processes it started (not of a Dask cluster's workers), and its
+    error stream."""
     out.mkdir()
     cmd = [sys.executable, "-m", "sklearn_psf", "fit", str(exposure), "--hdu", "all",
            "-o", str(out / "psf.fits"), *extra]
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, env=CLEAN_ENV)
     elapsed = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode:
         raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stderr[-3000:]}")
-    return elapsed, proc.stderr
+    cpu = sum(getattr(after, k) - getattr(before, k) for k in ("ru_utime", "ru_stime"))
+    return elapsed, cpu, proc.stderr
 
 
 def same_files(a, b):
@@ -184,12 +190,13 @@ def main(argv=None):
         tmp = Path(tmp)
         exposure = tmp / "exposure.fits"
         write_exposure(exposure, n_ccds, n_stars, shape)
-        times, folders, noted = {}, {}, {}
+        times, cpus, folders, noted = {}, {}, {}, {}
 
         def timed(label, folder, options):
             out = tmp / f"{folder}_{len(times.get(label, []))}"
-            t, err = run_command(exposure, out, extra + options)
+            t, cpu, err = run_command(exposure, out, extra + options)
             times.setdefault(label, []).append(t)
+            cpus.setdefault(label, []).append(cpu)
             folders[label], noted[label] = out, "MALLOC_TRIM_THRESHOLD_" in err
 
         for _ in range(args.repeats):  # interleaved: a burst of load hits every setting
@@ -219,6 +226,13 @@ def main(argv=None):
             print(f"  {label:53s} {t:7.1f} s ({', '.join(f'{v:.1f}' for v in ts)})  "
                   f"{t1 / t:5.2f} x faster than --n-jobs 1" + target
                   + ("; the command noted the workers' setting" if noted.get(label) else ""))
+        c1, c2 = min(cpus["--n-jobs 1"]), min(cpus["--n-jobs 2"])
+        print(f"  CPU time of all the command's processes: --n-jobs 1 {c1:.1f} s, --n-jobs 2 "
+              f"{c2:.1f} s: on 2 idle cores (--n-jobs 1 taking its CPU time), --n-jobs 2 would "
+              f"be at most {2 * c1 / c2:.2f} x faster (a bound from the CPU times, not a "
+              "measurement; where the cores are shared, Linux's autogroup scheduler gives each "
+              "login session an equal share: a second process of one session gains nothing "
+              "while another session is busy)")
         serial = folders.pop("--n-jobs 1")
         for label, folder in folders.items():
             problems = same_files(serial, folder)
