@@ -1,7 +1,12 @@
 """``sklearn-psf fit`` and ``sklearn-psf predict`` end to end on a simulated exposure."""
 
+import ast
 import os
+import re
+import subprocess
+import sys
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -445,3 +450,178 @@ def test_nan_pixels_are_counted(tmp_path, exposure, capsys):
                            "--no-plots", "--interpolator", "polynomial"], capsys)
     assert code == 0, err
     assert f"NaN pixels: {int(np.isnan(data).sum())} " in out
+
+
+# ------------------------------------------------------------- many CCDs, in parallel or not
+def _same_model_files(a, b):
+    """Every HDU of two model files equal byte for byte but for the DATE card (the time of
+    writing), and the same predictions."""
+    with fits.open(a) as ha, fits.open(b) as hb:
+        assert [h.name for h in ha] == [h.name for h in hb]
+        for x, y in zip(ha, hb):
+            hx, hy = x.header.copy(), y.header.copy()
+            for h in (hx, hy):
+                h.remove("DATE", ignore_missing=True)
+            assert hx.tostring() == hy.tostring(), x.name
+            if x.data is not None:
+                assert np.asarray(x.data).tobytes() == np.asarray(y.data).tobytes(), x.name
+    X = np.array([[10.0, 20.0], [650.0, 640.0], [1900.0, 90.0]])
+    np.testing.assert_array_equal(load_model(a).predict(X), load_model(b).predict(X))
+
+
+@pytest.fixture(scope="module")
+def ccds(tmp_path_factory):
+    """A multi-extension exposure of 3 CCDs (an example CCD of 200 stars, mirrored in x,
+    flipped in y) and its models fitted one after the other (--n-jobs 1), by the command in a
+    fresh process whose BLAS may use 2 threads (each fit of several must use one, whatever is
+    loaded when: at this size 2 threads change the last bits of the models)."""
+    folder = tmp_path_factory.mktemp("ccds")
+    ccd = write_example_exposure(folder, n_stars=200, image_shape=(2000, 2000), n_galaxies=0,
+                                 random_state=1)
+    with fits.open(ccd["image"]) as hdul:
+        data, header = hdul["SCI"].data, hdul["SCI"].header
+        hdus = [fits.ImageHDU(d, header=header, name=f"CCD{k + 1}")
+                for k, d in enumerate((data, data[:, ::-1], data[::-1]))]
+    fits.HDUList([fits.PrimaryHDU(), *hdus]).writeto(folder / "mef.fits")
+    (folder / "serial").mkdir()
+    threads = {k: "2" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+    proc = subprocess.run([sys.executable, "-m", "sklearn_psf", "fit", str(folder / "mef.fits"),
+                           "--hdu", "all", "--no-plots", "--n-jobs", "1", "-o",
+                           str(folder / "serial" / "psf.fits")], capture_output=True,
+                          text=True, env={**os.environ, **threads})
+    assert proc.returncode == 0, proc.stderr
+    return {"mef": folder / "mef.fits", "serial": folder / "serial", "out": proc.stdout}
+
+
+@pytest.fixture
+def environ_kept():
+    """Restores os.environ: a Dask nanny sets its workers' variables in the process that
+    starts it."""
+    saved = dict(os.environ)
+    yield
+    os.environ.clear()
+    os.environ.update(saved)
+
+
+def test_ccds_in_parallel_give_the_serial_models(tmp_path, ccds, capsys):
+    """--n-jobs 2: the same model files as one after the other (and as each CCD fitted on its
+    own), each CCD's report in order."""
+    names = [f"psf_CCD{k}.fits" for k in (1, 2, 3)]
+    assert sorted(p.name for p in ccds["serial"].iterdir()) == names
+    code, out, err = _run(["fit", ccds["mef"], "--hdu", "all", "--no-plots", "--n-jobs", "2",
+                           "-o", tmp_path / "psf.fits"], capsys)
+    assert code == 0, err
+    for name in names:
+        _same_model_files(ccds["serial"] / name, tmp_path / name)
+    # the reports as the serial run prints them, in the CCDs' order, the paths as given
+    assert out.replace(str(tmp_path), "OUT") == ccds["out"].replace(str(ccds["serial"]), "OUT")
+    heads = [line for line in out.splitlines() if " -> " in line]
+    assert heads == [f"{ccds['mef']}[CCD{k}] -> {tmp_path / f'psf_CCD{k}.fits'}"
+                     for k in (1, 2, 3)]
+    assert out.count("Wrote ") == 3 and out.count("reserved stars (star - model") == 3
+    assert "fitting" in err   # the progress bar over the CCDs
+    # a CCD fitted on its own: the same model (up to the BLAS threads' rounding)
+    assert _run(["fit", ccds["mef"], "--hdu", "CCD2", "--no-plots", "-o",
+                 tmp_path / "alone.fits"], capsys)[0] == 0
+    X = np.array([[10.0, 20.0], [650.0, 640.0], [1900.0, 90.0]])
+    assert_allclose(load_model(tmp_path / "alone.fits").predict(X),
+                    load_model(tmp_path / "psf_CCD2.fits").predict(X), rtol=1e-9, atol=1e-14)
+
+
+def test_ccds_on_a_dask_cluster_give_the_serial_models(tmp_path, ccds, capsys, environ_kept):
+    distributed = pytest.importorskip("distributed", reason="the dask extra is not installed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        code, out, err = _run(["fit", ccds["mef"], "--hdu", "all", "--no-plots", "--scheduler",
+                               cluster.scheduler_address, "-o", tmp_path / "psf.fits"], capsys)
+    assert code == 0, err
+    for k in (1, 2, 3):
+        _same_model_files(ccds["serial"] / f"psf_CCD{k}.fits", tmp_path / f"psf_CCD{k}.fits")
+    # Dask's default workers: the command says how to start them as fast as local processes
+    note = [line for line in err.splitlines() if "MALLOC_TRIM_THRESHOLD_" in line]
+    assert len(note) == 1 and "2 of the cluster's 2 Dask workers" in note[0]
+
+
+def test_documented_dask_workers_leave_the_trim_threshold_unset():
+    """The worker environment the note and docs/cli.rst give removes Dask's
+    MALLOC_TRIM_THRESHOLD_ and keeps its one BLAS thread per worker."""
+    pytest.importorskip("distributed", reason="the dask extra is not installed")
+    import shlex
+
+    from sklearn_psf.cli._parallel import FAST_WORKERS
+
+    assignment = shlex.split(FAST_WORKERS)[0]
+    name, value = assignment.split("=", 1)
+    code = ("import dask, distributed; "
+            "print(dask.config.get('distributed.nanny.pre-spawn-environ'))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          env={**os.environ, name: value})
+    assert proc.returncode == 0, proc.stderr
+    environ = ast.literal_eval(proc.stdout.strip())
+    assert environ["MALLOC_TRIM_THRESHOLD_"] is None
+    assert environ["OPENBLAS_NUM_THREADS"] == environ["OMP_NUM_THREADS"] == 1
+    docs = (Path(__file__).parents[1] / "docs" / "cli.rst").read_text()
+    assert FAST_WORKERS.split(" dask worker")[0] in docs   # the same setting documented
+
+
+def test_images_and_catalogues_paired_in_order(tmp_path, exposure, capsys):
+    """Several images with one catalogue each: one model per image, named after it, each
+    from its own catalogue."""
+    with fits.open(exposure["image"]) as hdul:
+        sci, wgt = hdul["SCI"], hdul["WGT"]
+        nx = sci.data.shape[1]
+        for name, flip in (("a", slice(None)), ("b", slice(None, None, -1))):
+            fits.HDUList([fits.PrimaryHDU(),
+                          fits.ImageHDU(sci.data[:, flip], header=sci.header, name="SCI"),
+                          fits.ImageHDU(wgt.data[:, flip], name="WGT")]).writeto(
+                tmp_path / f"{name}.fits")
+    stars = Table.read(exposure["stars"])
+    stars.write(tmp_path / "a_cat.fits")
+    stars["X_IMAGE"] = nx + 1 - stars["X_IMAGE"]   # 1-based: pixel 1 <-> pixel nx
+    stars.write(tmp_path / "b_cat.fits")
+    args = ["fit", tmp_path / "a.fits", tmp_path / "b.fits", "--hdu", "SCI", "--weight-hdu",
+            "WGT", "--stars", tmp_path / "a_cat.fits", tmp_path / "b_cat.fits", "--no-plots",
+            "--interpolator", "polynomial", "--n-jobs", "2", "-o", tmp_path / "psf.fits"]
+    code, out, err = _run(args, capsys)
+    assert code == 0, err
+    a, b = load_model(tmp_path / "psf_a.fits"), load_model(tmp_path / "psf_b.fits")
+    assert len(a.X_fit_) == len(b.X_fit_) > 80
+    assert_allclose(np.sort(nx - 1 - b.X_fit_[:, 0]), np.sort(a.X_fit_[:, 0]), atol=1e-9)
+    # as many catalogues as images, or none
+    code, _, err = _run(["fit", tmp_path / "a.fits", tmp_path / "b.fits", "--stars",
+                         tmp_path / "a_cat.fits", "-o", tmp_path / "x.fits"], capsys)
+    _one_line_error(code, err, r"1 catalogues \(--stars\) for 2 images: give one catalogue "
+                               r"per image, in the same order, or none")
+    # two inputs of the same name would write the same model file
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "a.fits").write_bytes((tmp_path / "a.fits").read_bytes())
+    code, _, err = _run(["fit", tmp_path / "a.fits", tmp_path / "other" / "a.fits", "-o",
+                         tmp_path / "y.fits"], capsys)
+    _one_line_error(code, err, r"would both be written to .*y_a\.fits'")
+
+
+def test_a_failed_ccd_leaves_the_others_written(tmp_path, exposure, capsys):
+    """One CCD without stars: its error is reported, the other CCD's model is written, the
+    command ends in error naming the failed CCD."""
+    rng = np.random.default_rng(1)
+    with fits.open(exposure["image"]) as hdul:
+        good = fits.ImageHDU(hdul["SCI"].data, header=hdul["SCI"].header, name="GOOD")
+    noise = fits.ImageHDU(rng.normal(0, 1, (400, 400)).astype(np.float32), name="EMPTY")
+    fits.HDUList([fits.PrimaryHDU(), noise, good]).writeto(tmp_path / "mef.fits")
+    code, out, err = _run(["fit", tmp_path / "mef.fits", "--hdu", "all", "--no-plots",
+                           "--interpolator", "polynomial", "--n-jobs", "2", "-o",
+                           tmp_path / "psf.fits"], capsys)
+    assert code == 2
+    errors = [line for line in err.splitlines() if line.startswith("sklearn-psf: error")]
+    assert len(errors) == 2 and "Traceback" not in err
+    assert re.search(r"^sklearn-psf: error: .*mef\.fits\[EMPTY\]: found 0 usable stars",
+                     errors[0]), errors
+    assert errors[1] == (f"sklearn-psf: error: 1 of 2 fits failed ({tmp_path / 'mef.fits'}"
+                         "[EMPTY]: errors above); the other models were written")
+    assert not (tmp_path / "psf_EMPTY.fits").exists()
+    assert load_model(tmp_path / "psf_GOOD.fits").n_components_ >= 1
+    assert "Wrote " in out
+    # a number of jobs of 0 is refused by the parser
+    with pytest.raises(SystemExit) as exc:
+        main(["fit", str(tmp_path / "mef.fits"), "--n-jobs", "0", "-o", str(tmp_path / "z")])
+    assert exc.value.code == 2

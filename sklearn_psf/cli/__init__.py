@@ -1,6 +1,7 @@
 """Command line: ``sklearn-psf compare`` runs the paper's comparison and writes a report;
-``sklearn-psf fit`` builds a validated PSF model of a FITS image and ``sklearn-psf predict``
-evaluates a saved model at given positions; ``sklearn-psf validate`` compares PSF models
+``sklearn-psf fit`` builds a validated PSF model of a FITS image (or of each of many CCDs, in
+parallel or on a Dask cluster) and ``sklearn-psf predict`` evaluates a saved model at given
+positions; ``sklearn-psf validate`` compares PSF models
 (this package's, PSFEx, PIFF) on the same reserved stars.
 
 Run ``sklearn-psf <command> --help`` for the options. Errors in the arguments or the data end with
@@ -23,7 +24,8 @@ __all__ = ["PRESETS", "STUDIES", "STUDY_SCHEMES", "build_parser", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``sklearn-psf`` argument parser (commands ``compare``, ``fit``, ``predict``)."""
+    """The ``sklearn-psf`` argument parser (commands ``compare``, ``fit``, ``predict``,
+    ``validate``)."""
     parser = argparse.ArgumentParser(
         prog="sklearn-psf", description="PSF modelling and interpolation (Berge et al. 2012)."
     )

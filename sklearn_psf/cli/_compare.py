@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 from dataclasses import replace
 
 from ._fit import CLIInputError, _check_output, _positive_int
+from ._parallel import dask_backend
 
 #: Sizes of ``sklearn-psf compare``: ``"paper"`` (the default) and ``"quick"`` (``--quick``);
 #: explicit options override them.
@@ -112,25 +112,6 @@ def add_compare_parser(sub):
     return cmp
 
 
-@contextlib.contextmanager
-def _backend(scheduler):
-    if scheduler is None:
-        yield
-        return
-    try:
-        from distributed import Client
-    except ImportError:
-        raise CLIInputError("--scheduler needs Dask: pip install 'sklearn-psf[dask]'") from None
-    import joblib
-
-    try:
-        client = Client(scheduler, timeout="10s")
-    except OSError as exc:
-        raise CLIInputError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
-    with client, joblib.parallel_backend("dask"):
-        yield
-
-
 def _load_reference(name):
     from .. import datasets
 
@@ -218,7 +199,7 @@ def run_compare(args) -> int:
         smallest_scale=args.smallest_scale,
     ).validate()
     tuning = None
-    with _backend(args.scheduler):
+    with dask_backend(args.scheduler):
         if "tuning" in studies:
             with tqdm(total=len(compare.PARAM_GRIDS), desc="tuning", unit="scheme") as bar:
                 tuning = compare.tune_schemes(base, random_state=args.seed, reference=reference,
@@ -282,7 +263,7 @@ def _run_exposures(args):
         write_exposure_report,
     )
 
-    with _backend(args.scheduler), tqdm(desc="exposures study", unit="sim") as bar:
+    with dask_backend(args.scheduler), tqdm(desc="exposures study", unit="sim") as bar:
         result = run_exposure_study(random_state=args.seed, n_jobs=args.n_jobs,
                                     progress=bar.update,
                                     **(EXPOSURES_QUICK if args.quick else {}))

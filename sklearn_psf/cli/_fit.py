@@ -11,6 +11,7 @@ import contextlib
 import os
 import sys
 import tempfile
+from typing import NamedTuple
 
 
 class CLIInputError(ValueError):
@@ -39,6 +40,17 @@ def _fraction(text):
         raise argparse.ArgumentTypeError(f"expected a fraction in [0, 1), got {text!r}") from None
     if not 0 <= value < 1:
         raise argparse.ArgumentTypeError(f"expected a fraction in [0, 1), got {value}")
+    return value
+
+
+def _n_jobs(text):
+    try:
+        value = int(text)
+    except ValueError:
+        value = None
+    if not value:
+        raise argparse.ArgumentTypeError(f"expected a number of jobs (1, 2, ..., or -1 for "
+                                         f"one per core), got {text!r}")
     return value
 
 
@@ -92,20 +104,26 @@ def _add_fit_parsers(sub):
         "and write diagnostic figures next to it (MODEL_stamps.png: reserved stars, model, "
         "residuals; MODEL_whiskers.png: e of stars/model/residuals; MODEL_rho.png: rho1-rho5; "
         "MODEL_maps.png: model e and size across the chip). Existing files are not replaced "
-        "without --overwrite.",
+        "without --overwrite. Several images (or catalogues, or --hdu all) give one model "
+        "each, fitted in parallel with --n-jobs or on a Dask cluster with --scheduler; the "
+        "models are the same as fitted one by one.",
     )
-    fit.add_argument("image", nargs="?",
-                     help="FITS image (.fits, .fits.fz); optional with a catalogue holding "
-                     "VIGNET stamps (SExtractor FITS_LDAC)")
+    fit.add_argument("image", nargs="*", metavar="IMAGE",
+                     help="FITS image(s) (.fits, .fits.fz), one model each; none with "
+                     "catalogues holding VIGNET stamps (SExtractor FITS_LDAC)")
     fit.add_argument("-o", "--output", required=True,
-                     help="model file to write (FITS); with --hdu all, one file per HDU "
-                     "named OUTPUT_<EXTNAME or index>.fits")
+                     help="model file to write (FITS); with several inputs (images, "
+                     "catalogues or the HDUs of --hdu all), one file per input named "
+                     "OUTPUT_<name>.fits, <name> the input file's name and/or the HDU's "
+                     "EXTNAME or index")
     fit.add_argument("--hdu", help="image HDU: index or EXTNAME, or 'all' for one model per "
                      "CCD of a multi-extension file [first 2-D image]")
     fit.add_argument("--weight-hdu", help="weight/mask HDU of the same file (0 = bad pixel)")
-    fit.add_argument("--stars", metavar="CATALOG",
-                     help="source catalogue: FITS table, SExtractor FITS_LDAC or ASCII, CSV "
-                     "with x, y or X_IMAGE, Y_IMAGE; default: stars selected on the image")
+    fit.add_argument("--stars", metavar="CATALOG", nargs="+",
+                     help="source catalogue(s): FITS table, SExtractor FITS_LDAC or ASCII, CSV "
+                     "with x, y or X_IMAGE, Y_IMAGE; one per image (or per HDU with --hdu "
+                     "all), in the same order, given after the images; default: stars "
+                     "selected on the image")
     fit.add_argument("--x-col", help="column of the catalogue's x positions (0-based unless "
                      "--one-based)")
     fit.add_argument("--y-col", help="column of the catalogue's y positions")
@@ -125,6 +143,13 @@ def _add_fit_parsers(sub):
     fit.add_argument("--no-plots", action="store_true", help="do not write figures")
     fit.add_argument("--overwrite", action="store_true",
                      help="replace an existing model file and its figures")
+    fit.add_argument("--n-jobs", type=_n_jobs, default=1,
+                     help="models fitted at once, each in its own process (-1: one per core) "
+                     "[1]")
+    fit.add_argument("--scheduler", metavar="ADDRESS",
+                     help="fit on the Dask cluster at ADDRESS (joblib's dask backend; its "
+                     "workers must read and write the files at the same paths); --n-jobs is "
+                     "then the cluster's")
     sel = fit.add_argument_group(
         "star selection", "cuts of select_stars (and of the finder on the image), in this "
         "order; the size-magnitude locus is the primary point-source test")
@@ -176,9 +201,13 @@ def _add_fit_parsers(sub):
     pred.add_argument("--overwrite", action="store_true", help="replace an existing output")
 
 
+def _stem(output):
+    """A model file's path without ``.fits``: the start of its figures' paths."""
+    return output[:-5] if output.lower().endswith(".fits") else output
+
+
 def _figure_paths(output):
-    stem = output[:-5] if output.lower().endswith(".fits") else output
-    return {name: f"{stem}_{name}.png" for name in ("stamps", "whiskers", "rho", "maps")}
+    return {name: f"{_stem(output)}_{name}.png" for name in ("stamps", "whiskers", "rho", "maps")}
 
 
 def _check_input(path, what):
@@ -224,13 +253,17 @@ def _about(path):
 
 
 def _image_hdus(path):
-    """Indices and names of the 2-D image HDUs of a FITS file (the CCDs)."""
+    """Indices and names of the 2-D image HDUs of a FITS file (the CCDs), from its headers
+    alone: astropy's notes on them are left to the reading of each CCD, which reports them,
+    and the library is not imported here (the fits of several CCDs import it in their own
+    processes)."""
+    import warnings
+
     from astropy.io import fits
 
-    from ..io._image import _tolerant_fits
-
     try:
-        with _tolerant_fits(path), fits.open(path, memmap=False) as hdul:
+        with warnings.catch_warnings(), fits.open(path, memmap=False) as hdul:
+            warnings.simplefilter("ignore")
             return [(i, h.name or str(i)) for i, h in enumerate(hdul)
                     if h.is_image and h.header.get("NAXIS", 0) == 2]
     except OSError as exc:
@@ -242,36 +275,113 @@ def _outputs(args, output):
     return output, () if args.no_plots else tuple(_figure_paths(output).values())
 
 
-def _fit(args):
-    if args.image is None and not args.stars:
+def _name(path):
+    """A file's name without its folder and its data-file suffixes (``ccd01.fits.fz``:
+    ``ccd01``)."""
+    name = os.path.basename(path)
+    suffixes = (".fz", ".gz", ".fits", ".fit", ".fts", ".ldac", ".cat", ".csv", ".ecsv", ".txt")
+    while name.lower().endswith(suffixes) and "." in name[1:]:
+        name = name[:name.rindex(".")]
+    return name
+
+
+def _fit_jobs(args):
+    """One namespace of ``args`` per model to fit: its ``image`` (with ``hdu``), ``stars`` and
+    ``output``, and ``source``, the input as shown on the terminal."""
+    images, catalogs = list(args.image), list(args.stars or ())
+    if not images and not catalogs:
         raise CLIInputError("give a FITS image, or a catalogue with VIGNET stamps (--stars)")
-    if args.image is not None:
-        _check_input(args.image, "image")
-    if args.stars:
-        _check_input(args.stars, "catalogue")
+    for path in images:
+        _check_input(path, "image")
+    for path in catalogs:
+        _check_input(path, "catalogue")
     if (args.x_col is None) != (args.y_col is None):
         raise CLIInputError("give both --x-col and --y-col, or neither")
-    if args.hdu is not None and args.hdu.strip().lower() == "all":
-        if args.image is None:
+    every_hdu = args.hdu is not None and args.hdu.strip().lower() == "all"
+    if every_hdu:
+        if not images:
             raise CLIInputError("--hdu all needs a multi-extension FITS image")
         if args.weight_hdu is not None:
             raise CLIInputError("--hdu all cannot take one --weight-hdu: fit each CCD with "
                                 "its own --hdu and --weight-hdu")
-        stem = args.output[:-5] if args.output.lower().endswith(".fits") else args.output
-        hdus = _image_hdus(args.image)
-        if not hdus:
-            raise CLIInputError(f"{args.image!r} holds no 2-D image HDU")
-        jobs = [(i, f"{stem}_{name}.fits") for i, name in hdus]
-        for _, out in jobs:
-            path, figures = _outputs(args, out)
-            _check_output_file(path, args.overwrite, figures)
-        for index, out in jobs:
-            print(f"HDU {index} -> {out}")
-            _fit_one(argparse.Namespace(**{**vars(args), "hdu": str(index), "output": out}))
-        return 0
-    path, figures = _outputs(args, args.output)
-    _check_output_file(path, args.overwrite, figures)
-    return _fit_one(args)
+        units = []
+        for image in images:
+            hdus = _image_hdus(image)
+            if not hdus:
+                raise CLIInputError(f"{image!r} holds no 2-D image HDU")
+            units += [(image, str(i), name) for i, name in hdus]
+    else:
+        units = [(image, args.hdu, None) for image in images]
+    if images and catalogs and len(catalogs) != len(units):
+        what = (f"{len(units)} image HDUs" if every_hdu else f"{len(units)} images")
+        raise CLIInputError(f"{len(catalogs)} catalogues (--stars) for {what}: give one "
+                            "catalogue per image" + (" HDU" if every_hdu else "")
+                            + ", in the same order, or none")
+    if not images:
+        units = [(None, args.hdu, None)] * len(catalogs)
+    catalogs = catalogs or [None] * len(units)
+    named = len(set(images or catalogs)) > 1  # outputs named after the input files
+    jobs, seen = [], {}
+    for (image, hdu, hdu_name), catalog in zip(units, catalogs):
+        output = args.output
+        if every_hdu or len(units) > 1:
+            label = "_".join(p for p in (_name(image or catalog) if named else None, hdu_name)
+                             if p)
+            output = f"{_stem(args.output)}_{label}.fits"
+        source = image or catalog if hdu_name is None else f"{image}[{hdu_name}]"
+        if output in seen:
+            raise CLIInputError(f"{seen[output]} and {source} would both be written to "
+                                f"{output!r}: give input files distinct names")
+        seen[output] = source
+        jobs.append(argparse.Namespace(**{**vars(args), "image": image, "stars": catalog,
+                                          "hdu": hdu, "output": output, "source": source}))
+    return jobs
+
+
+def _fit(args):
+    jobs = _fit_jobs(args)
+    for job in jobs:
+        path, figures = _outputs(args, job.output)
+        _check_output_file(path, args.overwrite, figures)
+    if len(jobs) > 1 or args.scheduler is not None:
+        return _fit_many(jobs, args)
+    outcome = _fit_one(jobs[0])
+    _show(outcome, warnings_registry={})
+    if outcome.error is not None:
+        raise outcome.error
+    return 0
+
+
+def _fit_many(jobs, args):
+    """Fit ``jobs`` in parallel (or on the Dask cluster); print each one's report as in a
+    single fit, in the order given, under a progress bar. A failed fit does not stop the
+    others; the command then ends with an error naming them."""
+    from joblib import Parallel, delayed
+    from tqdm.auto import tqdm
+
+    from ._parallel import dask_backend
+
+    for job in jobs:  # the workers may run in another folder, or on another machine
+        job.shown, job.image, job.stars, job.output = (
+            job.output, *(None if p is None else os.path.abspath(p)
+                          for p in (job.image, job.stars, job.output)))
+    failed, registry = [], {}
+    with dask_backend(args.scheduler), tqdm(total=len(jobs), desc="fitting",
+                                            unit="model") as bar:
+        outcomes = Parallel(n_jobs=args.n_jobs, return_as="generator")(
+            delayed(_fit_of_many)(job) for job in jobs)
+        for job, outcome in zip(jobs, outcomes):
+            with tqdm.external_write_mode():
+                print(f"{job.source} -> {job.shown}")
+                _show(outcome, registry, shown_output=job.shown)
+                if outcome.error is not None:
+                    failed.append(job.source)
+                    print(f"sklearn-psf: error: {job.source}: {outcome.error}", file=sys.stderr)
+            bar.update()
+    if failed:
+        raise CLIInputError(f"{len(failed)} of {len(jobs)} fits failed ({', '.join(failed)}: "
+                            "errors above); the other models were written")
+    return 0
 
 
 def _counts_text(counts, keys):
@@ -362,49 +472,158 @@ def _gain(header):
     return None
 
 
-def _fit_one(args):
-    lines = []
-    try:
-        return _fit_steps(args, lines)
-    except (CLIInputError, ValueError, OSError):
-        if lines:  # what was found before the error helps to understand it
-            print("\n".join(lines))
-        raise
+class _Inputs(NamedTuple):
+    """What ``fit`` and ``validate`` read: the image (None without one), its weight and
+    header (else the catalogue's image header), the catalogue (None without --stars), the
+    saturation level (--saturation, else the header's SATURATE) and the gain."""
+
+    image: object
+    weight: object
+    header: dict
+    catalog: object
+    saturation: float | None
+    gain: float | None
 
 
-def _fit_steps(args, lines):
+def _read_inputs(args) -> _Inputs:
+    """Read ``args.image`` (``--hdu``, ``--weight-hdu``) and the catalogue ``args.stars``."""
+    from ..io import read_catalog, read_image
+
+    header, image, weight, catalog = {}, None, None, None
+    if args.image is not None:
+        image, weight, header = read_image(args.image, hdu=args.hdu,
+                                           weight_hdu=args.weight_hdu)
+    if args.stars:
+        with _about(args.stars):
+            catalog = read_catalog(args.stars, one_based=True if args.one_based else None,
+                                   x_col=args.x_col, y_col=args.y_col)
+        if image is None:
+            header = catalog.meta.get("image_header") or {}
+    saturation = args.saturation
+    if saturation is None and "SATURATE" in header:
+        saturation = float(header["SATURATE"])
+    return _Inputs(image, weight, header, catalog, saturation, _gain(header))
+
+
+def _cut_stamps(inputs, catalog, args):
+    """The stamps of ``catalog``'s stars: the VIGNETs without an image (at ``--stamp-size``,
+    default their side), else cut from the image (default side 25)."""
+    from ..io import extract_star_stamps, extract_vignettes
+
+    if inputs.image is None:
+        with _about(args.stars):
+            return extract_vignettes(catalog, args.stamp_size, saturation=inputs.saturation,
+                                     gain=inputs.gain)
+    with _about(args.stars or args.image):
+        return extract_star_stamps(inputs.image, catalog, args.stamp_size or 25,
+                                   weight=inputs.weight, saturation=inputs.saturation)
+
+
+def _skipped_text(counts):
+    """`` (skipped: masked 2, saturated 1)`` from the counts of a stamp cut, or ""."""
+    skipped = {k: v for k, v in counts.items() if k not in ("input", "used") and v}
+    return (" (skipped: " + ", ".join(f"{k} {v}" for k, v in skipped.items()) + ")"
+            if skipped else "")
+
+
+class _FitOutcome(NamedTuple):
+    """What a fit prints: its report ``lines``; the ``warnings`` to replay, each
+    ``(message, category, filename, lineno)``, and this package's warnings about the fitted
+    model (``notes``, plain text: the command prints them, and the process showing them need
+    not import the library), in the order of printing; the files written and the error that
+    stopped the fit (or None)."""
+
+    lines: list
+    warnings: list
+    notes: list
+    later_warnings: list
+    written: list
+    error: Exception | None
+
+
+def _plain(caught):
+    return [(str(w.message), w.category, w.filename, w.lineno) for w in caught]
+
+
+def _fit_one(args, quiet=False) -> _FitOutcome:
+    """Fit the model of one input; print nothing (but the steps' progress bar unless
+    ``quiet``): the outcome holds what to print, so that it can run in another process."""
+    import warnings
+
+    lines, fit_warnings, written, error = [], [], [], None
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            written = _fit_steps(args, lines, fit_warnings, quiet)
+        except (CLIInputError, ValueError, OSError) as exc:
+            error = exc
+    ours = [w.category.__module__.startswith("sklearn_psf") for w in fit_warnings]
+    notes = [str(w.message) for w, mine in zip(fit_warnings, ours) if mine]
+    others = _plain(w for w, mine in zip(fit_warnings, ours) if not mine)
+    return _FitOutcome(lines, _plain(caught), notes, others, written, error)
+
+
+def _fit_of_many(args) -> _FitOutcome:
+    """One fit of several: no progress bar of its own, one BLAS thread (the same arithmetic
+    in any worker and with any --n-jobs, and no more threads than cores)."""
+    from threadpoolctl import threadpool_limits
+
+    # the BLAS and OpenMP libraries the fit uses are loaded with these: limited once loaded
+    from .. import io, model, validation  # noqa: F401
+
+    with threadpool_limits(limits=1):
+        return _fit_one(args, quiet=True)
+
+
+def _show(outcome, warnings_registry, shown_output=None):
+    """Print a fit's report as it happened: the warnings of the reading, the report, the
+    fit's own warnings (this package's as ``sklearn-psf: warning:`` lines), the files
+    written (named after ``shown_output``, the model file as the user gave it)."""
+    import warnings
+
+    def replay(message, category, filename, lineno):
+        warnings.warn_explicit(message, category, filename, lineno,
+                               registry=warnings_registry)
+
+    for w in outcome.warnings:
+        replay(*w)
+    if outcome.lines:
+        print("\n".join(outcome.lines))
+    for note in outcome.notes:
+        print(f"sklearn-psf: warning: {note}", file=sys.stderr)
+    for w in outcome.later_warnings:
+        replay(*w)
+    if outcome.written:
+        written = outcome.written
+        if shown_output is not None:  # the model file first, its figures named after it
+            start, shown = _stem(written[0]), _stem(shown_output)
+            written = [shown + p[len(start):] for p in written]
+        print(f"Wrote {', '.join(written)}")
+
+
+def _fit_steps(args, lines, fit_warnings, quiet=False):
     import warnings
 
     import numpy as np
     from tqdm.auto import tqdm
 
-    from ..io import (celestial_wcs, extract_star_stamps, extract_vignettes, find_stars,
-                      read_catalog, read_image, save_model)
+    from ..io import celestial_wcs, find_stars, save_model
     from ..model import PSFModel, make_interpolator
     from ..validation import fit_and_validate
 
-    with tqdm(total=6, desc="reading", unit="step") as bar:
-        header, image, weight, catalog = {}, None, None, None
+    with tqdm(total=6, desc="reading", unit="step", disable=quiet) as bar:
+        inputs = _read_inputs(args)
+        image, header, catalog, saturation = (inputs.image, inputs.header, inputs.catalog,
+                                              inputs.saturation)
         n_nan = 0
-        if args.image is not None:
-            image, weight, header = read_image(args.image, hdu=args.hdu,
-                                               weight_hdu=args.weight_hdu)
+        if image is not None:
             n_nan = int(np.isnan(image).sum())
+            weight = inputs.weight
             n_zero = 0 if weight is None else int(np.sum(~(np.asarray(weight) > 0)))
             lines.append(f"image: {image.shape[1]} x {image.shape[0]} pixels; NaN pixels: "
                          f"{n_nan}" + ("" if weight is None else
                                        f"; zero-weight pixels: {n_zero}")
                          + " (masked: a star with one in its core is skipped)")
-        if args.stars:
-            with _about(args.stars):
-                catalog = read_catalog(args.stars, one_based=True if args.one_based else None,
-                                       x_col=args.x_col, y_col=args.y_col)
-            if image is None:
-                header = catalog.meta.get("image_header") or {}
-        saturation = args.saturation
-        if saturation is None and "SATURATE" in header:
-            saturation = float(header["SATURATE"])
-        gain = _gain(header)
         vignettes = image is None and catalog is not None and "VIGNET" in [
             c.upper() for c in catalog.colnames]
         stamp_size = args.stamp_size
@@ -418,7 +637,7 @@ def _fit_steps(args, lines):
             catalog = _select(args, catalog, saturation,
                               None if image is None else image.shape, stamp_size, lines)
         else:
-            catalog = find_stars(image, weight=weight, stamp_size=stamp_size,
+            catalog = find_stars(image, weight=inputs.weight, stamp_size=stamp_size,
                                  min_snr=args.min_snr, saturation=saturation,
                                  isolation=args.isolation, locus_width=args.locus_width)
             counts = {**catalog.meta["rejected"], "locus_size": None}
@@ -430,18 +649,9 @@ def _fit_steps(args, lines):
                                "or give a star catalogue with --stars")
         bar.update()
         bar.set_description("cutting stamps")
-        if args.image is None:
-            with _about(args.stars):
-                cut = extract_vignettes(catalog, args.stamp_size, saturation=saturation,
-                                        gain=gain)
-        else:
-            with _about(args.stars or args.image):
-                cut = extract_star_stamps(image, catalog, stamp_size, weight=weight,
-                                          saturation=saturation)
-        skipped = {k: v for k, v in cut.counts.items() if k not in ("input", "used") and v}
+        cut = _cut_stamps(inputs, catalog, args)
         lines.append(f"stars used: {cut.counts['used']} of {cut.counts['input']}"
-                     + (" (skipped: " + ", ".join(f"{k} {v}" for k, v in skipped.items()) + ")"
-                        if skipped else ""))
+                     + _skipped_text(cut.counts))
         bar.update()
         bar.set_description("fitting and validating")
         wcs = celestial_wcs(header)
@@ -458,12 +668,13 @@ def _fit_steps(args, lines):
                 model, residuals, summary = fit_and_validate(
                     cut.positions, cut.stamps,
                     PSFModel(interpolator=make_interpolator(args.interpolator)), **options)
+        fit_warnings += caught
         summary["selection"] = dict(cut.counts)
         summary["image"] = os.path.abspath(args.image or args.stars)
         summary["interpolator"] = summary.get("scheme", args.interpolator)
         summary["nan_pixels"] = n_nan
         summary["saturation"] = saturation
-        summary["gain"] = gain
+        summary["gain"] = inputs.gain
         if wcs is not None:  # predict can then take and return (RA, Dec)
             summary["wcs"] = wcs.to_header_string()
         bar.update()
@@ -486,15 +697,7 @@ def _fit_steps(args, lines):
             written += _fit_figures(residuals, summary, args.output, model, shape)
         bar.update()
     lines += _report(summary, wcs is not None)
-    print("\n".join(lines))
-    lines.clear()
-    for w in caught:
-        if w.category.__module__.startswith("sklearn_psf"):
-            print(f"sklearn-psf: warning: {w.message}", file=sys.stderr)
-        else:
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    print(f"Wrote {', '.join(written)}")
-    return 0
+    return written
 
 
 def _report(summary, sky):

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import os
 
-from ._fit import CLIInputError, _about, _stamp_size
+from ._fit import CLIInputError, _about, _cut_stamps, _read_inputs, _skipped_text, _stamp_size
 
 #: Files ``validate`` writes in its output folder (figures only without --no-plots).
 OUTPUTS = {"table": "validation.csv", "rho": "validation_rho.png",
@@ -68,24 +68,13 @@ def add_validate_parser(sub):
 
 def _stars(args):
     """Positions, stamps, weights, WCS and a line on the stars used."""
-    from ..io import (celestial_wcs, extract_star_stamps, extract_vignettes, read_catalog,
-                      read_image, select_stars)
+    from ..io import celestial_wcs, select_stars
 
-    header, image, weight = {}, None, None
-    if args.image is not None:
-        image, weight, header = read_image(args.image, hdu=args.hdu,
-                                           weight_hdu=args.weight_hdu)
-    with _about(args.stars):
-        catalog = read_catalog(args.stars, one_based=True if args.one_based else None,
-                               x_col=args.x_col, y_col=args.y_col)
-    if image is None:
-        header = catalog.meta.get("image_header") or {}
-    saturation = args.saturation
-    if saturation is None and "SATURATE" in header:
-        saturation = float(header["SATURATE"])
+    inputs = _read_inputs(args)
+    catalog = inputs.catalog
     n_rows = len(catalog)
     if args.select:
-        keep, counts = select_stars(catalog, min_snr=args.min_snr, saturation=saturation,
+        keep, counts = select_stars(catalog, min_snr=args.min_snr, saturation=inputs.saturation,
                                     stamp_size=args.stamp_size or 25)
         if keep.sum() < 1:
             reasons = ", ".join(f"{k} {v}" for k, v in counts.items()
@@ -93,19 +82,11 @@ def _stars(args):
             raise CLIInputError(f"no star of {args.stars} passes the selection ({reasons}); "
                                 "leave out --select or lower --min-snr")
         catalog = catalog[keep]
-    with _about(args.stars if image is None else args.image):
-        if image is None:
-            cut = extract_vignettes(catalog, args.stamp_size, saturation=saturation,
-                                    gain=header.get("GAIN"))
-        else:
-            cut = extract_star_stamps(image, catalog, args.stamp_size or 25, weight=weight,
-                                      saturation=saturation)
-    skipped = {k: v for k, v in cut.counts.items() if k not in ("input", "used") and v}
+    cut = _cut_stamps(inputs, catalog, args)
     line = (f"stars: {cut.counts['used']} used of {n_rows} rows"
             + (f" ({len(catalog)} selected)" if args.select else "")
-            + (" (skipped: " + ", ".join(f"{k} {v}" for k, v in skipped.items()) + ")"
-               if skipped else ""))
-    return cut, celestial_wcs(header), line
+            + _skipped_text(cut.counts))
+    return cut, celestial_wcs(inputs.header), line
 
 
 def _print_table(table):
