@@ -19,6 +19,7 @@ from scipy.optimize import minimize
 from scipy.spatial.distance import cdist
 from threadpoolctl import threadpool_limits
 
+from ._kriging_vecchia import VECCHIA_PARAMS, VecchiaTerms
 from ._variogram import _CORRELATIONS, _corr_dlog_range
 
 _LOG_2PI = np.log(2.0 * np.pi)
@@ -27,6 +28,9 @@ _LOG_2PI = np.log(2.0 * np.pi)
 _NU_BOUNDS = (1e-6, 1e3)
 _KAPPA_BOUNDS = (1e-3, 1e3)
 _P_BOUNDS = (1e-6, 1e3)
+#: convergence: largest gradient component per star (the log-likelihood grows as n and its
+#: curvature in the log-parameters too, so that the parameters are within ~1e-8 of the optimum)
+_GTOL = 1e-8
 
 
 def _factor_solve(K, B):
@@ -47,24 +51,13 @@ _GEOMETRY = ("range", "scaling", "angle")
 _ORDER = ("range", "scaling", "angle", "nu", "kappa")
 
 
-class _Likelihood:
-    """Negative total log-likelihood and its gradient in the log-parameters.
+class _Parameters:
+    """Free and fixed parameters; ``theta`` holds the free ones (log-values, the angle in
+    radians) in the order of ``_ORDER``, then the log partial sills."""
 
-    ``P`` are the positions (already in the anisotropy frame unless ``scaling`` or
-    ``angle`` is free; then raw 2-D positions, rotated by ``-angle`` and the second
-    coordinate multiplied by ``scaling``, angle in radians, not a log-parameter).
-    """
-
-    def __init__(self, P, Y, F, noise, variogram, free, fixed):
-        self.Y, self.F, self.noise = Y, F, noise
+    def __init__(self, Y, variogram, free, fixed):
         self.variogram, self.free, self.fixed = variogram, free, fixed
         self.n, self.T = Y.shape
-        self.aniso = "scaling" in free or "angle" in free
-        if self.aniso:
-            self.dx = P[:, None, 0] - P[None, :, 0]
-            self.dy = P[:, None, 1] - P[None, :, 1]
-        else:
-            self.D = cdist(P, P)
 
     def unpack(self, theta):
         values = dict(self.fixed)
@@ -73,6 +66,29 @@ class _Likelihood:
             values[name] = t if name == "angle" else np.exp(t)
         values["p"] = np.exp(theta[len(names):])
         return values
+
+    def _pack_gradient(self, grad):
+        g = [grad[name] for name in _ORDER if name in self.free]
+        return -np.concatenate([np.asarray(g, dtype=float), grad["p"]])
+
+
+class _Likelihood(_Parameters):
+    """Exact negative total log-likelihood and its gradient in the log-parameters.
+
+    ``P`` are the positions (already in the anisotropy frame unless ``scaling`` or
+    ``angle`` is free; then raw 2-D positions, rotated by ``-angle`` and the second
+    coordinate multiplied by ``scaling``, angle in radians, not a log-parameter).
+    """
+
+    def __init__(self, P, Y, F, noise, variogram, free, fixed):
+        super().__init__(Y, variogram, free, fixed)
+        self.Y, self.F, self.noise = Y, F, noise
+        self.aniso = "scaling" in free or "angle" in free
+        if self.aniso:
+            self.dx = P[:, None, 0] - P[None, :, 0]
+            self.dy = P[:, None, 1] - P[None, :, 1]
+        else:
+            self.D = cdist(P, P)
 
     def _geometry(self, v):
         """Correlations R and d R / d(free geometric parameter), by name."""
@@ -152,12 +168,53 @@ class _Likelihood:
             grad["nu"] += 0.5 * p[t] * nu * (alpha @ alpha - tr_I)
             for name, dR in dRs.items():
                 grad[name] += 0.5 * p[t] * (alpha @ dR @ alpha - tr_dR[name])
-        g = [grad[name] for name in _ORDER if name in self.free]
-        return nll, -np.concatenate([np.asarray(g, dtype=float), grad["p"]])
+        return nll, self._pack_gradient(grad)
+
+
+class _VecchiaLikelihood(_Parameters):
+    """Vecchia's approximation of the negative log-likelihood (``m`` nearest earlier stars,
+    see :mod:`._kriging_vecchia`) and its gradient; positions in the anisotropy frame."""
+
+    def __init__(self, P, Y, F, noise, variogram, free, fixed, m, rng):
+        super().__init__(Y, variogram, free, fixed)
+        self.terms = VecchiaTerms(P, Y, F, noise, m, rng)
+        # derivatives needed: the free parameters, and the partial sills always
+        self.differentiate = np.array([name in free or name == "p" for name in VECCHIA_PARAMS])
+
+    def __call__(self, theta):
+        v = self.unpack(theta)
+        a, nu, kappa, p = v["range"], v["nu"], v["kappa"], v["p"]
+        terms, corr = self.terms, _CORRELATIONS[self.variogram]
+        scaled = terms.D_nb / a
+        R = corr(scaled.copy())
+        dR = _corr_dlog_range(self.variogram, scaled, R)
+        scaled = terms.d_nb / a
+        r = corr(scaled.copy())
+        dr = _corr_dlog_range(self.variogram, scaled, r)
+        nll = 0.0
+        grad = dict.fromkeys(_ORDER, 0.0)
+        grad["p"] = np.zeros(self.T)
+        for t in range(self.T):
+            out = terms.target(t, R, dR, r, dr, p[t], nu, kappa, self.differentiate)
+            if out is None:
+                return 1e300, np.zeros_like(theta)
+            d, yt, Ft, dd, av, B = out
+            w = 1.0 / d
+            beta = np.linalg.lstsq(Ft.T @ (Ft * w[:, None]), Ft.T @ (yt * w), rcond=None)[0]
+            e = yt - Ft @ beta
+            ew = e * w
+            nll += 0.5 * (np.sum(np.log(d)) + ew @ e + self.n * _LOG_2PI)
+            # d(-L)/dtheta = 0.5 sum[(1 - e^2/d) dd/d + 2 (e/d) de], de = -(a - B beta)
+            g = ew @ (av - B @ beta) - 0.5 * ((1.0 - ew * e) * w) @ dd
+            grad["range"] += g[0]
+            grad["p"][t] = g[1]
+            grad["nu"] += g[2]
+            grad["kappa"] += g[3]
+        return nll, self._pack_gradient(grad)
 
 
 def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scale,
-                        scaling=1.0, angle=0.0):
+                        scaling=1.0, angle=0.0, neighbors=None, rng=None):
     """Maximum-likelihood range, nugget, sills, noise scale and anisotropy.
 
     Parameters
@@ -174,6 +231,11 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
     range_, nugget, noise_scale, scaling, angle : float or "auto"
         Fixed values, or "auto" to fit them (``noise_scale`` only with ``noise``);
         ``angle`` in degrees.
+    neighbors : int or None
+        None: the exact likelihood. An int ``m``: Vecchia's approximation with the ``m``
+        nearest earlier stars in an order drawn from ``rng`` (fixed anisotropy only).
+    rng : numpy Generator, optional
+        Draws the Vecchia order.
 
     Returns
     -------
@@ -199,7 +261,10 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
             free.append(name)
         else:
             fixed[name] = 1.0 if isinstance(value, str) else convert(value)
-    fun = _Likelihood(P, Ys, F, Ns, variogram, free, fixed)
+    if neighbors is None:
+        fun = _Likelihood(P, Ys, F, Ns, variogram, free, fixed)
+    else:
+        fun = _VecchiaLikelihood(P, Ys, F, Ns, variogram, free, fixed, neighbors, rng)
 
     span = np.ptp(P, axis=0).max() if n > 1 else 1.0
     span = span if span > 0 else 1.0
@@ -230,7 +295,8 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
         x0 = min(starts, key=lambda s: fun(s)[0])
         res = minimize(fun, x0, jac=True, method="L-BFGS-B",
                        bounds=[bounds[name] for name in names] + [tuple(np.log(_P_BOUNDS))] * T,
-                       options={"maxiter": 200, "maxfun": 400, "ftol": 1e-9, "gtol": 1e-5})
+                       options={"maxiter": 500, "maxfun": 1000, "ftol": 1e-15,
+                                "gtol": _GTOL * n})
     v = fun.unpack(res.x)
     nu = v["nu"]
     return {
@@ -242,4 +308,5 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
         "angle": float(np.rad2deg(v["angle"])),
         "log_likelihood": float(-res.fun - n * np.sum(np.log(scale))),
         "n_iter": int(res.nit),
+        "n_eval": int(res.nfev), "message": res.message,
     }
