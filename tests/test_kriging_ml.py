@@ -20,6 +20,7 @@ from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 from threadpoolctl import threadpool_limits
 
 from sklearn_psf.interpolate import FewStarsWarning, KrigingRegressor
+from sklearn_psf.interpolate._kriging_ml import _Likelihood, _VecchiaLikelihood
 
 
 def gp_field(n, a, sills, nugget=0.0, seed=0, aniso=None):
@@ -102,13 +103,24 @@ def test_vecchia_likelihood_is_close_to_the_exact_one():
     Xq = np.random.default_rng(0).uniform(size=(300, 2))
     diff = vecchia.predict(Xq) - exact.predict(Xq)
     assert np.all(np.sqrt((diff**2).mean(axis=0)) < 0.02 * np.sqrt(exact.sill_))
-    # with as many neighbours as stars, Vecchia's likelihood is the exact one
-    full = KrigingRegressor(range="auto", likelihood=59).fit(X[:60], Y[:60],
-                                                             noise_var=noise[:60])
-    ref = KrigingRegressor(range="auto", likelihood="exact").fit(X[:60], Y[:60],
-                                                                 noise_var=noise[:60])
-    assert full.range_ == pytest.approx(ref.range_, rel=1e-6)
-    assert full.log_likelihood_ == pytest.approx(ref.log_likelihood_, rel=1e-9)
+
+
+@pytest.mark.parametrize("drift", [None, "linear"])
+def test_vecchia_with_all_earlier_stars_is_the_exact_likelihood(drift):
+    # with as many neighbours as stars, Vecchia's likelihood and its gradient (range,
+    # sills, nugget, noise scale) are the exact ones
+    X, Y, rng = gp_field(60, 0.2, [1.0, 0.2], nugget=0.05, seed=15)
+    noise = rng.uniform(0.01, 0.05, size=(60, 2))
+    F = np.column_stack([np.ones(60)] + ([X] if drift else []))
+    free, fixed = ["range", "nu", "kappa"], {"scaling": 1.0, "angle": 0.0}
+    exact = _Likelihood(X, Y, F, noise, "exponential", free, fixed)
+    vecchia = _VecchiaLikelihood(X, Y, F, noise, "exponential", free, fixed, 59, seed=3)
+    for theta in ([np.log(0.2), np.log(0.05), 0.0, 0.0, np.log(0.2)],
+                  [np.log(0.5), np.log(0.3), 0.4, -0.5, 0.1]):
+        f_e, g_e = exact(np.array(theta))
+        f_v, g_v = vecchia(np.array(theta))
+        assert f_v == pytest.approx(f_e, rel=1e-10)
+        np.testing.assert_allclose(g_v, g_e, rtol=1e-7, atol=1e-9 * np.abs(g_e).max())
 
 
 def test_auto_likelihood_is_exact_where_cheap():

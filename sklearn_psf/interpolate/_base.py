@@ -32,7 +32,7 @@ def _query_chunks(n_queries: int, n_stars: int):
         yield slice(start, min(start + size, n_queries))
 
 
-def _merge_duplicates(X, Y, *, owner: str, reason: str, noise=None):
+def _merge_duplicates(X, Y, *, owner: str, reason: str, noise=None, noise_cov=None):
     """Merge the stars with exactly the same position.
 
     Returns ``X, Y, noise`` unchanged (same objects) when all positions are distinct;
@@ -40,13 +40,15 @@ def _merge_duplicates(X, Y, *, owner: str, reason: str, noise=None):
     row per distinct position. Without ``noise`` (None) the merged value is the mean of
     the duplicated stars' values; with ``noise`` (n_samples, n_targets) of variances it
     is the inverse-variance weighted mean, of variance ``1 / sum(1 / noise)`` (stars of
-    zero variance, if any in a group, take all the weight, equally shared).
+    zero variance, if any in a group, take all the weight, equally shared). With
+    ``noise_cov`` (n_samples, n_targets, n_targets) given, ``X, Y, noise, noise_cov`` are
+    returned, the merged values weighted by the inverse covariances (pseudo-inverses).
     """
     unique, index, inverse, counts = np.unique(
         X, axis=0, return_index=True, return_inverse=True, return_counts=True
     )
     if unique.shape[0] == X.shape[0]:
-        return X, Y, noise
+        return (X, Y, noise) if noise_cov is None else (X, Y, noise, noise_cov)
     inverse = inverse.reshape(-1)
     duplicated = np.flatnonzero(counts > 1)
     duplicated = duplicated[np.argsort(index[duplicated])][:3]  # in order of appearance
@@ -61,10 +63,17 @@ def _merge_duplicates(X, Y, *, owner: str, reason: str, noise=None):
     )
 
     def group_sum(values):
-        out = np.zeros((unique.shape[0], values.shape[1]))
+        out = np.zeros((unique.shape[0],) + values.shape[1:])
         np.add.at(out, inverse, values)
         return out
 
+    order = np.argsort(index, kind="stable")
+    if noise_cov is not None:
+        precision = np.linalg.pinv(noise_cov, hermitian=True)
+        cov = np.linalg.pinv(group_sum(precision), hermitian=True)
+        Y_merged = np.einsum("itu,iu->it", cov, group_sum(
+            np.einsum("itu,iu->it", precision, Y)))
+        return unique[order], Y_merged[order], noise, cov[order]
     if noise is None:
         weights = np.ones_like(Y)
     else:
@@ -77,7 +86,6 @@ def _merge_duplicates(X, Y, *, owner: str, reason: str, noise=None):
     if noise is not None:
         noise_merged = np.where(group_sum(exact.astype(float)) > 0, 0.0, 1.0 / wsum)
     # keep the order of first appearance, so that results do not depend on sorting
-    order = np.argsort(index, kind="stable")
     return (unique[order], Y_merged[order],
             None if noise is None else noise_merged[order])
 
@@ -114,6 +122,40 @@ def _check_noise_var(owner: str, noise_var, n_samples: int, n_targets: int, *,
             "stars or give them a finite variance."
         )
     return nv
+
+
+def _check_noise_cov(owner: str, noise_cov, n_samples: int, n_targets: int):
+    """Validate a ``noise_cov`` fit parameter: None or a fresh symmetric positive
+    semi-definite (n_samples, n_targets, n_targets) array."""
+    if noise_cov is None:
+        return None
+    try:
+        cov = np.array(noise_cov, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(
+            f"{owner}: noise_cov must be an array of numbers (covariances of the measurement "
+            f"noise of y across targets), got {type(noise_cov).__name__}."
+        ) from None
+    if cov.shape != (n_samples, n_targets, n_targets):
+        raise ValueError(
+            f"{owner}: noise_cov must have shape ({n_samples}, {n_targets}, {n_targets}) (one "
+            f"covariance matrix per star), got {cov.shape}."
+        )
+    bad = ~np.isfinite(cov).all(axis=(1, 2))
+    sym = 0.5 * (cov + cov.transpose(0, 2, 1))
+    sym[bad] = 0.0
+    scale = np.maximum(np.abs(np.einsum("itt->i", sym)), 1e-300)
+    bad |= np.abs(np.where(bad[:, None, None], 0.0, cov) - sym).max(axis=(1, 2)) > 1e-8 * scale
+    bad |= np.linalg.eigvalsh(sym)[:, 0] < -1e-8 * scale
+    cov = sym
+    if bad.any():
+        rows = np.flatnonzero(bad)
+        raise ValueError(
+            f"{owner}: noise_cov must hold finite, symmetric, positive semi-definite "
+            f"matrices; rows {rows[:10].tolist()}{' ...' if rows.size > 10 else ''} "
+            f"({rows.size} stars) do not. Drop these stars or fix their covariances."
+        )
+    return cov
 
 
 def _check_n_samples(owner: str, n_samples: int, n_min: int, what: str) -> None:

@@ -7,7 +7,7 @@ import numbers
 import warnings
 
 import numpy as np
-from scipy.linalg import LinAlgError, cho_factor, cho_solve, lapack, solve_triangular
+from scipy.linalg import cho_solve, lapack, solve_triangular
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 from sklearn.utils import check_random_state
@@ -16,10 +16,13 @@ from ._base import (
     FewStarsWarning,
     _check_n_neighbors,
     _check_n_samples,
+    _check_noise_cov,
+    _check_noise_var,
     _merge_duplicates,
     _NoiseAwareInterpolator,
     _query_chunks,
 )
+from ._kriging_co import CoupledSystem, coregionalization_frame
 from ._kriging_local import predict_local
 from ._kriging_ml import fit_hyperparameters
 from ._polynomial import _design, _exponents
@@ -36,7 +39,7 @@ _MAX_FACTOR_BYTES = 4 * 2**30
 #: this (~0.05 s per step on one core; 1000 stars with one noise pattern, 580 with six)
 _EXACT_ML_COST = 1.2e9
 #: likelihood="auto" beyond that: Vecchia's approximation with this many neighbours
-_VECCHIA_NEIGHBORS = 15
+_VECCHIA_NEIGHBORS = 10
 
 _NAME = "KrigingRegressor"
 
@@ -103,7 +106,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         less than their statistical error). ``"auto"``: exact while
         (factorisations per step) x n^3 <= 1.2e9 (1000 stars with one noise pattern or
         none, about 580 with six per-target noises) or when the anisotropy is fitted, Vecchia with
-        15 neighbours beyond.
+        10 neighbours beyond.
     max_ml_samples : int, default=20000
         Maximum likelihood uses all the stars up to this many, a random subset of this size
         (drawn with ``random_state``) beyond; the final Kriging system uses all stars. With
@@ -112,6 +115,10 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     random_state : int, RandomState instance or None, default=0
         Seed of that subset and of Vecchia's order (fixed by default, so that fits are
         reproducible).
+    warm_start : bool, default=False
+        When the regressor was fitted before, maximum likelihood starts from the previous
+        hyperparameters instead of a grid of starting points: refits on slightly different
+        stars (outlier rounds) converge in a few steps.
 
     Attributes
     ----------
@@ -122,6 +129,9 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     sill_ : ndarray of shape (n_targets,)
         Sill of each target: its variance over the stars with numeric ``range`` and
         ``nugget`` (the paper), the maximum-likelihood sill otherwise.
+    coregionalization_ : ndarray of shape (n_targets, n_targets)
+        Signal covariance between the targets (sills on the diagonal): fitted with
+        ``noise_cov`` (co-Kriging, see Notes), ``diag(sill_)`` otherwise.
     noise_scale_ : float
         Factor applied to ``noise_var`` (1 without noise).
     anisotropy_scaling_, anisotropy_angle_ : float
@@ -138,6 +148,11 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         Values at those stars.
     noise_var_ : ndarray of shape (n_stars, n_targets) or None
         Measurement-noise variance of those values (after ``noise_scale_``).
+    noise_cov_ : ndarray of shape (n_stars, n_targets, n_targets) or None
+        Their noise covariance given as ``noise_cov`` (after ``noise_scale_``), else None.
+    n_cg_iter_ : int
+        Conjugate-gradient iterations of the co-Kriging system (exact mode with
+        ``noise_cov`` only).
     drift_coef_ : ndarray of shape (n_drift_terms, n_targets)
         Generalised-least-squares drift coefficients (exact mode), in positions mapped to
         [-1, 1] over the training bounding box; the first row is the mean for
@@ -161,6 +176,19 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     noise-to-sill ratios are equal share a factorisation (all of them without noise).
     Predictions are of the noise-free field; the Kriging variance is
     ``sill (1 - c^T C^-1 c + u^T (F^T C^-1 F)^-1 u)``, ``u = f(x) - F^T C^-1 c``.
+
+    Co-Kriging (``fit(X, y, noise_cov=...)``, each star's noise covariance across targets):
+    the targets share the correlation ``rho`` and have a full signal covariance ``B``
+    (``coregionalization_``; an intrinsic coregionalisation model), so that
+    ``cov(y_i, y_j) = B (1 - nugget) rho_ij + delta_ij (B nugget + noise_cov_i)``. The work is
+    done in the frame ``z = y A`` of the generalised eigenvectors of the targets' sample
+    covariance against the stars' mean noise covariance, where the targets are nearly
+    independent: maximum likelihood fits the range and the signal variances of that frame's
+    targets as independent targets with their marginal noise (exactly the joint likelihood when
+    the stars' noise covariances are proportional to one another), and the joint system, with
+    every star's full noise covariance, is solved exactly by conjugate gradients projected on
+    the drift's constraint and preconditioned with the independent targets' factorisations.
+    ``return_std`` and :meth:`loo_predict` are those of the independent targets of the frame.
 
     Without noise the variogram is 0 at distance 0, so a query exactly on a star returns
     that star's value (and standard deviation 0) even with a nugget; between two
@@ -206,6 +234,13 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     >>> loo_pred.shape
     (40, 2)
 
+    Co-Kriging of two targets whose noise is correlated (0.8) star by star:
+
+    >>> cov = np.array([[1.0, 0.8], [0.8, 1.0]]) * 1e-4 * rng.uniform(0.5, 2.0, (40, 1, 1))
+    >>> reg = KrigingRegressor(range="auto").fit(X, y_obs, noise_cov=cov)
+    >>> reg.coregionalization_.shape, reg.predict(X[:3]).shape
+    ((2, 2), (3, 2))
+
     Local Kriging from the 20 nearest stars of each query:
 
     >>> local = KrigingRegressor(range=0.5, n_neighbors=20).fit(X, y)
@@ -215,7 +250,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
 
     def __init__(self, variogram="exponential", range=0.5, nugget=0.0, n_neighbors=None, *,
                  noise_scale=1.0, drift=None, anisotropy_scaling=1.0, anisotropy_angle=0.0,
-                 likelihood="auto", max_ml_samples=20000, random_state=0):
+                 likelihood="auto", max_ml_samples=20000, random_state=0, warm_start=False):
         self.variogram = variogram
         self.range = range
         self.nugget = nugget
@@ -227,6 +262,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         self.likelihood = likelihood
         self.max_ml_samples = max_ml_samples
         self.random_state = random_state
+        self.warm_start = warm_start
 
     # ------------------------------------------------------------------ geometry
     def _correlation(self, D):
@@ -291,13 +327,49 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             self._aniso = np.diag([1.0, scaling]) @ rot
 
     # ------------------------------------------------------------------ fit
-    def _fit(self, X, Y, noise):
+    def fit(self, X, y, noise_var=None, noise_cov=None):
+        """Fit the Kriging model to the stars.
+
+        Parameters
+        ----------
+        X : array-like of shape (n_samples, n_features)
+            Star positions.
+        y : array-like of shape (n_samples,) or (n_samples, n_targets)
+            Values at the stars (e.g. PCA coefficients of the stars' stamps).
+        noise_var : array-like of shape (n_samples,) or (n_samples, n_targets), default=None
+            Variance of the measurement noise of each value of ``y`` (one per star, shared
+            by the targets, or one per star and target), the targets' noise independent.
+        noise_cov : array-like of shape (n_samples, n_targets, n_targets), default=None
+            Covariance of the measurement noise of each star's values across targets
+            (co-Kriging, see Notes); instead of ``noise_var``.
+
+        Returns
+        -------
+        self : KrigingRegressor
+            The fitted regressor.
+        """
+        X, Y = self._validate_fit_data(X, y)
+        if noise_cov is not None and noise_var is not None:
+            raise ValueError(f"{_NAME}: give noise_var (independent targets) or noise_cov "
+                             "(co-Kriging), not both.")
+        noise = _check_noise_var(_NAME, noise_var, X.shape[0], Y.shape[1])
+        cov = _check_noise_cov(_NAME, noise_cov, X.shape[0], Y.shape[1])
+        self._fit(X, Y, noise, cov)
+        return self
+
+    def _fit(self, X, Y, noise, noise_cov=None):
         self._check_params(X.shape[1])
+        # a previous fit's large arrays go first (a warm start needs its hyperparameters only)
+        for attr in ("dual_coef_", "drift_coef_", "_factors", "_tree", "_k", "X_fit_",
+                     "y_fit_", "_U_fit", "_F_fit", "_z_fit", "_dual_independent",
+                     "noise_var_", "noise_cov_", "n_cg_iter_"):
+            self.__dict__.pop(attr, None)
         if self.nugget == 0:
-            X, Y, noise = _merge_duplicates(
-                X, Y, owner=_NAME, noise=noise,
+            X, Y, noise, *cov = _merge_duplicates(
+                X, Y, owner=_NAME, noise=noise, noise_cov=noise_cov,
                 reason="with nugget=0 the Kriging system would be singular.",
             )
+            noise_cov = cov[0] if cov else None
         n, d = X.shape
         self._drift_powers = _exponents(d, _DRIFT_DEGREE[self.drift])
         n_drift = self._drift_powers.shape[0]
@@ -313,13 +385,30 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         self._drift_center, half = (lo + hi) / 2.0, (hi - lo) / 2.0
         self._drift_half_width = np.where(half > 0, half, 1.0)
         F = self._drift_design(X)
-        self._fit_hyperparameters(X, Y, F, noise)
+        # co-Kriging: the targets are solved in the frame z = y A where they are nearly
+        # independent (see _kriging_co); otherwise that frame is the identity
+        self._frame, Z, noise_z = None, Y, None
+        if noise_cov is not None:
+            A, A_inv, noise_z = coregionalization_frame(Y, noise_cov)
+            self._frame, Z = (A, A_inv), Y @ A
+            noise = np.einsum("itt->it", noise_z).copy()
+        self._fit_hyperparameters(X, Z, F, noise)
+        if self._frame is not None and self.log_likelihood_ is not None:
+            # the likelihood of y = z A^-1: the Jacobian of the frame, n log |det A|
+            self.log_likelihood_ += n * np.linalg.slogdet(self._frame[0])[1]
         U = self._transform(X)
         self.X_fit_, self.y_fit_, self._U_fit, self._F_fit = X, Y, U, F
-        self.noise_var_ = None if noise is None else noise * self.noise_scale_
+        self._z_fit, self._sill_fit = Z, self.sill_
+        self._noise_fit = None if noise is None else noise * self.noise_scale_
+        self.noise_var_, self.noise_cov_ = self._noise_fit, None
+        self.coregionalization_ = np.diag(self.sill_)
+        if noise_cov is not None:
+            A_inv = self._frame[1]
+            self.noise_cov_ = noise_cov * self.noise_scale_
+            self.noise_var_ = np.einsum("itt->it", self.noise_cov_).copy()
+            self.coregionalization_ = (A_inv.T * self._sill_fit) @ A_inv
+            self.sill_ = np.diag(self.coregionalization_).copy()
         self._set_groups()
-        for attr in ("dual_coef_", "drift_coef_", "_factors", "_tree", "_k"):
-            self.__dict__.pop(attr, None)
         if k is not None:
             self.mean_ = Y.mean(axis=0)
             self._k = min(k, n)
@@ -330,7 +419,9 @@ class KrigingRegressor(_NoiseAwareInterpolator):
                 )
             self._tree = cKDTree(U)
             return
-        self._fit_exact(U, Y, F)
+        C0 = self._fit_exact(U, Z, F, keep_covariance=noise_cov is not None)
+        if noise_cov is not None:
+            self._fit_coupled(C0, Z, F, noise_z * self.noise_scale_)
 
     def _fit_hyperparameters(self, X, Y, F, noise):
         params = {"range_": self.range, "nugget": self.nugget, "noise_scale": self.noise_scale,
@@ -338,6 +429,12 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         auto = [k for k, v in params.items() if isinstance(v, str)]
         if noise is None and "noise_scale" in auto:
             auto.remove("noise_scale")
+        start = None
+        if self.warm_start and self.__dict__.get("log_likelihood_") is not None and len(
+                self._sill_fit) == Y.shape[1]:
+            start = {"range": self.range_, "nugget": self.nugget_, "sill": self._sill_fit,
+                     "noise_scale": self.noise_scale_, "scaling": self.anisotropy_scaling_,
+                     "angle": self.anisotropy_angle_}
         self.log_likelihood_ = self.likelihood_ = None
         if not auto:
             self._set_anisotropy(self.anisotropy_scaling, self.anisotropy_angle)
@@ -357,7 +454,8 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             self._set_anisotropy(self.anisotropy_scaling, self.anisotropy_angle)
         P = X[sub] if geometry_free else self._transform(X[sub])
         fit = fit_hyperparameters(P, Y[sub], F[sub], None if noise is None else noise[sub],
-                                  self.variogram, neighbors=neighbors, rng=rng, **params)
+                                  self.variogram, neighbors=neighbors, rng=rng, start=start,
+                                  **params)
         self.likelihood_ = "exact" if neighbors is None else "vecchia"
         self._set_anisotropy(fit["scaling"], fit["angle"])
         self.range_, self.nugget_, self.sill_ = fit["range"], fit["nugget"], fit["sill"]
@@ -379,18 +477,21 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     def _set_groups(self):
         """Targets sharing a normalised covariance (equal noise-to-sill ratios)."""
         T = self.y_fit_.shape[1]
-        if self.noise_var_ is None:
+        if self._noise_fit is None:
             self._noise_ratio_groups, self._group_targets = [None], [np.arange(T)]
             self._group_of = np.zeros(T, dtype=int)
             return
-        sill = np.where(self.sill_ > 0, self.sill_, np.inf)  # constant target: exact
-        ratio = self.noise_var_ / sill
+        sill = np.where(self._sill_fit > 0, self._sill_fit, np.inf)  # constant: exact
+        ratio = self._noise_fit / sill
         unique, inverse = np.unique(ratio.T, axis=0, return_inverse=True)
         self._group_of = inverse.reshape(-1)
         self._noise_ratio_groups = list(unique)
         self._group_targets = [np.flatnonzero(self._group_of == g) for g in range(len(unique))]
 
-    def _fit_exact(self, U, Y, F):
+    def _fit_exact(self, U, Y, F, keep_covariance=False):
+        """Factorisations, dual and drift coefficients of the (independent) targets; returns
+        the normalised covariance of the stars when ``keep_covariance`` (else None: it is
+        factorised in place)."""
         n, n_groups = U.shape[0], len(self._group_targets)
         if n_groups > 1 and n_groups * n * n * 8 > _MAX_FACTOR_BYTES:
             raise ValueError(
@@ -407,26 +508,40 @@ class KrigingRegressor(_NoiseAwareInterpolator):
                                                  self._group_targets)):
             # the last group factorises C0 in place (C0.T is the same symmetric matrix in
             # Fortran order: no copy of an n_stars^2 array without noise)
-            C = C0.T if g == n_groups - 1 else C0.copy(order="F")
+            last = g == n_groups - 1 and not keep_covariance
+            C = C0.T if last else C0.copy(order="F")
             if ratio is not None:
                 C[np.diag_indices_from(C)] += ratio
-            try:
-                L = cho_factor(C, lower=True, overwrite_a=True, check_finite=False)
-            except LinAlgError:
+            # the upper triangle is zeroed (clean=1): inverses of L need no copy to clean it
+            L, info = lapack.dpotrf(C, lower=1, clean=1, overwrite_a=1)
+            if info != 0:
                 raise ValueError(
                     f"{_NAME}: the Kriging covariance matrix is not positive definite "
                     "(stars almost at the same position relative to the range, or a "
                     "variogram invalid in this dimension). Add a small nugget (e.g. "
                     "nugget=1e-6), lower the range, or merge close stars."
-                ) from None
+                )
+            L = (L, True)
             KiF = cho_solve(L, F, check_finite=False)
             FKiF_inv = np.linalg.inv(F.T @ KiF)
             beta = FKiF_inv @ (KiF.T @ Y[:, targets])
             self.drift_coef_[:, targets] = beta
             self.dual_coef_[:, targets] = cho_solve(L, Y[:, targets] - F @ beta,
                                                     check_finite=False)
-            # the lower triangle holds L; the upper one is never read
             self._factors.append((L[0], KiF, FKiF_inv))
+        self.mean_ = self.drift_coef_[0].copy()
+        return C0 if keep_covariance else None
+
+    def _fit_coupled(self, C0, Z, F, noise_z):
+        """Exact co-Kriging: dual and drift coefficients (in the targets' frame of ``y``) of
+        the system with every star's full noise covariance; the independent targets' ones
+        are kept for the leave-one-out predictions."""
+        system = CoupledSystem(C0, self._sill_fit, noise_z, self._factors, self._group_of, F)
+        alpha, beta, self.n_cg_iter_ = system.solve_gls(Z)
+        self._dual_independent = self.dual_coef_
+        A_inv = self._frame[1]
+        self.dual_coef_ = (alpha * self._sill_fit) @ A_inv
+        self.drift_coef_ = beta @ A_inv
         self.mean_ = self.drift_coef_[0].copy()
 
     # ------------------------------------------------------------------ predict
@@ -452,13 +567,19 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         U, Fq = self._transform(X), self._drift_design(X)
         if getattr(self, "_tree", None) is not None:
             pred, var = predict_local(self, U, Fq, return_std)
+            if self._frame is not None:
+                pred = pred @ self._frame[1]
         else:
             pred, var = self._predict_exact(U, Fq, return_std)
         pred = self._format_output(pred)
         if not return_std:
             return pred
-        std = np.sqrt(np.clip(var[:, self._group_of], 0.0, None) * self.sill_)
-        return pred, self._format_output(std)
+        return pred, self._format_output(np.sqrt(self._to_targets(
+            np.clip(var[:, self._group_of], 0.0, None) * self._sill_fit)))
+
+    def _to_targets(self, var):
+        """Variances of the frame's independent targets -> variances of the targets."""
+        return var if self._frame is None else var @ self._frame[1] ** 2
 
     def _predict_exact(self, U, Fq, return_std):
         m, T = U.shape[0], self.dual_coef_.shape[1]
@@ -492,7 +613,9 @@ class KrigingRegressor(_NoiseAwareInterpolator):
 
         The prediction of star ``i`` from all the others with the fitted
         hyperparameters: ``y_i - [A^-1 b]_i / [A^-1]_ii`` with ``A`` the bordered
-        Kriging system (Dubrule 1983), one triangular inversion per factorisation.
+        Kriging system (Dubrule 1983), one triangular inversion per factorisation. With
+        ``noise_cov`` (co-Kriging) it is that of the independent targets of the frame the
+        system is solved in (the off-diagonal noise of that frame left out).
 
         Parameters
         ----------
@@ -513,17 +636,20 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             raise ValueError(
                 f"{_NAME}: loo_predict needs a fitted exact model (n_neighbors=None)."
             )
-        pdiag = np.empty_like(self.y_fit_)
+        pdiag = np.empty_like(self._z_fit)
         for g, (L, KiF, FKiF_inv) in enumerate(self._factors):
-            Linv, info = lapack.dtrtri(L, lower=1)
-            Linv = np.tril(Linv)
+            Linv, info = lapack.dtrtri(L, lower=1)  # upper triangle zero, as L's
             d = np.einsum("ij,ij->j", Linv, Linv) - np.einsum("ip,pq,iq->i", KiF, FKiF_inv,
                                                               KiF)
             pdiag[:, self._group_targets[g]] = d[:, None]
-        pred = self._format_output(self.y_fit_ - self.dual_coef_ / pdiag)
+        dual = self.dual_coef_ if self._frame is None else self._dual_independent
+        pred = self._z_fit - dual / pdiag
+        if self._frame is not None:
+            pred = pred @ self._frame[1]
+        pred = self._format_output(pred)
         if not return_std:
             return pred
-        return pred, self._format_output(np.sqrt(self.sill_ / pdiag))
+        return pred, self._format_output(np.sqrt(self._to_targets(self._sill_fit / pdiag)))
 
     def _predict(self, X):  # pragma: no cover - predict is overridden
         raise NotImplementedError

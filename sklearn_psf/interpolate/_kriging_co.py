@@ -24,7 +24,7 @@ import numpy as np
 from scipy.linalg import cho_solve, eigh
 
 #: relative residual at which the conjugate gradients stop
-_CG_RTOL = 1e-11
+_CG_RTOL = 1e-10
 _CG_MAXITER = 500
 
 
@@ -49,72 +49,61 @@ def coregionalization_frame(Y, noise_cov):
 
 
 class CoupledSystem:
-    """``K = diag(lambda) (x) C0 + blockdiag(N_i)`` over (n, T) arrays, with its
-    preconditioner ``K_t = lambda_t (C0 + diag(N_i,tt) / lambda_t)`` from factors.
+    """``K = diag(lambda) (x) C0 + blockdiag(N_i)`` over (n, T) arrays and its bordered
+    (generalised-least-squares) solve, preconditioned by the independent targets.
 
-    ``C0`` (n, n) the normalised signal covariance, ``lam`` (T,), ``noise`` (n, T, T) the
-    frame's noise covariances, ``factors`` one lower Cholesky factor per group of targets
-    (``group_of`` (T,)) of ``C0 + diag(noise_tt / lam_t)``.
+    ``C0`` (n, n) is the normalised signal covariance, ``lam`` (T,) the targets' sills,
+    ``noise`` (n, T, T) the frame's noise covariances, ``factors`` the independent targets'
+    ``(L, C^-1 F, (F^T C^-1 F)^-1)`` per group of targets (``group_of`` (T,)), with ``L`` the
+    lower Cholesky factor of ``C0 + diag(N_i,tt / lambda_t)``, and ``F`` (n, q) the drift.
     """
 
-    def __init__(self, C0, lam, noise, factors, group_of):
-        self.C0, self.lam, self.noise = C0, lam, noise
+    def __init__(self, C0, lam, noise, factors, group_of, F):
+        self.C0, self.lam, self.noise, self.F = C0, lam, noise, F
         self.factors, self.group_of = factors, group_of
 
     def matvec(self, V):
-        """``K V`` for V of shape (n, T, r)."""
-        out = np.einsum("ij,jtr->itr", self.C0, V, optimize=True) * self.lam[None, :, None]
-        out += np.einsum("itu,iur->itr", self.noise, V)
-        return out
+        """``K V`` for V of shape (n, T)."""
+        return (self.C0 @ V) * self.lam + np.einsum("itu,iu->it", self.noise, V)
 
-    def precondition(self, V):
-        out = np.empty_like(V)
-        for t in range(V.shape[1]):
-            L = self.factors[self.group_of[t]]
-            out[:, t] = cho_solve((L, True), V[:, t], check_finite=False) / self.lam[t]
-        return out
+    def project(self, R):
+        """The independent targets' bordered solve: ``g`` with ``M g + F v = R`` and
+        ``F^T g = 0`` for each target (``M = lambda C``), and ``v`` (q, T)."""
+        G = np.empty_like(R)
+        V = np.empty((self.F.shape[1], R.shape[1]))
+        for t in range(R.shape[1]):
+            L, KiF, FKiF_inv = self.factors[self.group_of[t]]
+            w = cho_solve((L, True), R[:, t], check_finite=False)
+            V[:, t] = FKiF_inv @ (self.F.T @ w)
+            G[:, t] = (w - KiF @ V[:, t]) / self.lam[t]
+        return G, V
 
-    def solve(self, B):
-        """``K^-1 B`` for B of shape (n, T, r), by preconditioned conjugate gradients
-        (each of the r right-hand sides on its own); returns the solution and the number
+    def solve_gls(self, Z):
+        """``alpha = K^-1 (Z - F beta)`` and the generalised-least-squares ``beta`` (q, T):
+        the bordered system ``K alpha + F beta = Z``, ``F^T alpha = 0``, by conjugate
+        gradients projected on the constraint with the independent targets' bordered solve
+        as preconditioner (Gould, Hribar & Nocedal 2001). Returns alpha, beta and the number
         of iterations."""
-        X = self.precondition(B)
-        R = B - self.matvec(X)
-        Z = self.precondition(R)
-        P = Z.copy()
-        rz = np.einsum("itr,itr->r", R, Z)
-        norm_b = np.sqrt(np.einsum("itr,itr->r", B, B))
-        norm_b[norm_b == 0] = 1.0
+        alpha, _ = self.project(Z)  # the independent targets' solution
+        norm = np.sqrt(max(np.vdot(Z, alpha), 1e-300))
+        R = self.matvec(alpha) - Z
+        G, V = self.project(R)
+        R -= self.F @ V  # keep the residual off the drift's span (rounding)
+        D = -G
+        rg = np.vdot(R, G)
         for it in range(_CG_MAXITER):
-            if np.all(np.sqrt(np.einsum("itr,itr->r", R, R)) <= _CG_RTOL * norm_b):
-                return X, it
-            KP = self.matvec(P)
-            pKp = np.einsum("itr,itr->r", P, KP)
-            alpha = np.divide(rz, pKp, out=np.zeros_like(rz), where=pKp > 0)
-            X += alpha * P
-            R -= alpha * KP
-            Z = self.precondition(R)
-            rz_new = np.einsum("itr,itr->r", R, Z)
-            beta = np.divide(rz_new, rz, out=np.zeros_like(rz), where=rz > 0)
-            P = Z + beta * P
-            rz = rz_new
-        return X, _CG_MAXITER
-
-
-def coupled_gls(system, Z, F):
-    """Generalised-least-squares drift ``beta`` (q, T) and ``K^-1 (Z - F beta)`` (n, T) of
-    the coupled system, and the conjugate-gradient iterations."""
-    n, T = Z.shape
-    q = F.shape[1]
-    rhs = np.zeros((n, T, 1 + q * T))
-    rhs[:, :, 0] = Z
-    for t in range(T):
-        rhs[:, t, 1 + t * q:1 + (t + 1) * q] = F
-    sol, n_iter = system.solve(rhs)
-    KiZ, KiF = sol[:, :, 0], sol[:, :, 1:]  # KiF[:, :, t*q + j]: K^-1 (e_t (x) F_j)
-    # F^T K^-1 F (qT x qT) and F^T K^-1 Z, in the order (t, j)
-    FKF = np.einsum("ij,itk->tjk", F, KiF).reshape(q * T, q * T)
-    FKZ = np.einsum("ij,it->tj", F, KiZ).reshape(q * T)
-    beta = np.linalg.solve(FKF, FKZ).reshape(T, q).T
-    alpha = KiZ - np.einsum("itk,k->it", KiF, beta.T.reshape(-1))
-    return beta, alpha, n_iter
+            if not np.sqrt(abs(rg)) > _CG_RTOL * norm:
+                break
+            KD = self.matvec(D)
+            step = rg / np.vdot(D, KD)
+            alpha += step * D
+            R += step * KD
+            G, V = self.project(R)
+            R -= self.F @ V
+            rg, rg_old = np.vdot(R, G), rg
+            D = -G + (rg / rg_old) * D
+        else:
+            it = _CG_MAXITER
+        # at convergence K alpha - Z = -F beta: beta from the same projection
+        _, beta = self.project(Z - self.matvec(alpha))
+        return alpha, beta, it

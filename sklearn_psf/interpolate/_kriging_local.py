@@ -10,20 +10,21 @@ _LOCAL_BATCH_ELEMENTS = 2**21
 
 
 def predict_local(reg, U, Fq, return_std):
-    """Predictions (m, T) and normalised variances (m, n_groups) of local Kriging.
+    """Predictions (m, T) and normalised variances (m, n_groups) of local Kriging (in the
+    frame of the independent targets, see :mod:`._kriging_co`).
 
     ``reg`` is a fitted :class:`KrigingRegressor` in local mode, ``U`` the transformed
     query positions and ``Fq`` their drift design rows. Each query solves
     ``[C_k F_k; F_k^T 0] [lambda; mu] = [c_k; f]`` over its ``k`` nearest stars, with
     ``C_k`` the normalised covariance (plus the stars' noise, per group of targets).
     """
-    m, T = U.shape[0], reg.y_fit_.shape[1]
+    m, T = U.shape[0], reg._z_fit.shape[1]
     k, p = reg._k, Fq.shape[1]
     ratios = reg._noise_ratio_groups  # list of (n_stars,) arrays or [None]
     pred = np.empty((m, T))
     var = np.empty((m, len(ratios))) if return_std else None
     batch = int(max(1, _LOCAL_BATCH_ELEMENTS // ((k + p) ** 2 + k * T)))
-    Us, Ys, Fs = reg._U_fit, reg.y_fit_, reg._F_fit
+    Us, Ys, Fs = reg._U_fit, reg._z_fit, reg._F_fit
     diag = np.arange(k)
     for start in range(0, m, batch):
         sl = slice(start, min(start + batch, m))

@@ -27,7 +27,8 @@ HDU 0 (primary, no data)
 
 Format 2 adds the noise-aware basis (``SPEC`` entry ``basis_kind``: ``"stamppca"``, with
 ``stamppca`` holding its noise level and variances; the basis is then rebuilt as a fitted
-:class:`~sklearn_psf.preprocessing.StampPCA`).
+:class:`~sklearn_psf.preprocessing.StampPCA`). Format 3 adds the ``STARS`` column
+``coeff_cov`` (k*k per row: the coefficients' full noise covariance, for co-Kriging).
 
 Loading rebuilds the basis (``StampNormalizer`` steps + a fitted :class:`FixedBasis` of the
 stored mean and components, or the ``StampPCA``) and refits the interpolator (with the
@@ -62,7 +63,7 @@ __all__ = ["save_model", "read_model", "read_model_validation", "MODEL_FORMAT",
 #: Value of the ``SKPSFFMT`` keyword of a model file.
 MODEL_FORMAT = "SKPSF-MODEL"
 #: Format version written by this version of the package (``FORMAT`` keyword).
-MODEL_FORMAT_VERSION = 2
+MODEL_FORMAT_VERSION = 3
 _ALLOWED_MODULES = ("sklearn", "sklearn_psf")
 
 
@@ -276,7 +277,7 @@ def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = F
     >>> path = os.path.join(tempfile.mkdtemp(), "psf.fits")
     >>> save_model(model, path)
     >>> fits.getheader(path)["FORMAT"], [h.name for h in fits.open(path)][1:3]
-    (2, ['SPEC', 'BASIS_MEAN'])
+    (3, ['SPEC', 'BASIS_MEAN'])
     """
     from sklearn.utils.validation import check_is_fitted
 
@@ -340,6 +341,9 @@ def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = F
     }
     if model.coefficient_var_ is not None:
         columns["coeff_var"] = np.asarray(model.coefficient_var_, dtype=np.float64).reshape(-1, k)
+    if getattr(model, "coefficient_cov_", None) is not None:
+        columns["coeff_cov"] = np.asarray(model.coefficient_cov_,
+                                          dtype=np.float64).reshape(-1, k * k)
     if model.outlier_score_ is not None:
         columns["outlier_score"] = np.asarray(model.outlier_score_, dtype=np.float64)
     stars = fits.table_to_hdu(Table(columns))
@@ -454,6 +458,8 @@ def _read(header, content, path, model_class):
     mask = np.asarray(stars["inlier"], dtype=bool)
     var = (np.asarray(stars["coeff_var"], dtype=np.float64).reshape(n, k)
            if "coeff_var" in stars.colnames else None)
+    cov = (np.asarray(stars["coeff_cov"], dtype=np.float64).reshape(n, k, k)
+           if "coeff_cov" in stars.colnames else None)
     # the model's own fit path, minus the basis: same interpolator, same data
     detector = model._make_outliers()
     if detector is not None:
@@ -461,7 +467,8 @@ def _read(header, content, path, model_class):
     interp = make_default_interpolator() if interpolator is None else clone(interpolator)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # warnings were already shown when the model was fitted
-        fit_interpolator(interp, X[mask], coef[mask], None if var is None else var[mask])
+        fit_interpolator(interp, X[mask], coef[mask], None if var is None else var[mask],
+                         None if cov is None else cov[mask])
     normalizers = [{key: _decode(v, arrays) for key, v in p.items()}
                    for p in spec["normalizers"]]
     model.basis_ = _rebuild_basis(spec.get("basis_kind", "linear"), normalizers, mean, comps,
@@ -480,10 +487,11 @@ def _read(header, content, path, model_class):
     model.X_fit_ = X
     model.coefficients_ = coef
     model.coefficient_var_ = var
+    model.coefficient_cov_ = cov
     return model
 
 
-_READERS = {1: _read, 2: _read}
+_READERS = {1: _read, 2: _read, 3: _read}
 
 
 def read_model(path, model_class):

@@ -24,6 +24,8 @@ from ._noise import (
     fit_interpolator,
     leave_out_predict,
     pixel_residuals,
+    refittable,
+    restore_warm_start,
 )
 
 __all__ = ["PSFModel", "UnusableStarsWarning", "load_model"]
@@ -52,9 +54,11 @@ class PSFModel(RegressorMixin, BaseEstimator):
        allow (:class:`~sklearn_psf.preprocessing.ChiSquareOutlierDetector`); the basis is
        then fitted again without the rejected stars;
     3. fits ``interpolator`` on (positions, coefficients) of the kept stars, passing each
-       star's coefficient noise as ``noise_var`` when the interpolator takes it (Kriging
-       with a measurement-error term, weighted least squares for polynomials, smoothing for
-       RBF).
+       star's coefficient noise when the interpolator takes it: the full covariance across
+       components as ``noise_cov`` to co-Kriging (the default; the components' noise is
+       correlated through the common flux normalisation), the variances as ``noise_var``
+       otherwise (Kriging with a measurement-error term, weighted least squares for
+       polynomials, smoothing for RBF).
 
     ``predict(X)`` interpolates coefficients at X and rebuilds normalised (unit-sum), centred
     stamps with ``basis_.inverse_transform``.
@@ -112,6 +116,8 @@ class PSFModel(RegressorMixin, BaseEstimator):
         Basis coefficients of those stars (NaN where ``fit_flag_`` is not 0).
     coefficient_var_ : ndarray of shape (n_stars, n_components_) or None
         Their noise variance (None for a basis that knows no noise).
+    coefficient_cov_ : ndarray of shape (n_stars, n_components_, n_components_) or None
+        Their noise covariance (None for a basis that does not give it).
     outlier_score_ : ndarray of shape (n_stars,)
         The detector's ``score_samples`` (larger = more normal; log10 p-value for "chi2");
         NaN for unusable stars; None without outlier rejection.
@@ -252,17 +258,18 @@ class PSFModel(RegressorMixin, BaseEstimator):
             self._check_noise_blind(basis, y, weights)
 
         keep = np.ones(n, dtype=bool)
+        fitted = None  # the chi^2 test's interpolator, refitted from its hyperparameters
         for round_ in range(2):
             basis = clone(basis).fit(*self._basis_data(basis, y[keep], weights, keep))
-            coef, var, flag, stamp_fit = self._project(basis, y, weights)
+            coef, var, cov, flag, stamp_fit = self._project(basis, y, weights)
             usable = flag == FIT_OK
             k = coef.shape[1]
             if usable.sum() < k + 2:
                 raise ValueError(f"{int(usable.sum())} usable stars are too few for a basis of "
                                  f"{k} components: need at least {k + 2}.")
             trusted = usable & keep
-            inliers, score, fitted = self._reject(detector, X, y, coef, var, trusted, usable,
-                                                  interp, stamp_fit)
+            inliers, score, fitted = self._reject(detector, X, y, coef, var, cov, trusted,
+                                                  usable, interp, stamp_fit, fitted)
             mask = usable & inliers
             if round_ == 1 or not noise_aware or (mask == trusted).all():
                 break
@@ -278,10 +285,12 @@ class PSFModel(RegressorMixin, BaseEstimator):
                 f"Outlier rejection kept {kept} of {n} stars: too few to interpolate. Use a "
                 "milder detector (e.g. a larger p_value or alpha) or outliers=None."
             )
-        if fitted is not None and (mask == trusted).all():
-            interp = fitted  # the chi^2 test's reference fit is on exactly these stars
-        else:
-            fit_interpolator(interp, X[mask], coef[mask], None if var is None else var[mask])
+        if fitted is None or not (mask == trusted).all():
+            # (else the chi^2 test's reference fit is on exactly these stars)
+            fitted = fit_interpolator(refittable(interp, fitted), X[mask], coef[mask],
+                                      None if var is None else var[mask],
+                                      None if cov is None else cov[mask])
+        interp = restore_warm_start(fitted, interp)
 
         self.basis_ = basis
         self.outliers_ = detector
@@ -294,6 +303,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
         self.X_fit_ = np.array(X, copy=True)
         self.coefficients_ = coef
         self.coefficient_var_ = var
+        self.coefficient_cov_ = cov
         return self
 
     @staticmethod
@@ -325,18 +335,21 @@ class PSFModel(RegressorMixin, BaseEstimator):
 
     @staticmethod
     def _project(basis, y, weights):
-        """Coefficients, their noise variance, fit flags and the StampFit (None, None for a
-        basis that knows no noise) of every star."""
+        """Coefficients, their noise variance and covariance, fit flags and the StampFit
+        (None for what a basis that knows no noise does not give) of every star."""
         if hasattr(basis, "project"):
             fit = basis.project(y, weights)
-            return fit.coefficients, fit.coefficient_var, np.asarray(fit.flag), fit
+            cov = getattr(fit, "coefficient_cov", None)
+            return fit.coefficients, fit.coefficient_var, cov, np.asarray(fit.flag), fit
         coef = np.asarray(basis.transform(y), dtype=np.float64)
         coef = coef.reshape(len(y), -1)
-        return coef, None, np.zeros(len(y), dtype=np.int64), None
+        return coef, None, None, np.zeros(len(y), dtype=np.int64), None
 
-    def _reject(self, detector, X, y, coef, var, trusted, usable, interp, stamp_fit):
+    def _reject(self, detector, X, y, coef, var, cov, trusted, usable, interp, stamp_fit,
+                previous=None):
         """Inlier mask over all stars, the detector's score (NaN where unusable) and the
-        interpolator fitted on the trusted stars (None unless the test is chi^2).
+        interpolator fitted on the trusted stars (None unless the test is chi^2; refitted
+        from ``previous``, the previous round's, when it can start from its hyperparameters).
 
         The chi^2 test's references (leave-one-out or cross-predictions, model-error floors)
         come from the ``trusted`` stars only (the inliers of the previous round); every
@@ -357,11 +370,13 @@ class PSFModel(RegressorMixin, BaseEstimator):
         ref = trusted[idx]
         train = idx[ref]
         noise = None if var is None else var[train]
-        full = fit_interpolator(clone(interp), X[train], coef[train], noise)
+        noise_cov = None if cov is None else cov[train]
+        full = fit_interpolator(refittable(interp, previous), X[train], coef[train], noise,
+                                noise_cov)
         predicted = np.asarray(full.predict(X[idx]), dtype=np.float64).reshape(len(idx), -1)
         relative = np.ones_like(predicted)
         predicted[ref], rel = leave_out_predict(interp, full, X[train], coef[train], noise,
-                                                self.cv, self.random_state)
+                                                self.cv, self.random_state, noise_cov)
         if rel is not None:  # stars judged from outside: as far as the worst trusted one
             relative[ref] = rel
             relative[~ref] = rel.max(axis=0)
