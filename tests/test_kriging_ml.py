@@ -19,7 +19,7 @@ from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 from threadpoolctl import threadpool_limits
 
-from sklearn_psf.interpolate import FewStarsWarning, KrigingRegressor
+from sklearn_psf.interpolate import FewStarsWarning, KrigingRegressor, ShortRangeWarning
 from sklearn_psf.interpolate._kriging_ml import _Likelihood, _VecchiaLikelihood
 
 
@@ -272,3 +272,34 @@ def test_ml_recovers_geometric_anisotropy():
     assert np.linalg.norm(shape(Q) - shape(Q_true)) / np.linalg.norm(shape(Q_true)) < 0.15
     iso = KrigingRegressor(range="auto", nugget="auto", max_ml_samples=300).fit(X, Y)
     assert reg.log_likelihood_ > iso.log_likelihood_ + 10
+
+
+def test_no_spatial_correlation_gives_a_smooth_field_not_spots():
+    # 100 stars whose values are spatially white (a real chip whose PSF does not vary at
+    # the stars' spacing): the range stops at the stars' spacing, the nugget takes the white
+    # variance, and a map of the field is smooth (close to the mean), not spots at the stars
+    rng = np.random.default_rng(0)
+    X = rng.uniform(size=(100, 2))
+    Y = rng.normal(size=(100, 3)) * [1.0, 0.5, 0.2]
+    noise = np.full((100, 3), 0.01)
+    with pytest.warns(ShortRangeWarning, match="no spatial correlation"):
+        reg = KrigingRegressor(range="auto").fit(X, Y, noise_var=noise)
+    nearest = np.sort(cdist(X, X), axis=1)[:, 1]
+    assert reg.range_floor_ == pytest.approx(np.median(nearest), rel=1e-12)
+    assert reg.range_at_floor_ and reg.range_ >= reg.range_floor_
+    assert reg.nugget_ > 0.9
+    grid = np.stack(np.meshgrid(*[np.linspace(0, 1, 60)] * 2), -1).reshape(-1, 2)
+    # measured 0.0005 of the values' spread; a range collapsed below the spacing gave a
+    # constant with a spot of the star's value around each star
+    assert np.all(reg.predict(grid).std(axis=0) < 0.01 * Y.std(axis=0))
+
+
+def test_correlated_field_keeps_its_range_without_warning():
+    X, Y, rng = gp_field(150, 0.2, [1.0, 0.3], seed=16)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        reg = KrigingRegressor(range="auto").fit(X, Y, noise_var=np.full(150, 1e-3))
+    assert not reg.range_at_floor_ and reg.range_ > 2 * reg.range_floor_
+    assert reg.nugget_ == 0.0
+    fixed = KrigingRegressor(range=0.3).fit(X, Y)
+    assert fixed.range_floor_ is None and not fixed.range_at_floor_

@@ -25,6 +25,11 @@ class FewStarsWarning(UserWarning):
     """Too few stars for the fitted statistics (e.g. a Kriging sill) to mean much."""
 
 
+class ShortRangeWarning(UserWarning):
+    """Maximum likelihood found no spatial correlation the stars can resolve: the Kriging
+    range fell to the stars' spacing (``KrigingRegressor.range_at_floor_``)."""
+
+
 def _query_chunks(n_queries: int, n_stars: int):
     """Yield slices over queries so that a (chunk, n_stars) array stays bounded."""
     size = int(max(1, min(_MAX_CHUNK, _CHUNK_ELEMENTS // max(n_stars, 1))))

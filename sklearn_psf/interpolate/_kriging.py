@@ -14,6 +14,7 @@ from sklearn.utils import check_random_state
 
 from ._base import (
     FewStarsWarning,
+    ShortRangeWarning,
     _check_n_neighbors,
     _check_n_samples,
     _check_noise_cov,
@@ -42,6 +43,14 @@ _EXACT_ML_COST = 1.2e9
 _VECCHIA_NEIGHBORS = 10
 
 _NAME = "KrigingRegressor"
+
+
+def _spacing(P):
+    """Median distance from a star to its nearest neighbour (0 for a single star)."""
+    if len(P) < 2:
+        return 0.0
+    dist, _ = cKDTree(P).query(P, k=2)
+    return float(np.median(dist[:, 1]))
 
 
 def _check_param(value, name, lo, hi, auto=True, lo_open=False):
@@ -142,6 +151,13 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         None without maximum likelihood.
     likelihood_ : {"exact", "vecchia"} or None
         The likelihood maximised (None without maximum likelihood).
+    range_floor_ : float or None
+        Lower bound of the fitted range: the stars' spacing (median distance from a star to
+        its nearest neighbour, in the units of ``X``); None when the range is not fitted.
+    range_at_floor_ : bool
+        Maximum likelihood (with the nugget as set) put the range at that floor: no spatial
+        correlation the stars can resolve (see Notes); the nugget was then fitted and a
+        :class:`ShortRangeWarning` issued.
     X_fit_ : ndarray of shape (n_stars, n_features)
         Distinct star positions (duplicated positions merged when ``nugget=0``).
     y_fit_ : ndarray of shape (n_stars, n_targets)
@@ -435,7 +451,8 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             start = {"range": self.range_, "nugget": self.nugget_, "sill": self._sill_fit,
                      "noise_scale": self.noise_scale_, "scaling": self.anisotropy_scaling_,
                      "angle": self.anisotropy_angle_}
-        self.log_likelihood_ = self.likelihood_ = None
+        self.log_likelihood_ = self.likelihood_ = self.range_floor_ = None
+        self.range_at_floor_ = False
         if not auto:
             self._set_anisotropy(self.anisotropy_scaling, self.anisotropy_angle)
             self.range_, self.nugget_ = float(self.range), float(self.nugget)
@@ -453,9 +470,28 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         if not geometry_free:
             self._set_anisotropy(self.anisotropy_scaling, self.anisotropy_angle)
         P = X[sub] if geometry_free else self._transform(X[sub])
-        fit = fit_hyperparameters(P, Y[sub], F[sub], None if noise is None else noise[sub],
-                                  self.variogram, neighbors=neighbors, rng=rng, start=start,
-                                  **params)
+        noise_sub = None if noise is None else noise[sub]
+        if "range_" in auto:
+            self.range_floor_ = _spacing(X if geometry_free else self._transform(X))
+        fit = fit_hyperparameters(P, Y[sub], F[sub], noise_sub, self.variogram,
+                                  neighbors=neighbors, rng=rng, start=start,
+                                  range_floor=self.range_floor_, **params)
+        if self.range_floor_ is not None and fit["range"] <= self.range_floor_ * (1 + 1e-6):
+            # no correlation the stars can resolve: the white part goes to a nugget, so that
+            # the field between the stars is smooth (not spots of one spacing at each star)
+            self.range_at_floor_ = True
+            if not isinstance(self.nugget, str):
+                fit = fit_hyperparameters(P, Y[sub], F[sub], noise_sub, self.variogram,
+                                          neighbors=neighbors, rng=rng, start=fit,
+                                          range_floor=self.range_floor_,
+                                          **{**params, "nugget": "auto"})
+            warnings.warn(
+                f"{_NAME}: maximum likelihood finds no spatial correlation at the stars' "
+                f"spacing (range {fit['range']:.3g} at its floor, the median distance to the "
+                f"nearest star {self.range_floor_:.3g}); the nugget was fitted "
+                f"({fit['nugget']:.2f} of the sill): the field is predicted smooth, close to "
+                "its mean. More stars, or a constant model, may serve as well.",
+                ShortRangeWarning, stacklevel=4)
         self.likelihood_ = "exact" if neighbors is None else "vecchia"
         self._set_anisotropy(fit["scaling"], fit["angle"])
         self.range_, self.nugget_, self.sill_ = fit["range"], fit["nugget"], fit["sill"]

@@ -214,7 +214,8 @@ class _VecchiaLikelihood(_Parameters):
 
 
 def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scale,
-                        scaling=1.0, angle=0.0, neighbors=None, rng=None, start=None):
+                        scaling=1.0, angle=0.0, neighbors=None, rng=None, start=None,
+                        range_floor=None):
     """Maximum-likelihood range, nugget, sills, noise scale and anisotropy.
 
     Parameters
@@ -240,6 +241,8 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
         A previous result of this function (``range``, ``nugget``, ``noise_scale``,
         ``scaling``, ``angle``, ``sill``): the optimisation starts there instead of from the
         best point of a grid.
+    range_floor : float, optional
+        Lower bound of the range (default ``1e-3`` times the span of the positions).
 
     Returns
     -------
@@ -275,8 +278,9 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
     span = span if span > 0 else 1.0
     mean_noise = 0.0 if Ns is None else Ns.mean(axis=0) * fixed.get("kappa", 1.0)
     p0 = np.log(np.clip(1.0 - mean_noise, 0.1, 1.0) / 1.1) * np.ones(T)
+    low = max(1e-3 * span, range_floor or 0.0)
     bounds = {
-        "range": (np.log(1e-3 * span), np.log(10.0 * span)),
+        "range": (np.log(low), np.log(max(10.0 * span, 2.0 * low))),
         "scaling": (np.log(0.1), np.log(10.0)),
         "angle": (-np.pi, np.pi),
         "nu": tuple(np.log(_NU_BOUNDS)),
@@ -285,7 +289,7 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
     # a few starting points (ranges, anisotropy directions); the local optimisation
     # starts from the best of them
     grid = {
-        "range": [np.log(f * span) for f in (0.05, 0.2, 0.8)],
+        "range": [np.log(max(f * span, low)) for f in (0.05, 0.2, 0.8)],
         "scaling": [np.log(2.0)],
         "angle": [0.0, np.pi / 3, 2 * np.pi / 3],
         "nu": [np.log(0.1)],
