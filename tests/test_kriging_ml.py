@@ -124,13 +124,13 @@ def test_vecchia_with_all_earlier_stars_is_the_exact_likelihood(drift):
 
 
 def test_auto_likelihood_is_exact_where_cheap():
-    X, Y, rng = gp_field(700, 0.2, [1.0, 0.5], seed=14)
-    shared = KrigingRegressor(range="auto").fit(X, Y, noise_var=np.full(700, 0.01))
-    assert shared.likelihood_ == "exact"  # 2 factorisations of 700 stars per step
-    per_target = KrigingRegressor(range="auto").fit(
-        np.vstack([X, X + 1e-3])[:1000], np.vstack([Y, Y])[:1000],
-        noise_var=rng.uniform(0.01, 0.02, size=(1000, 2)))
-    assert per_target.likelihood_ == "vecchia"
+    X, Y, rng = gp_field(450, 0.2, [1.0, 0.5], seed=14)
+    cheap = KrigingRegressor(range="auto").fit(X, Y, noise_var=np.full(450, 0.01))
+    assert cheap.likelihood_ == "exact"  # 2 factorisations of 450 stars per step
+    costly = KrigingRegressor(range="auto").fit(
+        np.vstack([X, X + 1e-3])[:800], np.vstack([Y, Y])[:800],
+        noise_var=rng.uniform(0.01, 0.02, size=(800, 2)))
+    assert costly.likelihood_ == "vecchia"
 
 
 def test_ml_recovers_range_sills_and_noise_scale():
@@ -197,10 +197,28 @@ def test_loo_predict_matches_bordered_systems_without_the_star(drift, with_noise
             np.testing.assert_allclose(loo_std[i, t] ** 2, var, rtol=1e-8)
 
 
-def test_loo_needs_exact_mode():
-    X, Y, _ = gp_field(30, 0.3, [1.0], seed=6)
-    with pytest.raises(ValueError, match="n_neighbors=None"):
-        KrigingRegressor(n_neighbors=10).fit(X, Y).loo_predict()
+def test_local_loo_predict_matches_bordered_systems_of_the_nearest_other_stars():
+    X, Y, rng = gp_field(80, 0.3, [1.0, 0.2], seed=6)
+    noise_var = rng.uniform(0.01, 0.05, size=(80, 2))
+    a, nug, k = 0.3, 0.05, 10
+    reg = KrigingRegressor(range=a, nugget=nug, n_neighbors=k).fit(X, Y, noise_var=noise_var)
+    loo, loo_std = reg.loo_predict(return_std=True)
+    for t in range(2):
+        sill = Y[:, t].var()
+        for i in (0, 33, 79):
+            d = np.linalg.norm(X - X[i], axis=1)
+            d[i] = np.inf
+            near = np.argsort(d)[:k]
+            C = (1 - nug) * np.exp(-cdist(X[near], X[near]) / a) + np.diag(
+                nug + noise_var[near, t] / sill)
+            A = np.block([[C, np.ones((k, 1))], [np.ones((1, k)), np.zeros((1, 1))]])
+            rhs = np.append((1 - nug) * np.exp(-d[near] / a), 1.0)
+            sol = np.linalg.solve(A, rhs)
+            np.testing.assert_allclose(loo[i, t], sol[:k] @ Y[near, t], rtol=1e-9)
+            var = sill * (1 - sol @ rhs) + noise_var[i, t]
+            np.testing.assert_allclose(loo_std[i, t] ** 2, var, rtol=1e-8)
+    with pytest.raises(ValueError, match="more than n_neighbors=10"):
+        KrigingRegressor(n_neighbors=10).fit(X[:10], Y[:10]).loo_predict()
 
 
 def test_few_stars_warn_and_ml_needs_ten():

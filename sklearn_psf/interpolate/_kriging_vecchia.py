@@ -85,16 +85,19 @@ def vecchia_neighbours(P, m, seed):
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract", "arcp"})
 def _conditionals(R, dR, r, dr, noise_nb, noise, y_nb, y, F_nb, F, count, p, nu, kappa, free,
-                  d_out, yt_out, Ft_out, dd_out, a_out, B_out):  # pragma: no cover - compiled
+                  d_out, yt_out, Ft_out, dd_out, a_out, B_out,
+                  fisher):  # pragma: no cover - compiled
     """Per star: conditional variance, decorrelated value and drift row, and the pieces of
-    the gradient for the parameters with ``free[par]`` (see the module docstring). Returns
-    False if a system is not positive definite."""
+    the gradient for the parameters with ``free[par]`` (see the module docstring); ``fisher``
+    (4, 4) accumulates their expected information ``sum_i dd dd' / (2 d^2) + v C^-1 v' / d``.
+    Returns False if a system is not positive definite."""
     n, m = r.shape
     q = F.shape[1]
     L = np.empty((m, m))
     sol = np.empty((2 + q, m))  # rows: b = C^-1 c, C^-1 y_N, C^-1 F_N
     v = np.empty(m)
     dCb = np.empty(m)
+    W = np.empty((4, m))  # L^-1 v of each parameter
     for i in range(n):
         k = count[i]
         # Cholesky of C = p (R + nu I) + kappa diag(noise), row by row (L[a, :a+1])
@@ -179,6 +182,23 @@ def _conditionals(R, dR, r, dr, noise_nb, noise, y_nb, y, F_nb, F, count, p, nu,
                 for a in range(k):
                     t += v[a] * sol[2 + j, a]
                 B_out[i, par, j] = t
+            w = W[par]
+            for a in range(k):
+                t = v[a]
+                for c in range(a):
+                    t -= L[a, c] * w[c]
+                w[a] = t / L[a, a]
+        d = d_out[i]
+        for p1 in range(4):
+            if not free[p1]:
+                continue
+            for p2 in range(p1 + 1):
+                if not free[p2]:
+                    continue
+                t = 0.0
+                for a in range(k):
+                    t += W[p1, a] * W[p2, a]
+                fisher[p1, p2] += 0.5 * dd_out[i, p1] * dd_out[i, p2] / (d * d) + t / d
     return True
 
 
@@ -211,17 +231,19 @@ class VecchiaTerms:
         self.F_nb = np.where(valid[:, :, None], self.F[safe], 0.0)
 
     def target(self, t, R, dR, r, dr, p, nu, kappa, free):
-        """Kernel outputs for target ``t`` (see :func:`_conditionals`), or None if not PD;
-        ``free`` (4,) bool: the parameters of :data:`VECCHIA_PARAMS` to differentiate."""
+        """Kernel outputs for target ``t`` (see :func:`_conditionals`; the information
+        matrix symmetric), or None if not PD; ``free`` (4,) bool: the parameters of
+        :data:`VECCHIA_PARAMS` to differentiate."""
         n, m = r.shape
         q = self.F.shape[1]
         d, yt = np.empty(n), np.empty(n)
         Ft = np.empty((n, q))
         dd, a = np.zeros((n, 4)), np.zeros((n, 4))
         B = np.zeros((n, 4, q))
+        fisher = np.zeros((4, 4))
         ok = _conditionals(R, dR, r, dr, self.noise_nb[t], self.noise_t[t], self.y_nb[t],
                            self.y_t[t], self.F_nb, self.F, self.count, float(p), float(nu),
-                           float(kappa), free, d, yt, Ft, dd, a, B)
+                           float(kappa), free, d, yt, Ft, dd, a, B, fisher)
         if not ok or not (d > 0).all():
             return None
-        return d, yt, Ft, dd, a, B
+        return d, yt, Ft, dd, a, B, fisher + np.tril(fisher, -1).T

@@ -274,6 +274,8 @@ class PSFModel(RegressorMixin, BaseEstimator):
             if round_ == 1 or not noise_aware or (mask == trusted).all():
                 break
             keep = inliers  # fit the basis again without the rejected stars
+            # (this round's per-star arrays go before the next round makes its own)
+            coef = var = cov = stamp_fit = None
         if (~usable).any():
             warnings.warn(
                 f"{int((~usable).sum())} stars could not be fitted on the basis (no centroid "
@@ -373,10 +375,14 @@ class PSFModel(RegressorMixin, BaseEstimator):
         noise_cov = None if cov is None else cov[train]
         full = fit_interpolator(refittable(interp, previous), X[train], coef[train], noise,
                                 noise_cov)
-        predicted = np.asarray(full.predict(X[idx]), dtype=np.float64).reshape(len(idx), -1)
-        relative = np.ones_like(predicted)
+        # the trusted stars are judged from the others (leave-one-out), the rest from all
+        predicted = np.empty((len(idx), coef.shape[1]))
         predicted[ref], rel = leave_out_predict(interp, full, X[train], coef[train], noise,
                                                 self.cv, self.random_state, noise_cov)
+        if not ref.all():
+            predicted[~ref] = np.asarray(full.predict(X[idx[~ref]]),
+                                         dtype=np.float64).reshape(-1, coef.shape[1])
+        relative = np.ones_like(predicted)
         if rel is not None:  # stars judged from outside: as far as the worst trusted one
             relative[ref] = rel
             relative[~ref] = rel.max(axis=0)
