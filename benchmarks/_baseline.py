@@ -21,8 +21,10 @@ def run_with(path, script, args):
     # run from the checkout's parent: the current directory (a checkout of the new code,
     # perhaps) must not come first on sys.path
     out = subprocess.run([sys.executable, os.path.abspath(script), "--worker", *map(str, args)],
-                         env=env, check=True, capture_output=True, text=True,
+                         env=env, capture_output=True, text=True,
                          cwd=os.path.dirname(os.path.abspath(path)))
+    if out.returncode != 0:
+        raise RuntimeError(f"worker {args} failed:\n{out.stderr[-3000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 

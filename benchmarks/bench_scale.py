@@ -1,7 +1,8 @@
 """Benchmark: PSFModel() at survey scale, against the previous code, the exact model and PIFF.
 
 For each size (1000, 4000, 16,000 and 64,000 stars of 25x25 pixels at S/N 100, on the default
-10,032 x 7,769 px image), in a fresh process: the time of ``PSFModel().fit`` (raw stamps and
+10,032 x 7,769 px image; at random positions up to 16,000, on a jittered grid at 64,000, where
+random non-overlapping stamps no longer fit), in a fresh process: the time of ``PSFModel().fit`` (raw stamps and
 their weights, one BLAS thread) and its peak memory above the process's memory before the fit
 (resident set size sampled every 5 ms from ``/proc/self/statm``, so that BLAS and LAPACK
 buffers count). Targets (on a quiet machine): <= 2 s at 1000 stars, <= 30 s and <= 2 GB at
@@ -69,8 +70,26 @@ class PeakMemory:
         self.above = self.peak - self.start
 
 
+#: stars at random positions up to this many; beyond, on a jittered grid (random
+#: non-overlapping 25x25 stamps no longer fit on the image)
+_RANDOM_UP_TO = 16000
+
+
 def field(n_stars, seed, n_galaxies=10):
-    return make_psf_field(n_stars=n_stars, n_galaxies=n_galaxies, snr=100.0, random_state=seed)
+    positions = None
+    if n_stars > _RANDOM_UP_TO:
+        shape = (7769, 10032)
+        rows = int(np.floor(np.sqrt(n_stars * shape[0] / shape[1])))
+        cols = int(np.ceil(n_stars / rows))
+        step_y, step_x = (shape[0] - 40) / rows, (shape[1] - 40) / cols
+        gy, gx = np.mgrid[0:rows, 0:cols]
+        rng = np.random.default_rng(seed)
+        jitter = rng.uniform(-0.15, 0.15, size=(2, rows, cols))
+        x = 20 + (gx + 0.5 + jitter[0] * (step_x - 26) / step_x) * step_x
+        y = 20 + (gy + 0.5 + jitter[1] * (step_y - 26) / step_y) * step_y
+        positions = np.column_stack([x.ravel(), y.ravel()])[:n_stars]
+    return make_psf_field(n_stars=n_stars, n_galaxies=n_galaxies, snr=100.0, random_state=seed,
+                          star_positions=positions)
 
 
 def star_data(f):

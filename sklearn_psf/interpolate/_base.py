@@ -95,18 +95,28 @@ def _merge_duplicates(X, Y, *, owner: str, reason: str, noise=None, noise_cov=No
             None if noise is None else noise_merged[order])
 
 
+def _float_array(owner: str, name: str, value, what: str):
+    """A fresh float64 array of ``value``, or a TypeError naming the parameter."""
+    try:
+        return np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(f"{owner}: {name} must be an array of numbers ({what}), got "
+                        f"{type(value).__name__}.") from None
+
+
+def _bad_rows(owner: str, bad, message: str, fix: str):
+    """ValueError naming the rows flagged in ``bad`` (n,), in counts."""
+    rows = np.flatnonzero(bad)
+    return ValueError(f"{owner}: {message}; rows {rows[:10].tolist()}"
+                      f"{' ...' if rows.size > 10 else ''} ({rows.size} stars) are not. {fix}")
+
+
 def _check_noise_var(owner: str, noise_var, n_samples: int, n_targets: int, *,
                      positive: bool = False):
     """Validate a ``noise_var`` fit parameter; None or a fresh (n_samples, n_targets) array."""
     if noise_var is None:
         return None
-    try:
-        nv = np.array(noise_var, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise TypeError(
-            f"{owner}: noise_var must be an array of numbers (variances of the measurement "
-            f"noise of y), got {type(noise_var).__name__}."
-        ) from None
+    nv = _float_array(owner, "noise_var", noise_var, "variances of the measurement noise of y")
     if nv.ndim == 1 and nv.shape[0] == n_samples:
         nv = np.repeat(nv[:, None], n_targets, axis=1)
     elif nv.shape != (n_samples, n_targets) and not (
@@ -117,15 +127,11 @@ def _check_noise_var(owner: str, noise_var, n_samples: int, n_targets: int, *,
             f"{n_targets}) (one variance per star, or per star and target), got {nv.shape}."
         )
     nv = nv.reshape(n_samples, n_targets)
-    bad = ~np.isfinite(nv) | (nv <= 0 if positive else nv < 0)
+    bad = (~np.isfinite(nv) | (nv <= 0 if positive else nv < 0)).any(axis=1)
     if bad.any():
-        rows = np.flatnonzero(bad.any(axis=1))
         what = "> 0 (a weighted least-squares fit)" if positive else ">= 0"
-        raise ValueError(
-            f"{owner}: noise_var must be finite and {what}; rows {rows[:10].tolist()}"
-            f"{' ...' if rows.size > 10 else ''} ({rows.size} stars) are not. Drop these "
-            "stars or give them a finite variance."
-        )
+        raise _bad_rows(owner, bad, f"noise_var must be finite and {what}",
+                        "Drop these stars or give them a finite variance.")
     return nv
 
 
@@ -134,13 +140,8 @@ def _check_noise_cov(owner: str, noise_cov, n_samples: int, n_targets: int):
     semi-definite (n_samples, n_targets, n_targets) array."""
     if noise_cov is None:
         return None
-    try:
-        cov = np.array(noise_cov, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise TypeError(
-            f"{owner}: noise_cov must be an array of numbers (covariances of the measurement "
-            f"noise of y across targets), got {type(noise_cov).__name__}."
-        ) from None
+    cov = _float_array(owner, "noise_cov", noise_cov,
+                       "covariances of the measurement noise of y across targets")
     if cov.shape != (n_samples, n_targets, n_targets):
         raise ValueError(
             f"{owner}: noise_cov must have shape ({n_samples}, {n_targets}, {n_targets}) (one "
@@ -154,12 +155,8 @@ def _check_noise_cov(owner: str, noise_cov, n_samples: int, n_targets: int):
     bad |= np.linalg.eigvalsh(sym)[:, 0] < -1e-8 * scale
     cov = sym
     if bad.any():
-        rows = np.flatnonzero(bad)
-        raise ValueError(
-            f"{owner}: noise_cov must hold finite, symmetric, positive semi-definite "
-            f"matrices; rows {rows[:10].tolist()}{' ...' if rows.size > 10 else ''} "
-            f"({rows.size} stars) do not. Drop these stars or fix their covariances."
-        )
+        raise _bad_rows(owner, bad, "noise_cov must hold finite, symmetric, positive "
+                        "semi-definite matrices", "Drop these stars or fix their covariances.")
     return cov
 
 
@@ -277,17 +274,22 @@ def _check_n_neighbors(owner: str, n_neighbors):
 
 
 class _NoiseAwareInterpolator(_BaseInterpolator):
-    """An interpolator whose ``fit`` takes the per-star measurement noise ``noise_var``.
+    """An interpolator whose ``fit`` takes the per-star measurement noise: ``noise_var``, or
+    ``noise_cov`` across targets.
 
-    ``fit``'s signature carries ``noise_var``, so scikit-learn's metadata routing builds
-    ``set_fit_request(noise_var=...)``. Subclasses implement ``_fit(X, Y, noise)`` with
-    ``noise`` None or a validated (n_samples, n_targets) array.
+    ``fit``'s signature carries both, so scikit-learn's metadata routing builds
+    ``set_fit_request(noise_var=..., noise_cov=...)``. Subclasses implement
+    ``_fit(X, Y, noise)`` with ``noise`` None or a validated (n_samples, n_targets) array of
+    variances (given ``noise_cov``, its diagonal); with ``_joint_noise = True`` they
+    implement ``_fit(X, Y, noise, noise_cov)`` and use the full covariance.
     """
 
     #: noise_var must be > 0 (weighted least squares) rather than >= 0
     _noise_positive = False
+    #: _fit uses the full noise covariance across targets
+    _joint_noise = False
 
-    def fit(self, X, y, noise_var=None):
+    def fit(self, X, y, noise_var=None, noise_cov=None):
         """Fit the interpolator to the stars.
 
         Parameters
@@ -300,6 +302,10 @@ class _NoiseAwareInterpolator(_BaseInterpolator):
             Variance of the measurement noise of each value of ``y``, in ``y``'s units
             squared (one per star, shared by the targets, or one per star and target).
             None: no measurement noise.
+        noise_cov : array-like of shape (n_samples, n_targets, n_targets), default=None
+            Covariance of each star's measurement noise across targets, instead of
+            ``noise_var``: co-Kriging (:class:`KrigingRegressor`) uses it in full, the other
+            interpolators its diagonal (the variances).
 
         Returns
         -------
@@ -307,7 +313,17 @@ class _NoiseAwareInterpolator(_BaseInterpolator):
             The fitted regressor.
         """
         X, Y = self._validate_fit_data(X, y)
-        noise = _check_noise_var(type(self).__name__, noise_var, X.shape[0], Y.shape[1],
+        owner = type(self).__name__
+        if noise_cov is not None and noise_var is not None:
+            raise ValueError(f"{owner}: give noise_var (independent targets) or noise_cov "
+                             "(across targets), not both.")
+        cov = _check_noise_cov(owner, noise_cov, X.shape[0], Y.shape[1])
+        if cov is not None and not self._joint_noise:
+            noise_var = np.einsum("itt->it", cov)
+        noise = _check_noise_var(owner, noise_var, X.shape[0], Y.shape[1],
                                  positive=self._noise_positive)
-        self._fit(X, Y, noise)
+        if self._joint_noise:
+            self._fit(X, Y, noise, cov)
+        else:
+            self._fit(X, Y, noise)
         return self

@@ -7,9 +7,7 @@ import numbers
 import warnings
 
 import numpy as np
-from scipy.linalg import cho_solve, lapack, solve_triangular
 from scipy.spatial import cKDTree
-from scipy.spatial.distance import cdist
 from sklearn.utils import check_random_state
 from sklearn.utils.validation import check_is_fitted
 
@@ -18,13 +16,11 @@ from ._base import (
     ShortRangeWarning,
     _check_n_neighbors,
     _check_n_samples,
-    _check_noise_cov,
-    _check_noise_var,
     _merge_duplicates,
     _NoiseAwareInterpolator,
-    _query_chunks,
 )
-from ._kriging_co import CoupledSystem, coregionalization_frame
+from ._kriging_co import coregionalization_frame
+from ._kriging_exact import fit_coupled, fit_exact, loo_exact, predict_exact
 from ._kriging_local import predict_local
 from ._kriging_ml import fit_hyperparameters
 from ._kriging_vecchia import position_order
@@ -36,8 +32,6 @@ _DRIFT_DEGREE = {None: 0, "linear": 1, "quadratic": 2}
 _FEW_STARS = 5
 #: maximum likelihood needs at least this many stars
 _MIN_ML_STARS = 10
-#: exact mode with per-target noise keeps one factor per target: at most this many bytes
-_MAX_FACTOR_BYTES = 4 * 2**30
 #: likelihood="auto": the exact likelihood when (factorisations per step) x n^3 is at most
 #: this (~0.01 s per step on one core; 580 stars with one noise pattern, 320 with six)
 _EXACT_ML_COST = 2e8
@@ -364,35 +358,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             self._aniso = np.diag([1.0, scaling]) @ rot
 
     # ------------------------------------------------------------------ fit
-    def fit(self, X, y, noise_var=None, noise_cov=None):
-        """Fit the Kriging model to the stars.
-
-        Parameters
-        ----------
-        X : array-like of shape (n_samples, n_features)
-            Star positions.
-        y : array-like of shape (n_samples,) or (n_samples, n_targets)
-            Values at the stars (e.g. PCA coefficients of the stars' stamps).
-        noise_var : array-like of shape (n_samples,) or (n_samples, n_targets), default=None
-            Variance of the measurement noise of each value of ``y`` (one per star, shared
-            by the targets, or one per star and target), the targets' noise independent.
-        noise_cov : array-like of shape (n_samples, n_targets, n_targets), default=None
-            Covariance of the measurement noise of each star's values across targets
-            (co-Kriging, see Notes); instead of ``noise_var``.
-
-        Returns
-        -------
-        self : KrigingRegressor
-            The fitted regressor.
-        """
-        X, Y = self._validate_fit_data(X, y)
-        if noise_cov is not None and noise_var is not None:
-            raise ValueError(f"{_NAME}: give noise_var (independent targets) or noise_cov "
-                             "(co-Kriging), not both.")
-        noise = _check_noise_var(_NAME, noise_var, X.shape[0], Y.shape[1])
-        cov = _check_noise_cov(_NAME, noise_cov, X.shape[0], Y.shape[1])
-        self._fit(X, Y, noise, cov)
-        return self
+    _joint_noise = True  # fit(noise_cov=...) is co-Kriging
 
     def _fit(self, X, Y, noise, noise_cov=None):
         self._check_params(X.shape[1])
@@ -460,9 +426,9 @@ class KrigingRegressor(_NoiseAwareInterpolator):
                 )
             self._tree = cKDTree(U)
             return
-        C0 = self._fit_exact(U, Z, F, keep_covariance=noise_cov is not None)
+        C0 = fit_exact(self, U, Z, F, keep_covariance=noise_cov is not None)
         if noise_cov is not None:
-            self._fit_coupled(C0, Z, F, noise_z * self.noise_scale_)
+            fit_coupled(self, C0, Z, F, noise_z * self.noise_scale_)
 
     def _fit_hyperparameters(self, X, Y, F, noise):
         params = {"range_": self.range, "nugget": self.nugget, "noise_scale": self.noise_scale,
@@ -551,63 +517,6 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         self._noise_ratio_groups = list(unique)
         self._group_targets = [np.flatnonzero(self._group_of == g) for g in range(len(unique))]
 
-    def _fit_exact(self, U, Y, F, keep_covariance=False):
-        """Factorisations, dual and drift coefficients of the (independent) targets; returns
-        the normalised covariance of the stars when ``keep_covariance`` (else None: it is
-        factorised in place)."""
-        n, n_groups = U.shape[0], len(self._group_targets)
-        if n_groups > 1 and n_groups * n * n * 8 > _MAX_FACTOR_BYTES:
-            raise ValueError(
-                f"{_NAME}: {n} stars with noise_var need one {n} x {n} factorisation per "
-                f"target ({n_groups} targets: {n_groups * n * n * 8 / 2**30:.1f} GiB). Use "
-                "local Kriging (n_neighbors=50 for instance) or fewer stars."
-            )
-        C0 = self._correlation(cdist(U, U))
-        np.fill_diagonal(C0, 1.0)
-        self._factors = []
-        self.dual_coef_ = np.empty_like(Y)
-        self.drift_coef_ = np.empty((F.shape[1], Y.shape[1]))
-        for g, (ratio, targets) in enumerate(zip(self._noise_ratio_groups,
-                                                 self._group_targets)):
-            # the last group factorises C0 in place (C0.T is the same symmetric matrix in
-            # Fortran order: no copy of an n_stars^2 array without noise); the others a plain
-            # copy, seen in Fortran order (no transposing copy)
-            last = g == n_groups - 1 and not keep_covariance
-            C = C0.T if last else C0.copy().T
-            if ratio is not None:
-                C[np.diag_indices_from(C)] += ratio
-            # the upper triangle is zeroed (clean=1): inverses of L need no copy to clean it
-            L, info = lapack.dpotrf(C, lower=1, clean=1, overwrite_a=1)
-            if info != 0:
-                raise ValueError(
-                    f"{_NAME}: the Kriging covariance matrix is not positive definite "
-                    "(stars almost at the same position relative to the range, or a "
-                    "variogram invalid in this dimension). Add a small nugget (e.g. "
-                    "nugget=1e-6), lower the range, or merge close stars."
-                )
-            L = (L, True)
-            KiF = cho_solve(L, F, check_finite=False)
-            FKiF_inv = np.linalg.inv(F.T @ KiF)
-            beta = FKiF_inv @ (KiF.T @ Y[:, targets])
-            self.drift_coef_[:, targets] = beta
-            self.dual_coef_[:, targets] = cho_solve(L, Y[:, targets] - F @ beta,
-                                                    check_finite=False)
-            self._factors.append((L[0], KiF, FKiF_inv))
-        self.mean_ = self.drift_coef_[0].copy()
-        return C0 if keep_covariance else None
-
-    def _fit_coupled(self, C0, Z, F, noise_z):
-        """Exact co-Kriging: dual and drift coefficients (in the targets' frame of ``y``) of
-        the system with every star's full noise covariance; the independent targets' ones
-        are kept for the leave-one-out predictions."""
-        system = CoupledSystem(C0, self._sill_fit, noise_z, self._factors, self._group_of, F)
-        alpha, beta, self.n_cg_iter_ = system.solve_gls(Z)
-        self._dual_independent = self.dual_coef_
-        A_inv = self._frame[1]
-        self.dual_coef_ = (alpha * self._sill_fit) @ A_inv
-        self.drift_coef_ = beta @ A_inv
-        self.mean_ = self.drift_coef_[0].copy()
-
     # ------------------------------------------------------------------ predict
     def predict(self, X, return_std=False):
         """Kriging prediction, and optionally its standard deviation.
@@ -634,7 +543,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             if self._frame is not None:
                 pred = pred @ self._frame[1]
         else:
-            pred, var = self._predict_exact(U, Fq, return_std)
+            pred, var = predict_exact(self, U, Fq, return_std)
         pred = self._format_output(pred)
         if not return_std:
             return pred
@@ -644,33 +553,6 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     def _to_targets(self, var):
         """Variances of the frame's independent targets -> variances of the targets."""
         return var if self._frame is None else var @ self._frame[1] ** 2
-
-    def _predict_exact(self, U, Fq, return_std):
-        m, T = U.shape[0], self.dual_coef_.shape[1]
-        pred = np.empty((m, T))
-        var = np.empty((m, len(self._factors))) if return_std else None
-        for sl in _query_chunks(m, self._U_fit.shape[0]):
-            D = cdist(U[sl], self._U_fit)
-            on_star = np.flatnonzero(D.min(axis=1) == 0)
-            zero = D[on_star] == 0
-            c = self._correlation(D)
-            c[on_star] = np.where(zero, 1.0, c[on_star])  # variogram 0 at distance 0
-            np.matmul(c, self.dual_coef_, out=pred[sl])
-            pred[sl] += Fq[sl] @ self.drift_coef_
-            if not return_std:
-                continue
-            for g, (L, KiF, FKiF_inv) in enumerate(self._factors):
-                u = Fq[sl] - c @ KiF
-                # c^T C^-1 c = |L^-1 c|^2: a triangular solve on c.T (Fortran-contiguous;
-                # overwritten in place for the last group)
-                last = g == len(self._factors) - 1
-                v = solve_triangular(L, c.T, lower=True, check_finite=False,
-                                     overwrite_b=last)
-                q = np.einsum("ij,ij->j", v, v)
-                var[sl, g] = 1.0 - q + np.einsum("ip,pq,iq->i", u, FKiF_inv, u)
-                if self._noise_ratio_groups[g] is None:
-                    var[sl, g][on_star] = 0.0  # exactly 0 on a star, not rounding noise
-        return pred, var
 
     def loo_predict(self, return_std=False):
         """Leave-one-out predictions at the stars, in closed form.
@@ -713,24 +595,13 @@ class KrigingRegressor(_NoiseAwareInterpolator):
                                                            self._sill_fit, np.inf)
                 var = var * self._sill_fit
         else:
-            pred, var = self._loo_exact()
+            pred, var = loo_exact(self)
         if self._frame is not None:
             pred = pred @ self._frame[1]
         pred = self._format_output(pred)
         if not return_std:
             return pred
         return pred, self._format_output(np.sqrt(self._to_targets(var)))
-
-    def _loo_exact(self):
-        """Leave-one-out predictions and residual variances of the frame's targets."""
-        pdiag = np.empty_like(self._z_fit)
-        for g, (L, KiF, FKiF_inv) in enumerate(self._factors):
-            Linv, info = lapack.dtrtri(L, lower=1)  # upper triangle zero, as L's
-            d = np.einsum("ij,ij->j", Linv, Linv) - np.einsum("ip,pq,iq->i", KiF, FKiF_inv,
-                                                              KiF)
-            pdiag[:, self._group_targets[g]] = d[:, None]
-        dual = self.dual_coef_ if self._frame is None else self._dual_independent
-        return self._z_fit - dual / pdiag, self._sill_fit / pdiag
 
     def _predict(self, X):  # pragma: no cover - predict is overridden
         raise NotImplementedError

@@ -24,7 +24,7 @@ import numpy as np
 from scipy.linalg import cho_solve, eigh
 
 #: relative residual at which the conjugate gradients stop
-_CG_RTOL = 1e-10
+_CG_RTOL = 1e-9
 _CG_MAXITER = 500
 
 

@@ -345,7 +345,10 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
     # a few starting points (ranges, anisotropy directions); the local optimisation
     # starts from the best of them
     grid = {
-        "range": [np.log(max(f * span, low)) for f in (0.05, 0.2, 0.8)],
+        # Vecchia's quasi-Newton steps need no grid of ranges (the likelihood is unimodal
+        # in the range): one start, the middle one
+        "range": [np.log(max(f * span, low)) for f in
+                  ((0.05, 0.2, 0.8) if neighbors is None else (0.2,))],
         "scaling": [np.log(2.0)],
         "angle": [0.0, np.pi / 3, 2 * np.pi / 3],
         "nu": [np.log(0.1)],
