@@ -163,7 +163,8 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         its nearest neighbour, in the units of ``X``); None when the range is not fitted.
     range_at_floor_ : bool
         Maximum likelihood (with the nugget as set) put the range at that floor: no spatial
-        correlation the stars can resolve (see Notes); the nugget was then fitted and a
+        correlation the stars can resolve (see Notes); the nugget was then fitted (the whole
+        sill if the range stays at the floor: the field is then its mean) and a
         :class:`ShortRangeWarning` issued.
     X_fit_ : ndarray of shape (n_stars, n_features)
         Distinct star positions (duplicated positions merged when ``nugget=0``).
@@ -237,7 +238,9 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     stars, and would make the field a constant with a spot at each star. When the range
     reaches that floor (``range_at_floor_``, with a :class:`ShortRangeWarning`), the nugget
     is fitted too, whatever its setting: the variance the stars cannot resolve goes to the
-    nugget and the field is predicted smooth, close to its mean. Fewer than 5 distinct stars
+    nugget and the field is predicted smooth; if the range stays at the floor even so, the
+    nugget is the whole sill and the field is its generalised-least-squares mean (the
+    drift). Fewer than 5 distinct stars
     give a :class:`FewStarsWarning` (a sill from so few values means little); maximum
     likelihood needs 10.
 
@@ -478,12 +481,16 @@ class KrigingRegressor(_NoiseAwareInterpolator):
                                           neighbors=neighbors, rng=rng, start=fit,
                                           range_floor=self.range_floor_,
                                           **{**params, "nugget": "auto"})
+            if fit["range"] <= self.range_floor_ * (1 + 1e-6):
+                # still no correlation beyond the spacing: all the signal is white, the
+                # field is its (generalised-least-squares) mean
+                fit["nugget"] = 1.0
             warnings.warn(
                 f"{_NAME}: maximum likelihood finds no spatial correlation at the stars' "
-                f"spacing (range {fit['range']:.3g} at its floor, the median distance to the "
-                f"nearest star {self.range_floor_:.3g}); the nugget was fitted "
-                f"({fit['nugget']:.2f} of the sill): the field is predicted smooth, close to "
-                "its mean. More stars, or a constant model, may serve as well.",
+                f"spacing (the range fell to its floor, the median distance to the nearest "
+                f"star, {self.range_floor_:.3g}); with the nugget fitted ({fit['nugget']:.2f} "
+                f"of the sill, range {fit['range']:.3g}) the field is predicted smooth, close "
+                "to its mean. More stars, or a constant model, may serve as well.",
                 ShortRangeWarning, stacklevel=4)
         self.likelihood_ = "exact" if neighbors is None else "vecchia"
         self._set_anisotropy(fit["scaling"], fit["angle"])

@@ -129,9 +129,10 @@ def leave_out_predict(template, fitted, X, coef, noise_var, n_splits, random_sta
     """Each star's coefficients predicted without it, and the relative size of that
     prediction's error variance from star to star (or None).
 
-    In closed form when the fitted interpolator's final step offers ``loo_predict`` (exact
-    Kriging: one factorisation for all stars, and its leave-one-out variance, larger for
-    stars at the edges, whose prediction is an extrapolation); otherwise by
+    In closed form when the fitted interpolator's final step offers ``loo_predict`` (Kriging:
+    exact, from its factorisations, or local, from each star's nearest other stars; with
+    its leave-one-out variance, larger for stars at the edges, whose prediction is an
+    extrapolation); otherwise by
     ``n_splits``-fold cross-prediction with the hyperparameters ``fitted`` found (see
     :func:`freeze_auto`); NaN when the interpolator cannot be fitted on a fold.
     """
@@ -139,7 +140,7 @@ def leave_out_predict(template, fitted, X, coef, noise_var, n_splits, random_sta
     if hasattr(final, "loo_predict") and len(getattr(final, "X_fit_", ())) == len(coef):
         try:
             pred, std = final.loo_predict(return_std=True)
-        except ValueError:  # local Kriging: fall back to folds
+        except ValueError:  # too few stars for its neighbourhoods: fall back to folds
             pred = None
         if pred is not None:
             var = np.asarray(std, dtype=np.float64).reshape(len(coef), -1) ** 2

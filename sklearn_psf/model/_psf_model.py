@@ -258,7 +258,8 @@ class PSFModel(RegressorMixin, BaseEstimator):
             self._check_noise_blind(basis, y, weights)
 
         keep = np.ones(n, dtype=bool)
-        fitted = None  # the chi^2 test's interpolator, refitted from its hyperparameters
+        # the chi^2 test's interpolator (refitted from its hyperparameters) and its warnings
+        fitted, fit_warnings = None, []
         for round_ in range(2):
             basis = clone(basis).fit(*self._basis_data(basis, y[keep], weights, keep))
             coef, var, cov, flag, stamp_fit = self._project(basis, y, weights)
@@ -268,8 +269,8 @@ class PSFModel(RegressorMixin, BaseEstimator):
                 raise ValueError(f"{int(usable.sum())} usable stars are too few for a basis of "
                                  f"{k} components: need at least {k + 2}.")
             trusted = usable & keep
-            inliers, score, fitted = self._reject(detector, X, y, coef, var, cov, trusted,
-                                                  usable, interp, stamp_fit, fitted)
+            inliers, score, fitted, fit_warnings = self._reject(
+                detector, X, y, coef, var, cov, trusted, usable, interp, stamp_fit, fitted)
             mask = usable & inliers
             if round_ == 1 or not noise_aware or (mask == trusted).all():
                 break
@@ -292,6 +293,9 @@ class PSFModel(RegressorMixin, BaseEstimator):
             fitted = fit_interpolator(refittable(interp, fitted), X[mask], coef[mask],
                                       None if var is None else var[mask],
                                       None if cov is None else cov[mask])
+        else:  # its warnings (those of the test's fits on other stars are not the model's)
+            for w in fit_warnings:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         interp = restore_warm_start(fitted, interp)
 
         self.basis_ = basis
@@ -349,9 +353,10 @@ class PSFModel(RegressorMixin, BaseEstimator):
 
     def _reject(self, detector, X, y, coef, var, cov, trusted, usable, interp, stamp_fit,
                 previous=None):
-        """Inlier mask over all stars, the detector's score (NaN where unusable) and the
+        """Inlier mask over all stars, the detector's score (NaN where unusable), the
         interpolator fitted on the trusted stars (None unless the test is chi^2; refitted
-        from ``previous``, the previous round's, when it can start from its hyperparameters).
+        from ``previous``, the previous round's, when it can start from its hyperparameters)
+        and the warnings of that fit.
 
         The chi^2 test's references (leave-one-out or cross-predictions, model-error floors)
         come from the ``trusted`` stars only (the inliers of the previous round); every
@@ -360,7 +365,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
         n = len(X)
         inliers = np.ones(n, dtype=bool)
         if detector is None:
-            return inliers, None, None
+            return inliers, None, None, []
         idx = np.flatnonzero(usable)
         score = np.full(n, np.nan)
         if not isinstance(detector, ChiSquareOutlierDetector):
@@ -368,13 +373,17 @@ class PSFModel(RegressorMixin, BaseEstimator):
             inliers[idx] = labels == 1
             if hasattr(detector, "score_samples"):
                 score[idx] = detector.score_samples(coef[idx])
-            return inliers, score, None
+            return inliers, score, None, []
         ref = trusted[idx]
         train = idx[ref]
         noise = None if var is None else var[train]
         noise_cov = None if cov is None else cov[train]
-        full = fit_interpolator(refittable(interp, previous), X[train], coef[train], noise,
-                                noise_cov)
+        # the interpolator's warnings are kept for when this fit becomes the final model
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            full = fit_interpolator(refittable(interp, previous), X[train], coef[train],
+                                    noise, noise_cov)
+
         # the trusted stars are judged from the others (leave-one-out), the rest from all
         predicted = np.empty((len(idx), coef.shape[1]))
         predicted[ref], rel = leave_out_predict(interp, full, X[train], coef[train], noise,
@@ -400,7 +409,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
             ok &= pix.predict(z_pix) == 1
             score[idx] = np.minimum(score[idx], pix.score_samples(z_pix))
         inliers[idx] = ok
-        return inliers, score, full
+        return inliers, score, full, caught
 
     def save(self, path, *, residuals=None, summary=None, overwrite: bool = False) -> None:
         """Write the fitted model to a self-describing FITS file (atomically).
