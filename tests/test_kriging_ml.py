@@ -217,8 +217,11 @@ def test_local_loo_predict_matches_bordered_systems_of_the_nearest_other_stars()
             np.testing.assert_allclose(loo[i, t], sol[:k] @ Y[near, t], rtol=1e-9)
             var = sill * (1 - sol @ rhs) + noise_var[i, t]
             np.testing.assert_allclose(loo_std[i, t] ** 2, var, rtol=1e-8)
-    with pytest.raises(ValueError, match="more than n_neighbors=10"):
-        KrigingRegressor(n_neighbors=10).fit(X[:10], Y[:10]).loo_predict()
+    # as many neighbours as stars: exact Kriging (the same system), exact leave-one-out
+    small = KrigingRegressor(range=a, n_neighbors=10).fit(X[:10], Y[:10])
+    assert small.n_neighbors_ is None
+    np.testing.assert_allclose(small.loo_predict(),
+                               KrigingRegressor(range=a).fit(X[:10], Y[:10]).loo_predict())
 
 
 def test_few_stars_warn_and_ml_needs_ten():

@@ -87,7 +87,8 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         ``O(n_stars^3)``, memory ``O(n_stars^2)``, times the number of targets with a
         per-target ``noise_var``). An integer ``k``: local Kriging, each
         query predicted from its ``k`` nearest stars (:class:`scipy.spatial.cKDTree`,
-        small bordered systems solved in batches), for ``10^4`` stars and more. ``"auto"``:
+        small bordered systems solved in batches), for ``10^4`` stars and more (with at
+        least as many neighbours as stars: exact Kriging, the same system). ``"auto"``:
         exact up to 1000 stars, local with 30 neighbours beyond (on simulated fields of 4000
         stars, the PSF model's ellipticity error at the galaxies within 0.2% of the exact
         model's).
@@ -390,7 +391,9 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             k = None if n <= _AUTO_EXACT_STARS else _AUTO_NEIGHBORS
         else:
             k = _check_n_neighbors(_NAME, self.n_neighbors)
-        self.n_neighbors_ = None if k is None else min(k, n)
+        if k is not None and k >= n:
+            k = None  # neighbourhoods of all the stars: exact Kriging (the same system)
+        self.n_neighbors_ = k
         lo, hi = X.min(axis=0), X.max(axis=0)
         self._drift_center, half = (lo + hi) / 2.0, (hi - lo) / 2.0
         self._drift_half_width = np.where(half > 0, half, 1.0)
@@ -421,7 +424,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         self._set_groups()
         if k is not None:
             self.mean_ = Y.mean(axis=0)
-            self._k = min(k, n)
+            self._k = k
             if self._k < n_drift:
                 raise ValueError(
                     f"{_NAME}: n_neighbors must be at least {n_drift} for "
@@ -589,10 +592,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         """
         check_is_fitted(self)
         if getattr(self, "_tree", None) is not None:
-            n = self._U_fit.shape[0]
-            if n - 1 < self._k:
-                raise ValueError(f"{_NAME}: leave-one-out in local mode needs more than "
-                                 f"n_neighbors={self._k} stars, got {n}.")
+            n = self._U_fit.shape[0]  # (more stars than neighbours in local mode)
             pred, var = predict_local(self, self._U_fit, self._F_fit, return_std,
                                       leave_out=np.arange(n))
             if return_std:  # the star's own noise adds to the Kriging variance
