@@ -89,6 +89,17 @@ def test_coefficient_noise_matches_repeated_noise_draws():
     empirical = fit.coefficients.var(axis=0)
     predicted = fit.coefficient_var.mean(axis=0)
     np.testing.assert_allclose(empirical, predicted, rtol=0.2)
+    # the full covariance (delta method through the flux normalisation): its diagonal is
+    # the variance, its correlations those of the draws
+    cov = fit.coefficient_cov.mean(axis=0)
+    np.testing.assert_allclose(np.diag(cov), predicted, rtol=1e-12)
+    k = cov.shape[0]
+    if k > 1:
+        corr = cov / np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
+        emp = np.corrcoef(fit.coefficients, rowvar=False)
+        off = ~np.eye(k, dtype=bool)
+        # 400 draws: the standard error of a correlation is ~0.05
+        np.testing.assert_allclose(emp[off], corr[off], atol=0.15)
 
 
 def test_masked_pixels_are_left_out_not_zero_filled():
