@@ -144,3 +144,20 @@ def test_noise_cov_validation():
     given = cov.copy()
     KrigingRegressor().fit(X, Y, noise_cov=given)
     np.testing.assert_array_equal(given, cov)  # not modified
+
+
+def test_duplicated_stars_merge_with_their_covariances():
+    from sklearn_psf.interpolate import DuplicateStarsWarning
+
+    X, Y, cov, _, _ = icm_field(30, 0.3, np.eye(2), seed=5)
+    X2, Y2 = np.vstack([X, X[:2]]), np.vstack([Y, Y[:2] + 0.1])
+    cov2 = np.concatenate([cov, 3 * cov[:2]])
+    with pytest.warns(DuplicateStarsWarning):
+        reg = KrigingRegressor(range=0.3).fit(X2, Y2, noise_cov=cov2)
+    # inverse-covariance weights 3:1 between the two measurements of a position
+    np.testing.assert_allclose(reg.y_fit_[:2], Y[:2] + 0.025, rtol=1e-10)
+    np.testing.assert_allclose(reg.noise_cov_[:2], 0.75 * cov[:2], rtol=1e-10)
+    # without noise: the plain mean
+    with pytest.warns(DuplicateStarsWarning):
+        exact = KrigingRegressor(range=0.3).fit(X2, Y2, noise_cov=np.zeros_like(cov2))
+    np.testing.assert_allclose(exact.y_fit_[:2], Y[:2] + 0.05, rtol=1e-10)

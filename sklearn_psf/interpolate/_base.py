@@ -75,9 +75,14 @@ def _merge_duplicates(X, Y, *, owner: str, reason: str, noise=None, noise_cov=No
     order = np.argsort(index, kind="stable")
     if noise_cov is not None:
         precision = np.linalg.pinv(noise_cov, hermitian=True)
-        cov = np.linalg.pinv(group_sum(precision), hermitian=True)
+        total = group_sum(precision)
+        cov = np.linalg.pinv(total, hermitian=True)
         Y_merged = np.einsum("itu,iu->it", cov, group_sum(
             np.einsum("itu,iu->it", precision, Y)))
+        # groups without noise: the plain mean (exact values, covariance 0)
+        exact = np.einsum("itt->i", total) == 0
+        counts_col = np.bincount(inverse, minlength=len(unique))[:, None]
+        Y_merged[exact] = (group_sum(Y) / counts_col)[exact]
         return unique[order], Y_merged[order], noise, cov[order]
     if noise is None:
         weights = np.ones_like(Y)
