@@ -324,18 +324,3 @@ def test_correlated_field_keeps_its_range_without_warning():
     assert reg.nugget_ == 0.0
     fixed = KrigingRegressor(range=0.3).fit(X, Y)
     assert fixed.range_floor_ is None and not fixed.range_at_floor_
-
-
-def test_warm_start_refits_to_the_same_optimum():
-    # an outlier round refits on nearly the same stars from the previous hyperparameters:
-    # same optimum as a fit from scratch (exact likelihood, converged to ~1e-8)
-    X, Y, rng = gp_field(200, 0.2, [1.0, 0.3], seed=17)
-    noise = rng.uniform(0.01, 0.05, size=(200, 2))
-    warm = KrigingRegressor(range="auto", warm_start=True).fit(X, Y, noise_var=noise)
-    first = warm.range_
-    warm.fit(X[5:], Y[5:], noise_var=noise[5:])
-    cold = KrigingRegressor(range="auto").fit(X[5:], Y[5:], noise_var=noise[5:])
-    assert warm.range_ != first
-    assert warm.range_ == pytest.approx(cold.range_, rel=1e-6)
-    np.testing.assert_allclose(warm.sill_, cold.sill_, rtol=1e-6)
-    assert warm.X_fit_.shape == (195, 2)  # the previous fit's arrays are replaced

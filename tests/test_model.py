@@ -265,3 +265,23 @@ def test_a_constant_psf_is_predicted_smooth_with_a_warning():
     # the map is the stars' (generalised-least-squares) mean: one PSF everywhere
     np.testing.assert_allclose(model.predict_coefficients(grid),
                                np.broadcast_to(kriging.mean_, (len(grid), 1)), rtol=1e-10)
+
+
+def test_default_model_file_roundtrip_is_exact_after_outlier_rounds(tmp_path):
+    # contaminated stars make a second outlier round; the reloaded model (refitted on the
+    # stored coefficients and noise covariances) predicts exactly what the fitted one did
+    rng = np.random.default_rng(5)
+    X = rng.uniform(0, 2000, (150, 2))
+    yy, xx = np.mgrid[0:15, 0:15] - 7.0
+    sig = (1.8 + X[:, 0] / 4000.0 + X[:, 1] / 8000.0)[:, None, None]
+    stars = 2e4 * np.exp(-0.5 * (xx**2 + yy**2) / sig**2) / (2 * np.pi * sig**2)
+    stamps = (stars + rng.normal(0.0, 10.0, stars.shape)).reshape(150, -1)
+    stamps[:6, 7 * 15 + 9] += 2000.0  # cosmic-ray hits
+    model = PSFModel().fit(X, stamps)
+    assert not model.inlier_mask_[:6].any()
+    path = tmp_path / "psf.fits"
+    model.save(path)
+    back = PSFModel.load(path)
+    Xq = rng.uniform(0, 2000, (50, 2))
+    np.testing.assert_allclose(back.predict(Xq), model.predict(Xq), rtol=1e-12, atol=0)
+    np.testing.assert_array_equal(back.coefficient_cov_, model.coefficient_cov_)

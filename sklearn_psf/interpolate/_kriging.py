@@ -129,10 +129,6 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     random_state : int, RandomState instance or None, default=0
         Seed of that subset and of Vecchia's order (fixed by default, so that fits are
         reproducible).
-    warm_start : bool, default=False
-        When the regressor was fitted before, maximum likelihood starts from the previous
-        hyperparameters instead of a grid of starting points: refits on slightly different
-        stars (outlier rounds) converge in a few steps.
 
     Attributes
     ----------
@@ -285,7 +281,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
 
     def __init__(self, variogram="exponential", range=0.5, nugget=0.0, n_neighbors=None, *,
                  noise_scale=1.0, drift=None, anisotropy_scaling=1.0, anisotropy_angle=0.0,
-                 likelihood="auto", max_ml_samples=20000, random_state=0, warm_start=False):
+                 likelihood="auto", max_ml_samples=20000, random_state=0):
         self.variogram = variogram
         self.range = range
         self.nugget = nugget
@@ -297,7 +293,6 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         self.likelihood = likelihood
         self.max_ml_samples = max_ml_samples
         self.random_state = random_state
-        self.warm_start = warm_start
 
     # ------------------------------------------------------------------ geometry
     def _correlation(self, D):
@@ -366,7 +361,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
 
     def _fit(self, X, Y, noise, noise_cov=None):
         self._check_params(X.shape[1])
-        # a previous fit's large arrays go first (a warm start needs its hyperparameters only)
+        # a previous fit's large arrays go first
         for attr in ("dual_coef_", "drift_coef_", "_factors", "_tree", "_k", "X_fit_",
                      "y_fit_", "_U_fit", "_F_fit", "_z_fit", "_dual_independent",
                      "noise_var_", "noise_cov_", "n_cg_iter_"):
@@ -442,12 +437,6 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         auto = [k for k, v in params.items() if isinstance(v, str)]
         if noise is None and "noise_scale" in auto:
             auto.remove("noise_scale")
-        start = None
-        if self.warm_start and self.__dict__.get("log_likelihood_") is not None and len(
-                self._sill_fit) == Y.shape[1]:
-            start = {"range": self.range_, "nugget": self.nugget_, "sill": self._sill_fit,
-                     "noise_scale": self.noise_scale_, "scaling": self.anisotropy_scaling_,
-                     "angle": self.anisotropy_angle_}
         self.log_likelihood_ = self.likelihood_ = self.range_floor_ = None
         self.range_at_floor_ = False
         if not auto:
@@ -473,7 +462,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         if "range_" in auto:
             self.range_floor_ = _spacing(X if geometry_free else self._transform(X))
         fit = fit_hyperparameters(P, Y[sub], F[sub], noise_sub, self.variogram,
-                                  neighbors=neighbors, rng=rng, start=start,
+                                  neighbors=neighbors, rng=rng,
                                   range_floor=self.range_floor_, **params)
         if self.range_floor_ is not None and fit["range"] <= self.range_floor_ * (1 + 1e-6):
             # no correlation the stars can resolve: the white part goes to a nugget, so that

@@ -63,33 +63,6 @@ def fit_interpolator(interpolator, X, coef, noise_var, noise_cov=None):
     return interpolator.fit(X, coef, **{f"{_step_path(interpolator)}{name}": noise})
 
 
-def refittable(template, previous=None):
-    """The interpolator to fit next in an outlier loop.
-
-    When the final step has a ``warm_start`` parameter (Kriging: maximum likelihood from
-    the previous hyperparameters, a few steps instead of a search), ``previous`` itself is
-    returned with it switched on (refitted in place: its previous fit's arrays are released
-    by that fit), or a clone of ``template`` with it on; otherwise a clone of ``template``.
-    :func:`restore_warm_start` puts the template's value back after the loop.
-    """
-    if previous is not None and "warm_start" in _final_step(previous).get_params(deep=False):
-        _final_step(previous).set_params(warm_start=True)
-        return previous
-    est = clone(template)
-    if "warm_start" in _final_step(est).get_params(deep=False):
-        _final_step(est).set_params(warm_start=True)
-    return est
-
-
-def restore_warm_start(estimator, template):
-    """Put the template's ``warm_start`` back on a fitted interpolator (see
-    :func:`refittable`), so that its parameters are the user's."""
-    final = _final_step(estimator)
-    if "warm_start" in final.get_params(deep=False):
-        final.set_params(warm_start=_final_step(template).get_params(deep=False)["warm_start"])
-    return estimator
-
-
 def freeze_auto(template, fitted):
     """A clone of ``template`` whose ``"auto"`` parameters hold the values fitted by ``fitted``.
 

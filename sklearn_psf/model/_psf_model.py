@@ -24,8 +24,6 @@ from ._noise import (
     fit_interpolator,
     leave_out_predict,
     pixel_residuals,
-    refittable,
-    restore_warm_start,
 )
 
 __all__ = ["PSFModel", "UnusableStarsWarning", "load_model"]
@@ -258,8 +256,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
             self._check_noise_blind(basis, y, weights)
 
         keep = np.ones(n, dtype=bool)
-        # the chi^2 test's interpolator (refitted from its hyperparameters) and its warnings
-        fitted, fit_warnings = None, []
+        fitted, fit_warnings = None, []  # the chi^2 test's interpolator and its warnings
         for round_ in range(2):
             basis = clone(basis).fit(*self._basis_data(basis, y[keep], weights, keep))
             coef, var, cov, flag, stamp_fit = self._project(basis, y, weights)
@@ -270,13 +267,13 @@ class PSFModel(RegressorMixin, BaseEstimator):
                                  f"{k} components: need at least {k + 2}.")
             trusted = usable & keep
             inliers, score, fitted, fit_warnings = self._reject(
-                detector, X, y, coef, var, cov, trusted, usable, interp, stamp_fit, fitted)
+                detector, X, y, coef, var, cov, trusted, usable, interp, stamp_fit)
             mask = usable & inliers
             if round_ == 1 or not noise_aware or (mask == trusted).all():
                 break
             keep = inliers  # fit the basis again without the rejected stars
-            # (this round's per-star arrays go before the next round makes its own)
-            coef = var = cov = stamp_fit = None
+            # (this round's per-star arrays and interpolator go before the next round's)
+            coef = var = cov = stamp_fit = fitted = None
         if (~usable).any():
             warnings.warn(
                 f"{int((~usable).sum())} stars could not be fitted on the basis (no centroid "
@@ -288,15 +285,16 @@ class PSFModel(RegressorMixin, BaseEstimator):
                 f"Outlier rejection kept {kept} of {n} stars: too few to interpolate. Use a "
                 "milder detector (e.g. a larger p_value or alpha) or outliers=None."
             )
-        if fitted is None or not (mask == trusted).all():
-            # (else the chi^2 test's reference fit is on exactly these stars)
-            fitted = fit_interpolator(refittable(interp, fitted), X[mask], coef[mask],
-                                      None if var is None else var[mask],
-                                      None if cov is None else cov[mask])
-        else:  # its warnings (those of the test's fits on other stars are not the model's)
+        if fitted is not None and (mask == trusted).all():
+            # the chi^2 test's fit is on exactly these stars: it is the model, with its
+            # warnings (those of fits on other stars are not the model's)
+            interp = fitted
             for w in fit_warnings:
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-        interp = restore_warm_start(fitted, interp)
+        else:
+            fitted = None  # (released before the refit)
+            fit_interpolator(interp, X[mask], coef[mask], None if var is None else var[mask],
+                             None if cov is None else cov[mask])
 
         self.basis_ = basis
         self.outliers_ = detector
@@ -351,12 +349,10 @@ class PSFModel(RegressorMixin, BaseEstimator):
         coef = coef.reshape(len(y), -1)
         return coef, None, None, np.zeros(len(y), dtype=np.int64), None
 
-    def _reject(self, detector, X, y, coef, var, cov, trusted, usable, interp, stamp_fit,
-                previous=None):
+    def _reject(self, detector, X, y, coef, var, cov, trusted, usable, interp, stamp_fit):
         """Inlier mask over all stars, the detector's score (NaN where unusable), the
-        interpolator fitted on the trusted stars (None unless the test is chi^2; refitted
-        from ``previous``, the previous round's, when it can start from its hyperparameters)
-        and the warnings of that fit.
+        interpolator fitted on the trusted stars (None unless the test is chi^2) and the
+        warnings of that fit.
 
         The chi^2 test's references (leave-one-out or cross-predictions, model-error floors)
         come from the ``trusted`` stars only (the inliers of the previous round); every
@@ -381,8 +377,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
         # the interpolator's warnings are kept for when this fit becomes the final model
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            full = fit_interpolator(refittable(interp, previous), X[train], coef[train],
-                                    noise, noise_cov)
+            full = fit_interpolator(clone(interp), X[train], coef[train], noise, noise_cov)
 
         # the trusted stars are judged from the others (leave-one-out), the rest from all
         predicted = np.empty((len(idx), coef.shape[1]))
