@@ -3,12 +3,15 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy.linalg import cho_solve, lapack, solve_triangular
 from scipy.spatial.distance import cdist
+from sklearn.exceptions import ConvergenceWarning
 
 from ._base import _query_chunks
-from ._kriging_co import CoupledSystem
+from ._kriging_co import _CG_MAXITER, CoupledSystem
 
 _NAME = "KrigingRegressor"
 #: exact mode with per-target noise keeps one factor per target: at most this many bytes
@@ -67,6 +70,11 @@ def fit_coupled(reg, C0, Z, F, noise_z):
     are kept for the leave-one-out predictions."""
     system = CoupledSystem(C0, reg._sill_fit, noise_z, reg._factors, reg._group_of, F)
     alpha, beta, reg.n_cg_iter_ = system.solve_gls(Z)
+    if reg.n_cg_iter_ >= _CG_MAXITER:
+        warnings.warn(f"{_NAME}: the co-Kriging system did not converge in {_CG_MAXITER} "
+                      "conjugate-gradient iterations (noise covariances far from one "
+                      "another's shape?); predictions may be inaccurate.", ConvergenceWarning,
+                      stacklevel=4)
     reg._dual_independent = reg.dual_coef_
     A_inv = reg._frame[1]
     reg.dual_coef_ = (alpha * reg._sill_fit) @ A_inv
