@@ -269,10 +269,10 @@ def test_default_degree_is_lowered_for_few_stars(cls):
 
 
 def test_exact_mode_with_per_target_noise_refuses_huge_memory(monkeypatch):
-    import sklearn_psf.interpolate._kriging as kriging
+    import sklearn_psf.interpolate._kriging_exact as kriging_exact
 
     X, Y, noise_var, _ = noisy_stars(n=100)
-    monkeypatch.setattr(kriging, "_MAX_FACTOR_BYTES", 3 * 100 * 100 * 8 - 1)
+    monkeypatch.setattr(kriging_exact, "_MAX_FACTOR_BYTES", 3 * 100 * 100 * 8 - 1)
     with pytest.raises(ValueError, match="one 100 x 100 factorisation per target.*n_neighbors"):
         KrigingRegressor().fit(X, Y, noise_var=noise_var)
     KrigingRegressor(n_neighbors=30).fit(X, Y, noise_var=noise_var)  # local mode is fine

@@ -150,3 +150,26 @@ def test_rbf_too_few_neighbors_for_polynomial():
     X, Y = field(20)
     with pytest.raises(ValueError, match="at least 3"):
         RBFRegressor(kernel="thin_plate_spline", n_neighbors=2).fit(X, Y)
+
+
+def test_auto_neighbours_exact_where_cheap_local_beyond():
+    rng = np.random.default_rng(3)
+    X = rng.uniform(size=(1100, 2))
+    y = np.column_stack([np.sin(3 * X[:, 0]) + X[:, 1], np.cos(2 * X[:, 1])])
+    noise = np.full((1100, 2), 1e-4)
+    small = KrigingRegressor(range=0.3, n_neighbors="auto").fit(X[:1000], y[:1000],
+                                                                noise_var=noise[:1000])
+    large = KrigingRegressor(range=0.3, n_neighbors="auto").fit(X, y, noise_var=noise)
+    exact = KrigingRegressor(range=0.3).fit(X, y, noise_var=noise)
+    assert small.n_neighbors_ is None and large.n_neighbors_ == 30
+    Xq = rng.uniform(size=(200, 2))
+    # local Kriging from 30 neighbours (a smooth field, range 0.3: far stars matter a little)
+    diff = large.predict(Xq) - exact.predict(Xq)
+    # measured: rms 0.0008, largest 0.008 of the spread
+    assert np.sqrt(np.mean(diff**2)) < 2e-3 * np.ptp(y) and np.abs(diff).max() < 0.03 * np.ptp(y)
+    loo_l, std_l = large.loo_predict(return_std=True)
+    loo_e, std_e = exact.loo_predict(return_std=True)
+    diff = loo_l - loo_e
+    # measured: rms 0.0009, largest 0.017 of the spread; std within 0.8%
+    assert np.sqrt(np.mean(diff**2)) < 2e-3 * np.ptp(y) and np.abs(diff).max() < 0.03 * np.ptp(y)
+    np.testing.assert_allclose(std_l, std_e, rtol=0.05)

@@ -241,3 +241,45 @@ def test_named_interpolators_match_the_command_line():
     assert set(FIT_INTERPOLATORS) == set(INTERPOLATORS)
     with pytest.raises(ValueError, match="Unknown interpolator 'idw'"):
         make_interpolator("idw")
+
+
+def test_a_constant_psf_is_predicted_smooth_with_a_warning():
+    # 120 stars of one PSF (no variation across the field), S/N ~100: maximum likelihood
+    # finds no spatial correlation; the model says so and predicts a smooth field, not a
+    # spot of each star's noise at each star (issue 19's DECam chip)
+    from sklearn_psf.interpolate import ShortRangeWarning
+
+    rng = np.random.default_rng(4)
+    X = rng.uniform(0, 2000, (120, 2))
+    yy, xx = np.mgrid[0:15, 0:15] - 7.0
+    psf = np.exp(-0.5 * (xx**2 + yy**2) / 2.0**2).ravel()
+    stamps = 2e4 * psf / psf.sum() + rng.normal(0.0, 10.0, (120, 225))
+    with pytest.warns(ShortRangeWarning, match="no spatial correlation"):
+        model = PSFModel().fit(X, stamps)
+    kriging = model.interpolator_[-1]
+    assert kriging.range_at_floor_ and kriging.nugget_ == 1.0
+    grid = np.stack(np.meshgrid(np.linspace(0, 2000, 40), np.linspace(0, 2000, 40)),
+                    -1).reshape(-1, 2)
+    # the map is the stars' (generalised-least-squares) mean: one PSF everywhere
+    np.testing.assert_allclose(model.predict_coefficients(grid),
+                               np.broadcast_to(kriging.mean_, (len(grid), 1)), rtol=1e-10)
+
+
+def test_default_model_file_roundtrip_is_exact_after_outlier_rounds(tmp_path):
+    # contaminated stars make a second outlier round; the reloaded model (refitted on the
+    # stored coefficients and noise covariances) predicts exactly what the fitted one did
+    rng = np.random.default_rng(5)
+    X = rng.uniform(0, 2000, (150, 2))
+    yy, xx = np.mgrid[0:15, 0:15] - 7.0
+    sig = (1.8 + X[:, 0] / 4000.0 + X[:, 1] / 8000.0)[:, None, None]
+    stars = 2e4 * np.exp(-0.5 * (xx**2 + yy**2) / sig**2) / (2 * np.pi * sig**2)
+    stamps = (stars + rng.normal(0.0, 10.0, stars.shape)).reshape(150, -1)
+    stamps[:6, 7 * 15 + 9] += 2000.0  # cosmic-ray hits
+    model = PSFModel().fit(X, stamps)
+    assert not model.inlier_mask_[:6].any()
+    path = tmp_path / "psf.fits"
+    model.save(path)
+    back = PSFModel.load(path)
+    Xq = rng.uniform(0, 2000, (50, 2))
+    np.testing.assert_allclose(back.predict(Xq), model.predict(Xq), rtol=1e-12, atol=0)
+    np.testing.assert_array_equal(back.coefficient_cov_, model.coefficient_cov_)

@@ -4,7 +4,12 @@ Each regressor maps star positions ``X`` (n_samples, n_features) to values ``y``
 (n_samples,) or (n_samples, n_targets), e.g. PCA coefficients of the stars.
 """
 
-from ._base import DuplicateStarsWarning, FewStarsWarning, RankDeficientWarning
+from ._base import (
+    DuplicateStarsWarning,
+    FewStarsWarning,
+    RankDeficientWarning,
+    ShortRangeWarning,
+)
 from ._delaunay import DelaunayRegressor
 from ._exposure_kriging import ExposureKrigingRegressor
 from ._kriging import KrigingRegressor
@@ -29,6 +34,7 @@ __all__ = [
     "RBFRegressor",
     "RankDeficientWarning",
     "ShepardRegressor",
+    "ShortRangeWarning",
     "exponential_variogram",
     "gaussian_variogram",
     "spherical_variogram",

@@ -25,6 +25,11 @@ class FewStarsWarning(UserWarning):
     """Too few stars for the fitted statistics (e.g. a Kriging sill) to mean much."""
 
 
+class ShortRangeWarning(UserWarning):
+    """Maximum likelihood found no spatial correlation the stars can resolve: the Kriging
+    range fell to the stars' spacing (``KrigingRegressor.range_at_floor_``)."""
+
+
 def _query_chunks(n_queries: int, n_stars: int):
     """Yield slices over queries so that a (chunk, n_stars) array stays bounded."""
     size = int(max(1, min(_MAX_CHUNK, _CHUNK_ELEMENTS // max(n_stars, 1))))
@@ -32,7 +37,7 @@ def _query_chunks(n_queries: int, n_stars: int):
         yield slice(start, min(start + size, n_queries))
 
 
-def _merge_duplicates(X, Y, *, owner: str, reason: str, noise=None):
+def _merge_duplicates(X, Y, *, owner: str, reason: str, noise=None, noise_cov=None):
     """Merge the stars with exactly the same position.
 
     Returns ``X, Y, noise`` unchanged (same objects) when all positions are distinct;
@@ -40,13 +45,15 @@ def _merge_duplicates(X, Y, *, owner: str, reason: str, noise=None):
     row per distinct position. Without ``noise`` (None) the merged value is the mean of
     the duplicated stars' values; with ``noise`` (n_samples, n_targets) of variances it
     is the inverse-variance weighted mean, of variance ``1 / sum(1 / noise)`` (stars of
-    zero variance, if any in a group, take all the weight, equally shared).
+    zero variance, if any in a group, take all the weight, equally shared). With
+    ``noise_cov`` (n_samples, n_targets, n_targets) given, ``X, Y, noise, noise_cov`` are
+    returned, the merged values weighted by the inverse covariances (pseudo-inverses).
     """
     unique, index, inverse, counts = np.unique(
         X, axis=0, return_index=True, return_inverse=True, return_counts=True
     )
     if unique.shape[0] == X.shape[0]:
-        return X, Y, noise
+        return (X, Y, noise) if noise_cov is None else (X, Y, noise, noise_cov)
     inverse = inverse.reshape(-1)
     duplicated = np.flatnonzero(counts > 1)
     duplicated = duplicated[np.argsort(index[duplicated])][:3]  # in order of appearance
@@ -61,10 +68,22 @@ def _merge_duplicates(X, Y, *, owner: str, reason: str, noise=None):
     )
 
     def group_sum(values):
-        out = np.zeros((unique.shape[0], values.shape[1]))
+        out = np.zeros((unique.shape[0],) + values.shape[1:])
         np.add.at(out, inverse, values)
         return out
 
+    order = np.argsort(index, kind="stable")
+    if noise_cov is not None:
+        precision = np.linalg.pinv(noise_cov, hermitian=True)
+        total = group_sum(precision)
+        cov = np.linalg.pinv(total, hermitian=True)
+        Y_merged = np.einsum("itu,iu->it", cov, group_sum(
+            np.einsum("itu,iu->it", precision, Y)))
+        # groups without noise: the plain mean (exact values, covariance 0)
+        exact = np.einsum("itt->i", total) == 0
+        counts_col = np.bincount(inverse, minlength=len(unique))[:, None]
+        Y_merged[exact] = (group_sum(Y) / counts_col)[exact]
+        return unique[order], Y_merged[order], noise, cov[order]
     if noise is None:
         weights = np.ones_like(Y)
     else:
@@ -77,9 +96,24 @@ def _merge_duplicates(X, Y, *, owner: str, reason: str, noise=None):
     if noise is not None:
         noise_merged = np.where(group_sum(exact.astype(float)) > 0, 0.0, 1.0 / wsum)
     # keep the order of first appearance, so that results do not depend on sorting
-    order = np.argsort(index, kind="stable")
     return (unique[order], Y_merged[order],
             None if noise is None else noise_merged[order])
+
+
+def _float_array(owner: str, name: str, value, what: str):
+    """A fresh float64 array of ``value``, or a TypeError naming the parameter."""
+    try:
+        return np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(f"{owner}: {name} must be an array of numbers ({what}), got "
+                        f"{type(value).__name__}.") from None
+
+
+def _bad_rows(owner: str, bad, message: str, fix: str):
+    """ValueError naming the rows flagged in ``bad`` (n,), in counts."""
+    rows = np.flatnonzero(bad)
+    return ValueError(f"{owner}: {message}; rows {rows[:10].tolist()}"
+                      f"{' ...' if rows.size > 10 else ''} ({rows.size} stars) are not. {fix}")
 
 
 def _check_noise_var(owner: str, noise_var, n_samples: int, n_targets: int, *,
@@ -87,13 +121,7 @@ def _check_noise_var(owner: str, noise_var, n_samples: int, n_targets: int, *,
     """Validate a ``noise_var`` fit parameter; None or a fresh (n_samples, n_targets) array."""
     if noise_var is None:
         return None
-    try:
-        nv = np.array(noise_var, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise TypeError(
-            f"{owner}: noise_var must be an array of numbers (variances of the measurement "
-            f"noise of y), got {type(noise_var).__name__}."
-        ) from None
+    nv = _float_array(owner, "noise_var", noise_var, "variances of the measurement noise of y")
     if nv.ndim == 1 and nv.shape[0] == n_samples:
         nv = np.repeat(nv[:, None], n_targets, axis=1)
     elif nv.shape != (n_samples, n_targets) and not (
@@ -104,16 +132,37 @@ def _check_noise_var(owner: str, noise_var, n_samples: int, n_targets: int, *,
             f"{n_targets}) (one variance per star, or per star and target), got {nv.shape}."
         )
     nv = nv.reshape(n_samples, n_targets)
-    bad = ~np.isfinite(nv) | (nv <= 0 if positive else nv < 0)
+    bad = (~np.isfinite(nv) | (nv <= 0 if positive else nv < 0)).any(axis=1)
     if bad.any():
-        rows = np.flatnonzero(bad.any(axis=1))
         what = "> 0 (a weighted least-squares fit)" if positive else ">= 0"
-        raise ValueError(
-            f"{owner}: noise_var must be finite and {what}; rows {rows[:10].tolist()}"
-            f"{' ...' if rows.size > 10 else ''} ({rows.size} stars) are not. Drop these "
-            "stars or give them a finite variance."
-        )
+        raise _bad_rows(owner, bad, f"noise_var must be finite and {what}",
+                        "Drop these stars or give them a finite variance.")
     return nv
+
+
+def _check_noise_cov(owner: str, noise_cov, n_samples: int, n_targets: int):
+    """Validate a ``noise_cov`` fit parameter: None or a fresh symmetric positive
+    semi-definite (n_samples, n_targets, n_targets) array."""
+    if noise_cov is None:
+        return None
+    cov = _float_array(owner, "noise_cov", noise_cov,
+                       "covariances of the measurement noise of y across targets")
+    if cov.shape != (n_samples, n_targets, n_targets):
+        raise ValueError(
+            f"{owner}: noise_cov must have shape ({n_samples}, {n_targets}, {n_targets}) (one "
+            f"covariance matrix per star), got {cov.shape}."
+        )
+    bad = ~np.isfinite(cov).all(axis=(1, 2))
+    sym = 0.5 * (cov + cov.transpose(0, 2, 1))
+    sym[bad] = 0.0
+    scale = np.maximum(np.abs(np.einsum("itt->i", sym)), 1e-300)
+    bad |= np.abs(np.where(bad[:, None, None], 0.0, cov) - sym).max(axis=(1, 2)) > 1e-8 * scale
+    bad |= np.linalg.eigvalsh(sym)[:, 0] < -1e-8 * scale
+    cov = sym
+    if bad.any():
+        raise _bad_rows(owner, bad, "noise_cov must hold finite, symmetric, positive "
+                        "semi-definite matrices", "Drop these stars or fix their covariances.")
+    return cov
 
 
 def _check_n_samples(owner: str, n_samples: int, n_min: int, what: str) -> None:
@@ -230,17 +279,22 @@ def _check_n_neighbors(owner: str, n_neighbors):
 
 
 class _NoiseAwareInterpolator(_BaseInterpolator):
-    """An interpolator whose ``fit`` takes the per-star measurement noise ``noise_var``.
+    """An interpolator whose ``fit`` takes the per-star measurement noise: ``noise_var``, or
+    ``noise_cov`` across targets.
 
-    ``fit``'s signature carries ``noise_var``, so scikit-learn's metadata routing builds
-    ``set_fit_request(noise_var=...)``. Subclasses implement ``_fit(X, Y, noise)`` with
-    ``noise`` None or a validated (n_samples, n_targets) array.
+    ``fit``'s signature carries both, so scikit-learn's metadata routing builds
+    ``set_fit_request(noise_var=..., noise_cov=...)``. Subclasses implement
+    ``_fit(X, Y, noise)`` with ``noise`` None or a validated (n_samples, n_targets) array of
+    variances (given ``noise_cov``, its diagonal); with ``_joint_noise = True`` they
+    implement ``_fit(X, Y, noise, noise_cov)`` and use the full covariance.
     """
 
     #: noise_var must be > 0 (weighted least squares) rather than >= 0
     _noise_positive = False
+    #: _fit uses the full noise covariance across targets
+    _joint_noise = False
 
-    def fit(self, X, y, noise_var=None):
+    def fit(self, X, y, noise_var=None, noise_cov=None):
         """Fit the interpolator to the stars.
 
         Parameters
@@ -253,6 +307,10 @@ class _NoiseAwareInterpolator(_BaseInterpolator):
             Variance of the measurement noise of each value of ``y``, in ``y``'s units
             squared (one per star, shared by the targets, or one per star and target).
             None: no measurement noise.
+        noise_cov : array-like of shape (n_samples, n_targets, n_targets), default=None
+            Covariance of each star's measurement noise across targets, instead of
+            ``noise_var``: co-Kriging (:class:`KrigingRegressor`) uses it in full, the other
+            interpolators its diagonal (the variances).
 
         Returns
         -------
@@ -260,7 +318,17 @@ class _NoiseAwareInterpolator(_BaseInterpolator):
             The fitted regressor.
         """
         X, Y = self._validate_fit_data(X, y)
-        noise = _check_noise_var(type(self).__name__, noise_var, X.shape[0], Y.shape[1],
+        owner = type(self).__name__
+        if noise_cov is not None and noise_var is not None:
+            raise ValueError(f"{owner}: give noise_var (independent targets) or noise_cov "
+                             "(across targets), not both.")
+        cov = _check_noise_cov(owner, noise_cov, X.shape[0], Y.shape[1])
+        if cov is not None and not self._joint_noise:
+            noise_var = np.einsum("itt->it", cov)
+        noise = _check_noise_var(owner, noise_var, X.shape[0], Y.shape[1],
                                  positive=self._noise_positive)
-        self._fit(X, Y, noise)
+        if self._joint_noise:
+            self._fit(X, Y, noise, cov)
+        else:
+            self._fit(X, Y, noise)
         return self

@@ -9,27 +9,40 @@ import numpy as np
 _LOCAL_BATCH_ELEMENTS = 2**21
 
 
-def predict_local(reg, U, Fq, return_std):
-    """Predictions (m, T) and normalised variances (m, n_groups) of local Kriging.
+def _neighbours(reg, U, k, leave_out):
+    """Distances and indices of the ``k`` nearest stars of each query; with ``leave_out``
+    (n,) the query's own star index, that star is left out (the queries are stars)."""
+    dist, idx = reg._tree.query(U, k=k + (leave_out is not None))
+    dist, idx = dist.reshape(len(U), -1), idx.reshape(len(U), -1)
+    if leave_out is None:
+        return dist, idx
+    own = idx == leave_out[:, None]
+    own[~own.any(axis=1), -1] = True  # own star not among them (duplicates): drop the last
+    keep = ~own
+    return dist[keep].reshape(len(U), k), idx[keep].reshape(len(U), k)
+
+
+def predict_local(reg, U, Fq, return_std, leave_out=None):
+    """Predictions (m, T) and normalised variances (m, n_groups) of local Kriging (in the
+    frame of the independent targets, see :mod:`._kriging_co`).
 
     ``reg`` is a fitted :class:`KrigingRegressor` in local mode, ``U`` the transformed
     query positions and ``Fq`` their drift design rows. Each query solves
     ``[C_k F_k; F_k^T 0] [lambda; mu] = [c_k; f]`` over its ``k`` nearest stars, with
     ``C_k`` the normalised covariance (plus the stars' noise, per group of targets).
+    ``leave_out`` (m,): each query's own star, left out of its neighbours (leave-one-out).
     """
-    m, T = U.shape[0], reg.y_fit_.shape[1]
+    m, T = U.shape[0], reg._z_fit.shape[1]
     k, p = reg._k, Fq.shape[1]
     ratios = reg._noise_ratio_groups  # list of (n_stars,) arrays or [None]
     pred = np.empty((m, T))
     var = np.empty((m, len(ratios))) if return_std else None
     batch = int(max(1, _LOCAL_BATCH_ELEMENTS // ((k + p) ** 2 + k * T)))
-    Us, Ys, Fs = reg._U_fit, reg.y_fit_, reg._F_fit
+    Us, Ys, Fs = reg._U_fit, reg._z_fit, reg._F_fit
     diag = np.arange(k)
     for start in range(0, m, batch):
         sl = slice(start, min(start + batch, m))
-        dist, idx = reg._tree.query(U[sl], k=k)
-        if k == 1:
-            dist, idx = dist[:, None], idx[:, None]
+        dist, idx = _neighbours(reg, U[sl], k, None if leave_out is None else leave_out[sl])
         b = idx.shape[0]
         P = Us[idx]  # (b, k, d) neighbour positions
         A = np.zeros((b, k + p, k + p))
@@ -44,7 +57,10 @@ def predict_local(reg, U, Fq, return_std):
         rhs = np.empty((b, k + p))
         on = dist == 0
         rhs[:, :k] = reg._correlation(dist.copy())
-        rhs[:, :k][on] = 1.0  # on a star: covariance 1 (the variogram is 0 there)
+        if leave_out is None:
+            rhs[:, :k][on] = 1.0  # on a star: covariance 1 (the variogram is 0 there)
+        else:
+            on[:] = False  # another star at the same position is a distinct measurement
         rhs[:, k:] = Fq[sl]
         for g, ratio in enumerate(ratios):
             Ag = A

@@ -25,16 +25,17 @@ HDU 0 (primary, no data)
 ``RHO1`` (binary table, optional)
     rho1 on the reserved stars (``theta``, ``xi``, ``sigma_xi``, ``npairs``).
 
-Format 3 (multi-exposure models, :func:`save_exposure_model`): the primary header adds
-``MULTIEXP`` (``'pooled'`` or ``'per-exposure'``), ``EXPCOL`` and ``NFEAT``; a pooled model is
-the HDUs above for its one model (``STARS`` with an ``exposure`` column) plus an ``EXPOSURES``
-table; a per-exposure model has an ``EXPOSURES`` table (``exposure``, ``ncomp``) and the HDUs
-of each exposure's model with names prefixed by ``E<i>_`` (``E0_SPEC``, ``E0_STARS``, ...).
-PSFModel files stay format 2.
-
 Format 2 adds the noise-aware basis (``SPEC`` entry ``basis_kind``: ``"stamppca"``, with
 ``stamppca`` holding its noise level and variances; the basis is then rebuilt as a fitted
 :class:`~sklearn_psf.preprocessing.StampPCA`).
+
+Format 3 adds the ``STARS`` column ``coeff_cov`` (k*k per row: the coefficients' full noise
+covariance, for co-Kriging) and multi-exposure models (:func:`save_exposure_model`): their
+primary header adds ``MULTIEXP`` (``'pooled'`` or ``'per-exposure'``), ``EXPCOL`` and
+``NFEAT``; a pooled model is the HDUs above for its one model (``STARS`` with an ``exposure``
+column) plus an ``EXPOSURES`` table; a per-exposure model has an ``EXPOSURES`` table
+(``exposure``, ``ncomp``) and the HDUs of each exposure's model with names prefixed by
+``E<i>_`` (``E0_SPEC``, ``E0_STARS``, ...).
 
 Loading rebuilds the basis (``StampNormalizer`` steps + a fitted :class:`FixedBasis` of the
 stored mean and components, or the ``StampPCA``) and refits the interpolator (with the
@@ -68,11 +69,10 @@ __all__ = ["save_model", "read_model", "read_model_validation", "MODEL_FORMAT",
 
 #: Value of the ``SKPSFFMT`` keyword of a model file.
 MODEL_FORMAT = "SKPSF-MODEL"
-#: Format version of the PSF model files written by this version of the package (``FORMAT``).
-MODEL_FORMAT_VERSION = 2
-#: Format version of multi-exposure model files (``PooledPSFModel.save``,
-#: ``PerExposurePSFModel.save``): readers of PSF model files only refuse them.
-_EXPOSURE_MODEL_FORMAT = 3
+#: Format version written by this version of the package (``FORMAT`` keyword), for PSF
+#: model files and multi-exposure model files alike (the PSF model reader refuses the latter,
+#: which carry ``MULTIEXP``).
+MODEL_FORMAT_VERSION = 3
 _ALLOWED_MODULES = ("sklearn", "sklearn_psf")
 
 
@@ -288,7 +288,7 @@ def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = F
     >>> path = os.path.join(tempfile.mkdtemp(), "psf.fits")
     >>> save_model(model, path)
     >>> fits.getheader(path)["FORMAT"], [h.name for h in fits.open(path)][1:3]
-    (2, ['SPEC', 'BASIS_MEAN'])
+    (3, ['SPEC', 'BASIS_MEAN'])
     """
     primary = fits.PrimaryHDU()
     h = primary.header
@@ -380,6 +380,9 @@ def _model_hdus(model, *, summary=None, prefix="", exposure=False):
         columns["exposure"] = np.asarray(model.X_fit_[:, 2], dtype=np.int64)
     if model.coefficient_var_ is not None:
         columns["coeff_var"] = np.asarray(model.coefficient_var_, dtype=np.float64).reshape(-1, k)
+    if getattr(model, "coefficient_cov_", None) is not None:
+        columns["coeff_cov"] = np.asarray(model.coefficient_cov_,
+                                          dtype=np.float64).reshape(-1, k * k)
     if model.outlier_score_ is not None:
         columns["outlier_score"] = np.asarray(model.outlier_score_, dtype=np.float64)
     stars = fits.table_to_hdu(Table(columns))
@@ -483,6 +486,8 @@ def _read(header, content, path, model_class):
     mask = np.asarray(stars["inlier"], dtype=bool)
     var = (np.asarray(stars["coeff_var"], dtype=np.float64).reshape(n, k)
            if "coeff_var" in stars.colnames else None)
+    cov = (np.asarray(stars["coeff_cov"], dtype=np.float64).reshape(n, k, k)
+           if "coeff_cov" in stars.colnames else None)
     # the model's own fit path, minus the basis: same interpolator, same data
     detector = model._make_outliers()
     if detector is not None:
@@ -490,7 +495,8 @@ def _read(header, content, path, model_class):
     interp = make_default_interpolator() if interpolator is None else clone(interpolator)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # warnings were already shown when the model was fitted
-        fit_interpolator(interp, X[mask], coef[mask], None if var is None else var[mask])
+        fit_interpolator(interp, X[mask], coef[mask], None if var is None else var[mask],
+                         None if cov is None else cov[mask])
     normalizers = [{key: _decode(v, arrays) for key, v in p.items()}
                    for p in spec["normalizers"]]
     model.basis_ = _rebuild_basis(spec.get("basis_kind", "linear"), normalizers, mean, comps,
@@ -509,6 +515,7 @@ def _read(header, content, path, model_class):
     model.X_fit_ = X
     model.coefficients_ = coef
     model.coefficient_var_ = var
+    model.coefficient_cov_ = cov
     return model
 
 
@@ -573,7 +580,7 @@ def save_exposure_model(model, path, *, overwrite: bool = False) -> None:
     primary = fits.PrimaryHDU()
     h = primary.header
     h["SKPSFFMT"] = (MODEL_FORMAT, "sklearn_psf PSF model file")
-    h["FORMAT"] = (_EXPOSURE_MODEL_FORMAT, "format version of this model file")
+    h["FORMAT"] = (MODEL_FORMAT_VERSION, "format version of this model file")
     h["SKPSFVER"] = (__version__, "sklearn_psf version that wrote the file")
     h["EXPCOL"] = (int(model.exposure_column), "column of X holding the exposure")
     h["NFEAT"] = (int(model.n_features_in_), "columns of X (positions and exposure)")
@@ -619,7 +626,7 @@ def read_exposure_model(path, model_class, psf_class):
     """
     path = os.fspath(path)
     header, content = _open_checked(path)
-    version = _check_format(header, path, newest=_EXPOSURE_MODEL_FORMAT)
+    version = _check_format(header, path, newest=MODEL_FORMAT_VERSION)
     kind = header.get("MULTIEXP")
     wanted = "per-exposure" if "PerExposure" in model_class.__name__ else "pooled"
     if kind != wanted:

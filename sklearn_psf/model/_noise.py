@@ -34,26 +34,33 @@ def _step_path(estimator):
     return prefix
 
 
-def accepts_noise(estimator) -> bool:
-    """Whether the (final step of the) interpolator's ``fit`` takes ``noise_var``."""
+def accepts_noise(estimator, name="noise_var") -> bool:
+    """Whether the (final step of the) interpolator's ``fit`` takes ``name``
+    (``noise_var`` or ``noise_cov``)."""
     fit = getattr(_final_step(estimator), "fit", None)
-    return fit is not None and "noise_var" in inspect.signature(fit).parameters
+    return fit is not None and name in inspect.signature(fit).parameters
 
 
-def fit_interpolator(interpolator, X, coef, noise_var):
+def fit_interpolator(interpolator, X, coef, noise_var, noise_cov=None):
     """Fit (in place) with the coefficients' noise when the interpolator accepts it.
 
-    With scikit-learn's metadata routing enabled, ``noise_var`` is requested on the final
-    step and routed; otherwise it is passed as ``<step>__noise_var`` through pipelines.
+    The full covariance ``noise_cov`` (n, k, k) goes to interpolators whose ``fit`` takes
+    it (co-Kriging), the variances ``noise_var`` (n, k) to those that take only them. With
+    scikit-learn's metadata routing enabled, the noise is requested on the final step and
+    routed; otherwise it is passed as ``<step>__noise_var`` (or ``__noise_cov``) through
+    pipelines.
     """
-    if noise_var is None or not accepts_noise(interpolator):
+    name, noise = "noise_var", noise_var
+    if noise_cov is not None and accepts_noise(interpolator, "noise_cov"):
+        name, noise = "noise_cov", noise_cov
+    if noise is None or not accepts_noise(interpolator, name):
         return interpolator.fit(X, coef)
     if get_config().get("enable_metadata_routing", False):
         final = _final_step(interpolator)
         if final is not interpolator:
-            final.set_fit_request(noise_var=True)
-        return interpolator.fit(X, coef, noise_var=noise_var)
-    return interpolator.fit(X, coef, **{f"{_step_path(interpolator)}noise_var": noise_var})
+            final.set_fit_request(**{name: True})
+        return interpolator.fit(X, coef, **{name: noise})
+    return interpolator.fit(X, coef, **{f"{_step_path(interpolator)}{name}": noise})
 
 
 def freeze_auto(template, fitted):
@@ -77,25 +84,28 @@ def freeze_auto(template, fitted):
     return frozen.set_params(**updates) if updates else frozen
 
 
-def cross_predict(interpolator, X, coef, noise_var, n_splits, random_state):
+def cross_predict(interpolator, X, coef, noise_var, n_splits, random_state, noise_cov=None):
     """Coefficients of each star predicted by the interpolator fitted without its fold."""
     pred = np.empty_like(coef)
     folds = KFold(n_splits=min(n_splits, len(X)), shuffle=True, random_state=random_state)
     for train, test in folds.split(X):
         est = clone(interpolator)
         fit_interpolator(est, X[train], coef[train],
-                         None if noise_var is None else noise_var[train])
+                         None if noise_var is None else noise_var[train],
+                         None if noise_cov is None else noise_cov[train])
         pred[test] = np.asarray(est.predict(X[test]), dtype=np.float64).reshape(len(test), -1)
     return pred
 
 
-def leave_out_predict(template, fitted, X, coef, noise_var, n_splits, random_state):
+def leave_out_predict(template, fitted, X, coef, noise_var, n_splits, random_state,
+                      noise_cov=None):
     """Each star's coefficients predicted without it, and the relative size of that
     prediction's error variance from star to star (or None).
 
-    In closed form when the fitted interpolator's final step offers ``loo_predict`` (exact
-    Kriging: one factorisation for all stars, and its leave-one-out variance, larger for
-    stars at the edges, whose prediction is an extrapolation); otherwise by
+    In closed form when the fitted interpolator's final step offers ``loo_predict`` (Kriging:
+    exact, from its factorisations, or local, from each star's nearest other stars; with
+    its leave-one-out variance, larger for stars at the edges, whose prediction is an
+    extrapolation); otherwise by
     ``n_splits``-fold cross-prediction with the hyperparameters ``fitted`` found (see
     :func:`freeze_auto`); NaN when the interpolator cannot be fitted on a fold.
     """
@@ -103,7 +113,7 @@ def leave_out_predict(template, fitted, X, coef, noise_var, n_splits, random_sta
     if hasattr(final, "loo_predict") and len(getattr(final, "X_fit_", ())) == len(coef):
         try:
             pred, std = final.loo_predict(return_std=True)
-        except ValueError:  # local Kriging: fall back to folds
+        except ValueError:  # too few stars for its neighbourhoods: fall back to folds
             pred = None
         if pred is not None:
             var = np.asarray(std, dtype=np.float64).reshape(len(coef), -1) ** 2
@@ -111,7 +121,7 @@ def leave_out_predict(template, fitted, X, coef, noise_var, n_splits, random_sta
                     var / np.maximum(np.median(var, axis=0), 1e-300))
     try:
         return cross_predict(freeze_auto(template, fitted), X, coef, noise_var, n_splits,
-                             random_state), None
+                             random_state, noise_cov), None
     except ValueError:  # too few stars per fold for this interpolator: no coefficient test
         return np.full_like(coef, np.nan), None
 

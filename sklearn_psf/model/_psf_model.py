@@ -56,9 +56,11 @@ class PSFModel(RegressorMixin, BaseEstimator):
        ellipticity along the separation; see the user guide); the basis is then fitted
        again without the rejected stars;
     3. fits ``interpolator`` on (positions, coefficients) of the kept stars, passing each
-       star's coefficient noise as ``noise_var`` when the interpolator takes it (Kriging
-       with a measurement-error term, weighted least squares for polynomials, smoothing for
-       RBF).
+       star's coefficient noise when the interpolator takes it: the full covariance across
+       components as ``noise_cov`` to co-Kriging (the default; the components' noise is
+       correlated through the common flux normalisation), the variances as ``noise_var``
+       otherwise (Kriging with a measurement-error term, weighted least squares for
+       polynomials, smoothing for RBF).
 
     ``predict(X)`` interpolates coefficients at X and rebuilds normalised (unit-sum), centred
     stamps with ``basis_.inverse_transform``.
@@ -116,6 +118,8 @@ class PSFModel(RegressorMixin, BaseEstimator):
         Basis coefficients of those stars (NaN where ``fit_flag_`` is not 0).
     coefficient_var_ : ndarray of shape (n_stars, n_components_) or None
         Their noise variance (None for a basis that knows no noise).
+    coefficient_cov_ : ndarray of shape (n_stars, n_components_, n_components_) or None
+        Their noise covariance (None for a basis that does not give it).
     outlier_score_ : ndarray of shape (n_stars,)
         The detector's ``score_samples`` (larger = more normal; log10 p-value for "chi2");
         NaN for unusable stars; None without outlier rejection.
@@ -260,21 +264,24 @@ class PSFModel(RegressorMixin, BaseEstimator):
             self._check_noise_blind(basis, y, weights)
 
         keep = np.ones(n, dtype=bool)
+        fitted, fit_warnings = None, []  # the chi^2 test's interpolator and its warnings
         for round_ in range(2):
             basis = clone(basis).fit(*self._basis_data(basis, y[keep], weights, keep))
-            coef, var, flag, stamp_fit = self._project(basis, y, weights)
+            coef, var, cov, flag, stamp_fit = self._project(basis, y, weights)
             usable = flag == FIT_OK
             k = coef.shape[1]
             if usable.sum() < k + 2:
                 raise ValueError(f"{int(usable.sum())} usable stars are too few for a basis of "
                                  f"{k} components: need at least {k + 2}.")
             trusted = usable & keep
-            inliers, score, fitted = self._reject(detector, X, y, coef, var, trusted, usable,
-                                                  interp, stamp_fit, basis)
+            inliers, score, fitted, fit_warnings = self._reject(
+                detector, X, y, coef, var, cov, trusted, usable, interp, stamp_fit, basis)
             mask = usable & inliers
             if round_ == 1 or not noise_aware or (mask == trusted).all():
                 break
             keep = inliers  # fit the basis again without the rejected stars
+            # (this round's per-star arrays and interpolator go before the next round's)
+            coef = var = cov = stamp_fit = fitted = None
         if (~usable).any():
             warnings.warn(
                 f"{int((~usable).sum())} stars could not be fitted on the basis (no centroid "
@@ -287,9 +294,15 @@ class PSFModel(RegressorMixin, BaseEstimator):
                 "milder detector (e.g. a larger p_value or alpha) or outliers=None."
             )
         if fitted is not None and (mask == trusted).all():
-            interp = fitted  # the chi^2 test's reference fit is on exactly these stars
+            # the chi^2 test's fit is on exactly these stars: it is the model, with its
+            # warnings (those of fits on other stars are not the model's)
+            interp = fitted
+            for w in fit_warnings:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         else:
-            fit_interpolator(interp, X[mask], coef[mask], None if var is None else var[mask])
+            fitted = None  # (released before the refit)
+            fit_interpolator(interp, X[mask], coef[mask], None if var is None else var[mask],
+                             None if cov is None else cov[mask])
 
         self.basis_ = basis
         self.outliers_ = detector
@@ -302,6 +315,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
         self.X_fit_ = np.array(X, copy=True)
         self.coefficients_ = coef
         self.coefficient_var_ = var
+        self.coefficient_cov_ = cov
         return self
 
     @staticmethod
@@ -333,19 +347,21 @@ class PSFModel(RegressorMixin, BaseEstimator):
 
     @staticmethod
     def _project(basis, y, weights):
-        """Coefficients, their noise variance, fit flags and the StampFit (None, None for a
-        basis that knows no noise) of every star."""
+        """Coefficients, their noise variance and covariance, fit flags and the StampFit
+        (None for what a basis that knows no noise does not give) of every star."""
         if hasattr(basis, "project"):
             fit = basis.project(y, weights)
-            return fit.coefficients, fit.coefficient_var, np.asarray(fit.flag), fit
+            cov = getattr(fit, "coefficient_cov", None)
+            return fit.coefficients, fit.coefficient_var, cov, np.asarray(fit.flag), fit
         coef = np.asarray(basis.transform(y), dtype=np.float64)
         coef = coef.reshape(len(y), -1)
-        return coef, None, np.zeros(len(y), dtype=np.int64), None
+        return coef, None, None, np.zeros(len(y), dtype=np.int64), None
 
-    def _reject(self, detector, X, y, coef, var, trusted, usable, interp, stamp_fit,
+    def _reject(self, detector, X, y, coef, var, cov, trusted, usable, interp, stamp_fit,
                 basis=None):
-        """Inlier mask over all stars, the detector's score (NaN where unusable) and the
-        interpolator fitted on the trusted stars (None unless the test is chi^2).
+        """Inlier mask over all stars, the detector's score (NaN where unusable), the
+        interpolator fitted on the trusted stars (None unless the test is chi^2) and the
+        warnings of that fit.
 
         The chi^2 test's references (leave-one-out or cross-predictions, model-error floors)
         come from the ``trusted`` stars only (the inliers of the previous round); every
@@ -354,7 +370,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
         n = len(X)
         inliers = np.ones(n, dtype=bool)
         if detector is None:
-            return inliers, None, None
+            return inliers, None, None, []
         idx = np.flatnonzero(usable)
         score = np.full(n, np.nan)
         if not isinstance(detector, ChiSquareOutlierDetector):
@@ -362,15 +378,24 @@ class PSFModel(RegressorMixin, BaseEstimator):
             inliers[idx] = labels == 1
             if hasattr(detector, "score_samples"):
                 score[idx] = detector.score_samples(coef[idx])
-            return inliers, score, None
+            return inliers, score, None, []
         ref = trusted[idx]
         train = idx[ref]
         noise = None if var is None else var[train]
-        full = fit_interpolator(clone(interp), X[train], coef[train], noise)
-        predicted = np.asarray(full.predict(X[idx]), dtype=np.float64).reshape(len(idx), -1)
-        relative = np.ones_like(predicted)
+        noise_cov = None if cov is None else cov[train]
+        # the interpolator's warnings are kept for when this fit becomes the final model
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            full = fit_interpolator(clone(interp), X[train], coef[train], noise, noise_cov)
+
+        # the trusted stars are judged from the others (leave-one-out), the rest from all
+        predicted = np.empty((len(idx), coef.shape[1]))
         predicted[ref], rel = leave_out_predict(interp, full, X[train], coef[train], noise,
-                                                self.cv, self.random_state)
+                                                self.cv, self.random_state, noise_cov)
+        if not ref.all():
+            predicted[~ref] = np.asarray(full.predict(X[idx[~ref]]),
+                                         dtype=np.float64).reshape(-1, coef.shape[1])
+        relative = np.ones_like(predicted)
         if rel is not None:  # stars judged from outside: as far as the worst trusted one
             relative[ref] = rel
             relative[~ref] = rel.max(axis=0)
@@ -393,7 +418,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
             ok &= pix.predict(z_pix) == 1
             score[idx] = np.minimum(score[idx], pix.score_samples(z_pix))
         inliers[idx] = ok
-        return inliers, score, full
+        return inliers, score, full, caught
 
     def save(self, path, *, residuals=None, summary=None, overwrite: bool = False) -> None:
         """Write the fitted model to a self-describing FITS file (atomically).

@@ -57,6 +57,9 @@ class StampFit(NamedTuple):
     weights: np.ndarray
     #: ndarray (n,): ``FIT_OK`` (0), ``FIT_NO_CENTROID`` (1), ``FIT_NO_FLUX`` (2).
     flag: np.ndarray
+    #: ndarray (n, k, k): the coefficients' full noise covariance (their correlations come
+    #: mostly from the common flux normalisation), of diagonal ``coefficient_var``.
+    coefficient_cov: np.ndarray | None = None
 
 
 def _shifted(images_fft, phase):
@@ -456,15 +459,21 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
 
     @staticmethod
     def _coefficients(a, cov):
+        """Flux, coefficients ``c = a[1:] / a[0]``, their noise covariance (delta method:
+        ``J cov(a) J^T`` with ``J = [-c, I] / flux``) and its diagonal, and the good rows."""
         flux = a[:, 0]
         good = flux > 0
         safe = np.where(good, flux, 1.0)
         coef = a[:, 1:] / safe[:, None]
-        ck = np.einsum("bkk->bk", cov[:, 1:, 1:])
-        var = (ck - 2 * coef * cov[:, 1:, 0] + coef**2 * cov[:, :1, 0]) / safe[:, None] ** 2
+        cross = coef[:, :, None] * cov[:, None, 0, 1:]
+        ccov = (cov[:, 1:, 1:] - cross - cross.transpose(0, 2, 1)
+                + coef[:, :, None] * coef[:, None, :] * cov[:, :1, :1]) / safe[:, None, None] ** 2
+        ccov = 0.5 * (ccov + ccov.transpose(0, 2, 1))
+        var = np.maximum(np.einsum("bkk->bk", ccov), 0.0)
         coef[~good] = np.nan
         var[~good] = np.nan
-        return flux, coef, np.maximum(var, 0.0), good
+        ccov[~good] = np.nan
+        return flux, coef, var, ccov, good
 
     def _choose(self, lam, total, noise, contributions, p):
         cap = lam.size
@@ -556,7 +565,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
             mean = mean / mean.sum()
             comps = _sum_zero(axes[:k], mean)
             a, cov, model, offsets, fitted = self._fit_stamps(d, w, offsets, mean, comps, s)
-            flux_new, _, _, good = self._coefficients(a, cov)
+            flux_new, _, _, _, good = self._coefficients(a, cov)
             level = np.where(good, fitted, level)
             usable = ok & good
             if usable.sum() < 2:
@@ -594,10 +603,10 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         offsets, ok = self._centroids(d - level[:, None], w, s)
         a, cov, model, offsets, level = self._fit_stamps(d, w, offsets, self.mean_,
                                                          self.components_, s)
-        flux, coef, var, good = self._coefficients(a, cov)
+        flux, coef, var, ccov, good = self._coefficients(a, cov)
         flag = np.where(ok, FIT_OK, FIT_NO_CENTROID)
         flag[~good] = FIT_NO_FLUX
-        return StampFit(coef, var, flux, offsets, model + level[:, None], w, flag)
+        return StampFit(coef, var, flux, offsets, model + level[:, None], w, flag, ccov)
 
     def render(self, coefficients, flux=1.0, offsets=None):
         """Model stamps in the stars' frame: ``flux * shift(mean + c @ components, offsets)``.
