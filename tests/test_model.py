@@ -132,7 +132,9 @@ def test_outlier_stars_are_rejected(data):
     default = PSFModel(interpolator=KNeighborsRegressor(5)).fit(X, noisy)
     assert isinstance(default.outliers_, ChiSquareOutlierDetector)
     assert not default.inlier_mask_[bad].any()
-    assert default.inlier_mask_.sum() >= 0.98 * (len(X) - len(bad))
+    # the chi^2 test at its level and the companion test at 1% (model/_companions.py) each
+    # reject a few clean stars: measured 5 of 247 (2 by chi^2, 3 by the companion test)
+    assert default.inlier_mask_.sum() >= 0.97 * (len(X) - len(bad))
     # any scikit-learn outlier detector works
     iso = PSFModel(interpolator=KNeighborsRegressor(5), basis=make_paper_basis(),
                    outliers=IsolationForest(contamination=0.02, random_state=0)).fit(X, y)

@@ -208,6 +208,29 @@ def test_stamp_normalizer_fills_masked_pixels_from_the_mirror_pixel():
     np.testing.assert_allclose(norm.fit_transform(masked, weights=w), out)
 
 
+def _contaminate(stamps, X, rng):
+    """Strong contaminants (cosmic rays, neighbours, galaxies, bright binaries) on 4 x 10
+    stars; returns their rows."""
+    out = stamps.reshape(-1, S, S).copy()
+    rows = rng.choice(len(out), 40, replace=False)
+    c = S // 2
+    for j, i in enumerate(rows):
+        kind = j % 4
+        if kind == 0:  # cosmic ray: a 2-pixel hit near the core, 30-100 sky sigma
+            y0, x0 = c + rng.integers(-3, 4), c + rng.integers(-3, 4)
+            out[i, y0, x0:x0 + 2] += rng.uniform(30, 100) * SKY
+        elif kind == 1:  # neighbour: 30% of the flux, 5 px away
+            out[i] += 0.3 * np.roll(out[i], (5, -2), axis=(0, 1))
+        elif kind == 2:  # galaxy: the star smoothed to twice its size
+            f = np.fft.fft2(out[i])
+            k = np.fft.fftfreq(S)
+            smooth = np.exp(-2 * (np.pi * 1.5) ** 2 * (k[:, None] ** 2 + k[None] ** 2))
+            out[i] = np.fft.ifft2(f * smooth).real
+        else:  # binary: a companion of 60% at 2 px
+            out[i] += 0.6 * np.roll(out[i], (2, 0), axis=(0, 1))
+    return out.reshape(len(out), -1), rows
+
+
 @pytest.mark.parametrize("local", [False, True])
 @pytest.mark.filterwarnings("ignore::sklearn_psf.model.UnusableStarsWarning")
 def test_default_model_rejects_contaminants_with_exact_and_local_kriging(local):

@@ -125,16 +125,20 @@ def estimate_pixel_weights(stamps, *, border="auto", pooled="auto"):
 
 def _background_design(cube, ring, min_stamps=10):
     """Columns of the local background on the ``ring`` pixels: a constant and, with at least
-    ``min_stamps`` stamps, the stars' wing there (median unit-sum stamp) and its x and y
+    ``min_stamps`` stamps, the stars' wing there (median unit-sum stamp, after each stamp's
+    border median) and its x and y
     gradients (a star off the centre pixel); unit-norm columns."""
     columns = [np.ones(int(ring.sum()))]
     if len(cube) >= min_stamps:
         with np.errstate(all="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            total = np.nansum(cube, axis=(1, 2))
+            # each stamp's border median removed first: a constant sky level does not change
+            # the template (nor, then, the noise estimated around it)
+            sub = cube - np.nanmedian(cube[:, ring], axis=1)[:, None, None]
+            total = np.nansum(sub, axis=(1, 2))
             positive = total > 0
             if positive.sum() >= min_stamps:
-                mean = np.nanmedian(cube[positive] / total[positive, None, None], axis=0)
+                mean = np.nanmedian(sub[positive] / total[positive, None, None], axis=0)
                 if np.isfinite(mean).all():
                     gy, gx = np.gradient(mean)
                     columns += [mean[ring], gx[ring], gy[ring]]
