@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import special, stats
-from sklearn.base import BaseEstimator, OutlierMixin
+from sklearn.base import BaseEstimator
 from sklearn.utils.validation import check_is_fitted, validate_data
+
+from ._outliers import _OffsetOutlierMixin
 
 __all__ = ["ChiSquareOutlierDetector"]
 
 
-class ChiSquareOutlierDetector(OutlierMixin, BaseEstimator):
+class ChiSquareOutlierDetector(_OffsetOutlierMixin, BaseEstimator):
     """Flag rows of standardised residuals that noise alone would hardly make.
 
     Each row of ``X`` holds one star's residuals divided by their standard deviation
@@ -103,32 +105,6 @@ class ChiSquareOutlierDetector(OutlierMixin, BaseEstimator):
             log_max = np.where(tail < 1e-12, np.log(m * tail), log_max)
         logp = np.minimum(np.minimum(log_chi, log_max) + np.log(2.0), 0.0)
         return np.where(m > 0, logp / np.log(10.0), 0.0)
-
-    def decision_function(self, X):
-        """``score_samples(X) - offset_``: negative for outliers.
-
-        Parameters
-        ----------
-        X : array-like of shape (n_samples, n_residuals)
-
-        Returns
-        -------
-        decision : ndarray of shape (n_samples,)
-        """
-        return self.score_samples(X) - self.offset_
-
-    def predict(self, X):
-        """+1 for inliers, -1 for outliers.
-
-        Parameters
-        ----------
-        X : array-like of shape (n_samples, n_residuals)
-
-        Returns
-        -------
-        labels : ndarray of shape (n_samples,)
-        """
-        return np.where(self.decision_function(X) >= 0, 1, -1)
 
     def __sklearn_tags__(self):
         tags = super().__sklearn_tags__()

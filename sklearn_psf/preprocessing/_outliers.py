@@ -9,7 +9,38 @@ from sklearn.utils.validation import check_is_fitted, validate_data
 __all__ = ["IQROutlierDetector"]
 
 
-class IQROutlierDetector(OutlierMixin, BaseEstimator):
+class _OffsetOutlierMixin(OutlierMixin):
+    """``decision_function`` and ``predict`` of an outlier detector from its
+    ``score_samples`` and ``offset_`` (as scikit-learn's own detectors define them)."""
+
+    def decision_function(self, X):
+        """``score_samples(X) - offset_``: negative for outliers.
+
+        Parameters
+        ----------
+        X : array-like of shape (n_samples, n_features)
+
+        Returns
+        -------
+        decision : ndarray of shape (n_samples,)
+        """
+        return self.score_samples(X) - self.offset_
+
+    def predict(self, X):
+        """+1 for inliers, -1 for outliers.
+
+        Parameters
+        ----------
+        X : array-like of shape (n_samples, n_features)
+
+        Returns
+        -------
+        labels : ndarray of shape (n_samples,), int
+        """
+        return np.where(self.decision_function(X) >= 0, 1, -1)
+
+
+class IQROutlierDetector(_OffsetOutlierMixin, BaseEstimator):
     """Flag samples with any feature beyond the inter-quartile fences.
 
     A sample is an outlier when, for any column j, ``X[:, j] < Q1_j - alpha * IQR_j`` or
@@ -94,29 +125,3 @@ class IQROutlierDetector(OutlierMixin, BaseEstimator):
         X = validate_data(self, X, dtype=np.float64, reset=False)
         excess = np.maximum(self.lower_ - X, X - self.upper_) / self._scale
         return -excess.max(axis=1)
-
-    def decision_function(self, X):
-        """``score_samples(X) - offset_``: negative for outliers.
-
-        Parameters
-        ----------
-        X : array-like of shape (n_samples, n_features)
-
-        Returns
-        -------
-        decision : ndarray of shape (n_samples,)
-        """
-        return self.score_samples(X) - self.offset_
-
-    def predict(self, X):
-        """+1 for inliers, -1 for outliers.
-
-        Parameters
-        ----------
-        X : array-like of shape (n_samples, n_features)
-
-        Returns
-        -------
-        labels : ndarray of shape (n_samples,), int
-        """
-        return np.where(self.decision_function(X) >= 0, 1, -1)
