@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from dataclasses import replace
 
-from ._fit import CLIInputError, _check_output, _positive_int
+from ._fit import CLIInputError, _check_output, _n_jobs, _positive_int
 from ._parallel import dask_backend
 
 #: Sizes of ``sklearn-psf compare``: ``"paper"`` (the default) and ``"quick"`` (``--quick``);
@@ -106,7 +106,10 @@ def add_compare_parser(sub):
     cmp.add_argument("--studies", type=_csv_list, default=list(STUDIES),
                      help=f"comma-separated studies among {','.join(STUDIES)}, or 'none'")
     cmp.add_argument("--seed", type=int, default=0, help="seed of the whole study [0]")
-    cmp.add_argument("--n-jobs", type=int, default=1, help="parallel simulations (joblib)")
+    cmp.add_argument("--n-jobs", type=_n_jobs,
+                     help="simulations and figures at once, each in its own process (-1: one "
+                          "per core) [the cores this process may use; with --scheduler, the "
+                          "cluster's]; the tables are the same with any number")
     cmp.add_argument("--scheduler", metavar="ADDRESS",
                      help="run on the Dask cluster at ADDRESS (joblib's dask backend)")
     return cmp
@@ -163,6 +166,13 @@ def _check_earlier_run(folder, overwrite):
     return earlier
 
 
+def _usable_cores():
+    """Cores this process may run on (its CPU affinity and any container quota)."""
+    from joblib import cpu_count
+
+    return cpu_count()
+
+
 def _selected(names, available, what):
     unknown = [n for n in names if n not in available]
     if unknown:
@@ -187,6 +197,7 @@ def run_compare(args) -> int:
     names = _selected(args.schemes or list(all_schemes), list(all_schemes), "scheme")
     schemes = {n: all_schemes[n] for n in names}
     study_schemes = {n: all_schemes[n] for n in STUDY_SCHEMES}
+    n_jobs = args.n_jobs or (-1 if args.scheduler else _usable_cores())
     _check_output(args.output)
     earlier = _check_earlier_run(args.output, args.overwrite)
     reference = _load_reference(args.reference)
@@ -203,36 +214,34 @@ def run_compare(args) -> int:
         if "tuning" in studies:
             with tqdm(total=len(compare.PARAM_GRIDS), desc="tuning", unit="scheme") as bar:
                 tuning = compare.tune_schemes(base, random_state=args.seed, reference=reference,
-                                              n_jobs=args.n_jobs, progress=bar.update)
+                                              n_jobs=n_jobs, progress=bar.update)
             schemes.update(compare.tuned_schemes(tuning))
         if not args.schemes:
             # the library's own defaults (basis, outlier rejection, interpolator) next to the
             # paper's settings
             schemes[compare.DEFAULT_MODEL] = PSFModel()
-        runs = [("comparison", [base], schemes, n_sims)]
+        # the oracle everywhere but in the grid maps and with planted outliers it does not model
+        runs = [dict(configs=[base], schemes=schemes, n_simulations=n_sims, oracle=True)]
         if "maps" in studies:
-            runs.append(("maps", [replace(base, label="grid", galaxy_layout="grid")],
-                         {n: s for n, s in schemes.items() if n in all_schemes}, 1))
+            runs.append(dict(configs=[replace(base, label="grid", galaxy_layout="grid")],
+                             schemes={n: s for n, s in schemes.items() if n in all_schemes},
+                             n_simulations=1, oracle=False))
         if "snr" in studies:
-            runs.append(("S/N study", compare.snr_study_configs(base), study_schemes, study_sims))
+            runs.append(dict(configs=compare.snr_study_configs(base), schemes=study_schemes,
+                             n_simulations=study_sims, oracle=True))
         if "density" in studies:
-            runs.append(("density study", compare.density_study_configs(base), study_schemes,
-                         study_sims))
+            runs.append(dict(configs=compare.density_study_configs(base), schemes=study_schemes,
+                             n_simulations=study_sims, oracle=True))
         if "outliers" in studies:
-            runs.append(("outlier study", compare.outlier_study_configs(base), study_schemes,
-                         study_sims))
+            runs.append(dict(configs=compare.outlier_study_configs(base), schemes=study_schemes,
+                             n_simulations=study_sims, oracle=False))
         if "scale" in studies:
-            runs.append(("scale study", compare.scale_study_configs(base, SCALE_STUDY),
-                         study_schemes, study_sims))
-        results = []
-        for title, configs, run_schemes, sims in runs:
-            with tqdm(total=len(configs) * sims, desc=title, unit="sim") as bar:
-                results.append(compare.run_study(
-                    configs, run_schemes, n_simulations=sims, random_state=args.seed,
-                    reference=reference, n_jobs=args.n_jobs, progress=bar.update,
-                    # no oracle for the grid maps, nor with planted outliers it does not model
-                    oracle=title not in ("maps", "outlier study"),
-                ))
+            runs.append(dict(configs=compare.scale_study_configs(base, SCALE_STUDY),
+                             schemes=study_schemes, n_simulations=study_sims, oracle=True))
+        total = sum(len(run["configs"]) * run["n_simulations"] for run in runs)
+        with tqdm(total=total, desc="simulations", unit="sim") as bar:
+            results = compare.run_studies(runs, random_state=args.seed, reference=reference,
+                                          n_jobs=n_jobs, progress=bar.update)
     result = compare.combine_results(results)
     curves = requirement_curves(result.theta)
     result.requirements = dict(zip(curves.levels, curves.d1_limit))
@@ -243,15 +252,16 @@ def run_compare(args) -> int:
     stamps, positions = compare.example_stars(base, result.config["seeds"][0], reference)
     for path in earlier:  # no figure of the earlier run stays next to the new report
         path.unlink(missing_ok=True)
-    paths = write_report(result, args.output, stamps=stamps, positions=positions)
+    paths = write_report(result, args.output, stamps=stamps, positions=positions,
+                         n_jobs=-1 if args.scheduler else n_jobs)  # figures drawn locally
     if "exposures" in studies:
-        paths = [*paths, *_run_exposures(args)]
+        paths = [*paths, *_run_exposures(args, n_jobs)]
     print(_summary_text(result))
     print(f"\nWrote {len(paths)} files to {args.output}/ (report: {args.output}/report.md)")
     return 0
 
 
-def _run_exposures(args):
+def _run_exposures(args, n_jobs):
     """The multi-exposure study: its table, figure and exposures.md, its section in report.md."""
     from pathlib import Path
 
@@ -264,7 +274,7 @@ def _run_exposures(args):
     )
 
     with dask_backend(args.scheduler), tqdm(desc="exposures study", unit="sim") as bar:
-        result = run_exposure_study(random_state=args.seed, n_jobs=args.n_jobs,
+        result = run_exposure_study(random_state=args.seed, n_jobs=n_jobs,
                                     progress=bar.update,
                                     **(EXPOSURES_QUICK if args.quick else {}))
     md = write_exposure_report(result, args.output)
