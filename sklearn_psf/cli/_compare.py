@@ -186,7 +186,11 @@ def run_compare(args) -> int:
 
     from ..metrics import requirement_curves, survey_table
     from ..model import PSFModel
+    import numpy as np
+    from joblib import delayed
+
     from ..study import compare
+    from ..study.exposures import run_exposure_study
     from ..study.report import write_report
 
     preset = dict(PRESETS["quick" if args.quick else "paper"])
@@ -238,31 +242,40 @@ def run_compare(args) -> int:
         if "scale" in studies:
             runs.append(dict(configs=compare.scale_study_configs(base, SCALE_STUDY),
                              schemes=study_schemes, n_simulations=study_sims, oracle=True))
-        total = sum(len(run["configs"]) * run["n_simulations"] for run in runs)
-        with tqdm(total=total, desc="simulations", unit="sim") as bar:
+        # the example stars of fig_sim and, under --quick, the small exposures study run as
+        # tasks of the same pool as the simulations
+        seed = int(np.random.SeedSequence(args.seed).spawn(1)[0].generate_state(1, np.uint32)[0])
+        others = [delayed(compare.example_stars)(base, seed, reference)]
+        if "exposures" in studies and args.quick:
+            others.append(delayed(run_exposure_study)(random_state=args.seed, n_jobs=1,
+                                                      **EXPOSURES_QUICK))
+        total = sum(len(run["configs"]) * run["n_simulations"] for run in runs) + len(others)
+        with tqdm(total=total, desc="simulations", unit="task") as bar:
             results = compare.run_studies(runs, random_state=args.seed, reference=reference,
-                                          n_jobs=n_jobs, progress=bar.update)
-    result = compare.combine_results(results)
+                                          n_jobs=n_jobs, progress=bar.update,
+                                          other_tasks=others)
+    (stamps, positions), exposures = results[len(runs)], results[len(runs) + 1:]
+    result = compare.combine_results(results[:len(runs)])
     curves = requirement_curves(result.theta)
     result.requirements = dict(zip(curves.levels, curves.d1_limit))
     result.surveys = survey_table()
     result.tuning = tuning
     result.config["quick"] = bool(args.quick)
     result.config["reference"] = args.reference
-    stamps, positions = compare.example_stars(base, result.config["seeds"][0], reference)
     for path in earlier:  # no figure of the earlier run stays next to the new report
         path.unlink(missing_ok=True)
     paths = write_report(result, args.output, stamps=stamps, positions=positions,
                          n_jobs=-1 if args.scheduler else n_jobs)  # figures drawn locally
     if "exposures" in studies:
-        paths = [*paths, *_run_exposures(args, n_jobs)]
+        paths = [*paths, *_run_exposures(args, n_jobs, *exposures)]
     print(_summary_text(result))
     print(f"\nWrote {len(paths)} files to {args.output}/ (report: {args.output}/report.md)")
     return 0
 
 
-def _run_exposures(args, n_jobs):
-    """The multi-exposure study: its table, figure and exposures.md, its section in report.md."""
+def _run_exposures(args, n_jobs, result=None):
+    """The multi-exposure study (unless its ``result`` is given): its table, figure and
+    exposures.md, its section in report.md."""
     from pathlib import Path
 
     from tqdm.auto import tqdm
@@ -273,10 +286,11 @@ def _run_exposures(args, n_jobs):
         write_exposure_report,
     )
 
-    with dask_backend(args.scheduler), tqdm(desc="exposures study", unit="sim") as bar:
-        result = run_exposure_study(random_state=args.seed, n_jobs=n_jobs,
-                                    progress=bar.update,
-                                    **(EXPOSURES_QUICK if args.quick else {}))
+    if result is None:
+        with dask_backend(args.scheduler), tqdm(desc="exposures study", unit="sim") as bar:
+            result = run_exposure_study(random_state=args.seed, n_jobs=n_jobs,
+                                        progress=bar.update,
+                                        **(EXPOSURES_QUICK if args.quick else {}))
     md = write_exposure_report(result, args.output)
     with open(Path(args.output) / "report.md", "a", encoding="utf-8") as fh:
         fh.write("\n" + exposure_report_section(result))

@@ -252,7 +252,8 @@ def run_studies(
     n_jobs: int | None = None,
     theta_bins=(0.5, 20.0, 10),
     progress=None,
-) -> list[StudyResult]:
+    other_tasks=(),
+) -> list:
     """Several studies (as :func:`run_study`) whose simulations share one pool of workers.
 
     Every simulation of every study is one task; the tasks are dispatched together, the
@@ -267,12 +268,15 @@ def run_studies(
         :func:`run_study` (missing keys take its defaults).
     random_state, reference, n_jobs, theta_bins, progress
         As for :func:`run_study`, shared by every study (``progress`` is called once per
-        simulation of any study).
+        simulation of any study, and once per other task).
+    other_tasks : sequence of joblib ``delayed`` calls, optional
+        Independent tasks run in the same pool, before the simulations (e.g. a small side
+        study as one task, while the workers have simulations to share).
 
     Returns
     -------
-    list of StudyResult
-        One per study, in the order given.
+    list
+        One StudyResult per study, in the order given, then the result of each other task.
 
     Examples
     --------
@@ -307,23 +311,30 @@ def run_studies(
     tasks.sort(key=lambda t: -_cost(t[1], t[4], t[5]))  # stable: ties keep their order
     # tasks of seconds each: dispatch them all at once, one per batch (joblib's default keeps
     # 2 * n_jobs in flight, which leaves Dask workers waiting on callbacks)
+    other_tasks = list(other_tasks)
     jobs = Parallel(n_jobs=n_jobs, return_as="generator_unordered", pre_dispatch="all",
                     batch_size=1)(
-        delayed(_run_tagged)(k, c, i, s, schemes, reference, theta_bins, oracle)
-        for k, c, i, s, schemes, oracle in tasks
+        [delayed(_tagged)(-1 - j, func, args, kwargs)
+         for j, (func, args, kwargs) in enumerate(other_tasks)]
+        + [delayed(_tagged)(k, _run_one, (c, i, s, schemes, reference, theta_bins, oracle), {})
+           for k, c, i, s, schemes, oracle in tasks]
     )
     outputs = [[] for _ in studies]
+    others = [None] * len(other_tasks)
     for k, out in jobs:
-        outputs[k].append(out)
+        if k < 0:
+            others[-1 - k] = out
+        else:
+            outputs[k].append(out)
         if progress is not None:
             progress()
     return [_assemble(out, *study, seeds, random_state, theta_bins)
-            for out, study, seeds in zip(outputs, studies, all_seeds)]
+            for out, study, seeds in zip(outputs, studies, all_seeds)] + others
 
 
-def _run_tagged(k, *args):
-    """:func:`_run_one` with the index of its study."""
-    return k, _run_one(*args)
+def _tagged(k, func, args, kwargs):
+    """``func(*args, **kwargs)`` with the index of its study (negative: another task)."""
+    return k, func(*args, **kwargs)
 
 
 def _assemble(outputs, configs, schemes, n_simulations, oracle, seeds, random_state, theta_bins):

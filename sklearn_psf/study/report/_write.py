@@ -105,10 +105,32 @@ def write_report(result, outdir, figures: bool | Iterable[str] = True, stamps=No
     for name in ("config", "scheme", "e_rms"):
         if name not in scores.colnames:
             raise ValueError(f"result.scores lacks the column {name!r}; it has {scores.colnames}.")
+    in_config = np.asarray(scores["config"]).astype(str) == config
+    all_schemes = _unique_in_order(scores["scheme"][in_config] if in_config.any()
+                                   else scores["scheme"])
+    schemes = all_schemes if schemes is None else [str(s) for s in schemes]
+    map_schemes = [s for s in _PAPER_TRIO if s in all_schemes] or schemes
+
+    specs_args = (config, schemes, map_schemes, stamps, positions)
+    specs = _figure_specs(result, *specs_args)
+    if figures is True or figures is False:
+        wanted = {name for name, _, _ in specs} if figures else set()
+    else:
+        wanted = {str(f).removesuffix(".png") for f in figures}
+        unknown = wanted - {name for name, _, _ in specs}
+        if unknown:
+            raise ValueError(f"unknown figure name(s) {sorted(unknown)}; choose from "
+                             f"{[name for name, _, _ in specs]}.")
+    groups = _spread(sorted(wanted), effective_n_jobs(n_jobs)) if wanted else []
+    drawing = None
+    if len(groups) > 1:  # each worker draws a group (the result is sent once per worker),
+        # while this process writes the tables
+        drawing = Parallel(n_jobs=len(groups), return_as="generator")(
+            delayed(_draw_figures)(result, specs_args, set(g), dpi) for g in groups)
+
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     written, notes = [], []
-
     written.append(_write_table(scores, outdir / "scores.csv", "ascii.csv"))
     written.append(_write_table(scores, outdir / "scores.fits", "fits"))
     galaxies = getattr(result, "galaxies", None)
@@ -126,40 +148,18 @@ def write_report(result, outdir, figures: bool | Iterable[str] = True, stamps=No
     written.append(_atomic(outdir / "config.json", lambda tmp: Path(tmp).write_text(
         json.dumps(_jsonable(study_config), indent=2, sort_keys=True))))
 
-    in_config = np.asarray(scores["config"]).astype(str) == config
-    all_schemes = _unique_in_order(scores["scheme"][in_config] if in_config.any()
-                                   else scores["scheme"])
-    schemes = all_schemes if schemes is None else [str(s) for s in schemes]
-    map_schemes = [s for s in _PAPER_TRIO if s in all_schemes] or schemes
-
+    drawn = ([d for group in drawing for d in group] if drawing is not None
+             else _draw_figures(result, specs_args, wanted, dpi) if wanted else [])
+    order = {name: k for k, (name, _, _) in enumerate(specs)}
     figure_entries = []
-    specs_args = (config, schemes, map_schemes, stamps, positions)
-    specs = _figure_specs(result, *specs_args)
-    if figures is True or figures is False:
-        wanted = {name for name, _, _ in specs} if figures else set()
-    else:
-        wanted = {str(f).removesuffix(".png") for f in figures}
-        unknown = wanted - {name for name, _, _ in specs}
-        if unknown:
-            raise ValueError(f"unknown figure name(s) {sorted(unknown)}; choose from "
-                             f"{[name for name, _, _ in specs]}.")
-    if wanted:
-        groups = _spread(sorted(wanted), effective_n_jobs(n_jobs))
-        if len(groups) == 1:
-            drawn = _draw_figures(result, specs_args, wanted, dpi)
-        else:  # each worker draws a group: the result is sent once per worker
-            drawn = [d for group in Parallel(n_jobs=len(groups))(
-                delayed(_draw_figures)(result, specs_args, set(g), dpi) for g in groups)
-                for d in group]
-        order = {name: k for k, (name, _, _) in enumerate(specs)}
-        for name, caption, png, note in sorted(drawn, key=lambda d: order[d[0]]):
-            if png is None:
-                notes.append(note)
-                continue
-            path = outdir / f"{name}.png"
-            path.write_bytes(png)
-            written.append(path)
-            figure_entries.append((path.name, caption))
+    for name, caption, png, note in sorted(drawn, key=lambda d: order[d[0]]):
+        if png is None:
+            notes.append(note)
+            continue
+        path = outdir / f"{name}.png"
+        path.write_bytes(png)
+        written.append(path)
+        figure_entries.append((path.name, caption))
     if len(wanted) < len(specs):
         notes.append("Figures not requested: " + ", ".join(
             f"{name}.png" for name, _, _ in specs if name not in wanted) + ".")
