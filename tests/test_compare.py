@@ -339,3 +339,21 @@ def test_oracle_error_matches_its_variance_over_draws():
         pred, std = FieldOracle(f).fit(X, y, w).predict_coefficients(X_gal, return_std=True)
         z2.append(((pred - coef[n:]) / std) ** 2)
     assert 0.9 < np.mean(z2) < 1.1, np.mean(z2)
+
+
+def test_compare_default_n_jobs_is_the_usable_cores_within_free_memory(monkeypatch):
+    """The command's default --n-jobs: every usable core (affinity, quota) while the free memory
+    holds a 2 GB simulation task per worker, fewer otherwise, never below one."""
+    import os
+
+    from sklearn_psf.cli._compare import TASK_MEMORY, _default_n_jobs
+
+    page = os.sysconf("SC_PAGE_SIZE")
+    cores = joblib.cpu_count()
+    for free_tasks, expected in ((64 * cores, cores), (1.5, 1), (0, 1)):
+        pages = int(free_tasks * TASK_MEMORY // page)
+        monkeypatch.setattr(os, "sysconf", lambda name, p=pages: p if name == "SC_AVPHYS_PAGES"
+                            else page)
+        assert _default_n_jobs() == expected
+    if hasattr(os, "sched_getaffinity"):  # the cores this process may run on
+        assert cores <= len(os.sched_getaffinity(0))
