@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import replace
+from functools import partial
 
 from ._fit import CLIInputError, _check_output, _n_jobs, _positive_int
 from ._parallel import dask_backend
@@ -227,49 +228,56 @@ def run_compare(args) -> int:
         image_shape=args.image_shape or preset["image_shape"],
         smallest_scale=args.smallest_scale,
     ).validate()
-    tuning = None
-    with dask_backend(args.scheduler):
-        if "tuning" in studies:
-            with tqdm(total=len(compare.PARAM_GRIDS), desc="tuning", unit="scheme") as bar:
-                tuning = compare.tune_schemes(base, random_state=args.seed, reference=reference,
-                                              n_jobs=n_jobs, progress=bar.update)
+    # the side studies (their schemes are the paper's, not the tuned ones)
+    side = []
+    if "maps" in studies:
+        side.append(dict(configs=[replace(base, label="grid", galaxy_layout="grid")],
+                         schemes=dict(schemes), n_simulations=1, oracle=False))
+    # the oracle everywhere but in the grid maps and with planted outliers it does not model
+    if "snr" in studies:
+        side.append(dict(configs=compare.snr_study_configs(base), schemes=study_schemes,
+                         n_simulations=study_sims, oracle=True))
+    if "density" in studies:
+        side.append(dict(configs=compare.density_study_configs(base), schemes=study_schemes,
+                         n_simulations=study_sims, oracle=True))
+    if "outliers" in studies:
+        side.append(dict(configs=compare.outlier_study_configs(base), schemes=study_schemes,
+                         n_simulations=study_sims, oracle=False))
+    if "scale" in studies:
+        side.append(dict(configs=compare.scale_study_configs(base, SCALE_STUDY),
+                         schemes=study_schemes, n_simulations=study_sims, oracle=True))
+    # other tasks of the same pool: the tuning, the example stars of fig_sim and, under
+    # --quick, the small exposures study
+    seed = int(np.random.SeedSequence(args.seed).spawn(1)[0].generate_state(1, np.uint32)[0])
+    others = [delayed(compare.example_stars)(base, seed, reference)]
+    if "exposures" in studies and args.quick:
+        others.append(delayed(run_exposure_study)(random_state=args.seed, n_jobs=1,
+                                                  **EXPOSURES_QUICK))
+    tune = "tuning" in studies
+    if tune:
+        others.insert(0, delayed(compare.tune_schemes)(base, random_state=args.seed,
+                                                       reference=reference, n_jobs=1))
+    if not args.schemes:
+        # the library's own defaults (basis, outlier rejection, interpolator) next to the
+        # paper's settings
+        schemes[compare.DEFAULT_MODEL] = PSFModel()
+    main_run = dict(configs=[base], schemes=schemes, n_simulations=n_sims, oracle=True)
+    total = n_sims + sum(len(r["configs"]) * r["n_simulations"] for r in side) + len(others)
+    with dask_backend(args.scheduler), tqdm(total=total, desc="simulations", unit="task") as bar:
+        run = partial(compare.run_studies, random_state=args.seed, reference=reference,
+                      n_jobs=n_jobs, progress=bar.update)
+        if tune:
+            # the main comparison needs the tuned schemes: the side studies run with the tuning
+            results = run(side, other_tasks=others)
+            tuning, (stamps, positions), *exposures = results[len(side):]
             schemes.update(compare.tuned_schemes(tuning))
-        if not args.schemes:
-            # the library's own defaults (basis, outlier rejection, interpolator) next to the
-            # paper's settings
-            schemes[compare.DEFAULT_MODEL] = PSFModel()
-        # the oracle everywhere but in the grid maps and with planted outliers it does not model
-        runs = [dict(configs=[base], schemes=schemes, n_simulations=n_sims, oracle=True)]
-        if "maps" in studies:
-            runs.append(dict(configs=[replace(base, label="grid", galaxy_layout="grid")],
-                             schemes={n: s for n, s in schemes.items() if n in all_schemes},
-                             n_simulations=1, oracle=False))
-        if "snr" in studies:
-            runs.append(dict(configs=compare.snr_study_configs(base), schemes=study_schemes,
-                             n_simulations=study_sims, oracle=True))
-        if "density" in studies:
-            runs.append(dict(configs=compare.density_study_configs(base), schemes=study_schemes,
-                             n_simulations=study_sims, oracle=True))
-        if "outliers" in studies:
-            runs.append(dict(configs=compare.outlier_study_configs(base), schemes=study_schemes,
-                             n_simulations=study_sims, oracle=False))
-        if "scale" in studies:
-            runs.append(dict(configs=compare.scale_study_configs(base, SCALE_STUDY),
-                             schemes=study_schemes, n_simulations=study_sims, oracle=True))
-        # the example stars of fig_sim and, under --quick, the small exposures study run as
-        # tasks of the same pool as the simulations
-        seed = int(np.random.SeedSequence(args.seed).spawn(1)[0].generate_state(1, np.uint32)[0])
-        others = [delayed(compare.example_stars)(base, seed, reference)]
-        if "exposures" in studies and args.quick:
-            others.append(delayed(run_exposure_study)(random_state=args.seed, n_jobs=1,
-                                                      **EXPOSURES_QUICK))
-        total = sum(len(run["configs"]) * run["n_simulations"] for run in runs) + len(others)
-        with tqdm(total=total, desc="simulations", unit="task") as bar:
-            results = compare.run_studies(runs, random_state=args.seed, reference=reference,
-                                          n_jobs=n_jobs, progress=bar.update,
-                                          other_tasks=others)
-    (stamps, positions), exposures = results[len(runs)], results[len(runs) + 1:]
-    result = compare.combine_results(results[:len(runs)])
+            results = [*run([main_run]), *results[:len(side)]]
+        else:
+            tuning = None
+            results = run([main_run, *side], other_tasks=others)
+            (stamps, positions), *exposures = results[len(side) + 1:]
+            results = results[:len(side) + 1]
+    result = compare.combine_results(results)
     curves = requirement_curves(result.theta)
     result.requirements = dict(zip(curves.levels, curves.d1_limit))
     result.surveys = survey_table()
