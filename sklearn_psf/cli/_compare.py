@@ -197,13 +197,11 @@ def _selected(names, available, what):
 
 def run_compare(args) -> int:
     """Run ``sklearn-psf compare``: the study, its report, a summary on the terminal."""
+    import numpy as np
+    from joblib import delayed
     from tqdm.auto import tqdm
 
     from ..metrics import requirement_curves, survey_table
-    from ..model import PSFModel
-    import numpy as np
-    from joblib import delayed
-
     from ..study import compare
     from ..study.exposures import run_exposure_study
     from ..study.report import write_report
@@ -257,10 +255,6 @@ def run_compare(args) -> int:
     if tune:
         others.insert(0, delayed(compare.tune_schemes)(base, random_state=args.seed,
                                                        reference=reference, n_jobs=1))
-    if not args.schemes:
-        # the library's own defaults (basis, outlier rejection, interpolator) next to the
-        # paper's settings
-        schemes[compare.DEFAULT_MODEL] = PSFModel()
     main_run = dict(configs=[base], schemes=schemes, n_simulations=n_sims, oracle=True)
     total = n_sims + sum(len(r["configs"]) * r["n_simulations"] for r in side) + len(others)
     with dask_backend(args.scheduler), tqdm(total=total, desc="simulations", unit="task") as bar:
@@ -271,9 +265,11 @@ def run_compare(args) -> int:
             results = run(side, other_tasks=others)
             tuning, (stamps, positions), *exposures = results[len(side):]
             schemes.update(compare.tuned_schemes(tuning))
+            _add_default_model(schemes, args)
             results = [*run([main_run]), *results[:len(side)]]
         else:
             tuning = None
+            _add_default_model(schemes, args)
             results = run([main_run, *side], other_tasks=others)
             (stamps, positions), *exposures = results[len(side) + 1:]
             results = results[:len(side) + 1]
@@ -293,6 +289,16 @@ def run_compare(args) -> int:
     print(_summary_text(result))
     print(f"\nWrote {len(paths)} files to {args.output}/ (report: {args.output}/report.md)")
     return 0
+
+
+def _add_default_model(schemes, args):
+    """The library's own defaults (basis, outlier rejection, interpolator) next to the paper's
+    settings, after the tuned schemes, unless the user chose the schemes."""
+    from ..model import PSFModel
+    from ..study.compare import DEFAULT_MODEL
+
+    if not args.schemes:
+        schemes[DEFAULT_MODEL] = PSFModel()
 
 
 def _run_exposures(args, n_jobs, result=None):
