@@ -20,7 +20,7 @@ from ._summary import _PAPER_TRIO
 
 # Relative time to draw and save each figure (measured on the quick study; 1 for the others):
 # figures are spread over the workers of write_report(n_jobs=...) by these, the longest first.
-_DRAW_COST = {"fig_cor": 10.0, "fig_ell1comp": 4.0, "fig_coeff34": 4.0, "fig_coeff0": 3.5,
+_DRAW_COST = {"fig_cor": 5.0, "fig_ell1comp": 4.0, "fig_coeff34": 4.0, "fig_coeff0": 3.5,
               "fig_coeffscomp": 3.0, "fig_ell": 2.3}
 
 
