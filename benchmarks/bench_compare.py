@@ -11,20 +11,30 @@ Times ``sklearn_psf.study.compare.run_study`` (every default scheme on the paper
 checks that the three result tables are identical (every column but ``fit_seconds``, which
 is a timing), and extrapolates the paper's full study (50 simulations) from the per-
 simulation time: an extrapolation, not a run of the 50 simulations (pass ``--n-sims 50`` to
-run it). ``--cli-quick`` also times the command ``sklearn-psf compare --quick`` (the
-main comparison plus the S/N, density, outlier and tuning studies of the quick preset).
+run it).
+
+``--cli-quick`` also times the README's command ``sklearn-psf compare --quick -o DIR`` (no
+other option: every study of the quick preset, the default ``--n-jobs``), in a fresh process:
+its wall time, the CPU time of all its processes (user + system, workers included) and the
+wall time it would take on idle cores, ``CPU / cores + serial`` (``serial``: the wall time of
+the parts that run in one process, tuning's set-up, tables, report; an estimate, for a shared
+machine). ``--cli-serial`` also times it with ``--n-jobs 1`` and checks that both runs write
+the same tables (target: <= 120 s on 2 idle cores).
 
 Exits 1 when the tables differ.
 
 Usage::
 
     python benchmarks/bench_compare.py [--n-sims N] [--quick] [--no-dask] [--cli-quick]
+                                       [--cli-serial] [--cli-only]
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
+import resource
 import subprocess
 import sys
 import tempfile
@@ -66,6 +76,66 @@ def timed_study(n_sims, config, n_jobs):
     return time.perf_counter() - t0, result
 
 
+def run_cli(args, env=None):
+    """Wall and CPU seconds (user + system of the process and its workers) of one command,
+    its exit status and its stderr."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "sklearn_psf", *args], capture_output=True,
+                          text=True, env=env)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = sum(getattr(after, k) - getattr(before, k) for k in ("ru_utime", "ru_stime"))
+    return wall, cpu, proc.returncode, proc.stderr
+
+
+def _bar_seconds(stderr, desc):
+    """Elapsed seconds of the last tqdm bar ``desc`` in a command's stderr."""
+    found = re.findall(rf"{re.escape(desc)}: 100%.*?\[(\d+):(\d+)<", stderr)
+    return 60 * int(found[-1][0]) + int(found[-1][1]) if found else 0.0
+
+
+def time_cli_quick(serial_too):
+    """Time ``sklearn-psf compare --quick -o DIR`` (and with ``--n-jobs 1``)."""
+    cores = joblib.cpu_count()
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+    status = 0
+    with tempfile.TemporaryDirectory() as tmp:
+        runs = {"default": ["compare", "--quick", "-o", os.path.join(tmp, "default")]}
+        if serial_too:
+            runs["--n-jobs 1"] = ["compare", "--quick", "--n-jobs", "1", "-o",
+                                  os.path.join(tmp, "serial")]
+        times = {}
+        for label, args in runs.items():
+            load = os.getloadavg()[0]
+            wall, cpu, code, err = run_cli(args, env)
+            times[label] = wall
+            pool = _bar_seconds(err, "simulations")
+            # outside the pool of simulations (half of tuning: GridSearchCV is parallel too);
+            # the figures, drawn in parallel, count in both: an upper estimate
+            serial = wall - pool - _bar_seconds(err, "tuning") / 2
+            print(f"  sklearn-psf {' '.join(args[:-2])}: wall {wall:.1f} s, CPU {cpu:.1f} s "
+                  f"(all processes), load average {load:.2f} at start, exit status {code}")
+            if label == "default":
+                bound = cpu / cores + serial
+                print(f"    on {cores} idle cores: at most about CPU / {cores} + serial part "
+                      f"({serial:.1f} s) = {bound:.1f} s (target <= 120 s)")
+            if code:
+                print(err[-2000:])
+                status = 1
+        if serial_too and not status:
+            from astropy.table import Table
+
+            a, b = (Table.read(os.path.join(tmp, d, "scores.fits")) for d in ("default", "serial"))
+            problems = [c for c in a.colnames if c != "fit_seconds" and not np.array_equal(
+                np.asarray(a[c]), np.asarray(b[c]), equal_nan=a[c].dtype.kind == "f")]
+            print(f"    scores default == --n-jobs 1: "
+                  f"{'identical' if not problems else 'DIFFER: ' + ', '.join(problems)}; "
+                  f"wall ratio {times['--n-jobs 1'] / times['default']:.2f} x")
+            status |= bool(problems)
+    return status
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n-sims", type=int, default=4, help="simulations timed [4]")
@@ -73,8 +143,14 @@ def main(argv=None):
                         help="smoke size: 2 small simulations (150 stars, 2000 x 1500 pixels)")
     parser.add_argument("--no-dask", action="store_true", help="skip the Dask run")
     parser.add_argument("--cli-quick", action="store_true",
-                        help="also time 'sklearn-psf compare --quick'")
+                        help="also time 'sklearn-psf compare --quick -o DIR'")
+    parser.add_argument("--cli-serial", action="store_true",
+                        help="with --cli-quick, also time it with --n-jobs 1 and compare tables")
+    parser.add_argument("--cli-only", action="store_true",
+                        help="only the command's timing (implies --cli-quick)")
     args = parser.parse_args(argv)
+    if args.cli_only:
+        return time_cli_quick(args.cli_serial)
     if args.quick:
         n_sims = 2
         config = SimulationConfig(n_stars=150, n_galaxies=200, image_shape=(1500, 2000))
@@ -117,17 +193,7 @@ def main(argv=None):
           "(target < 30 min; an extrapolation from the per-simulation time, not a run)")
 
     if args.cli_quick:
-        with tempfile.TemporaryDirectory() as out:
-            cmd = [sys.executable, "-m", "sklearn_psf", "compare", "--quick", "--n-jobs", "2",
-                   "-o", os.path.join(out, "report")]
-            t0 = time.perf_counter()
-            proc = subprocess.run(cmd, capture_output=True, text=True)
-            t_cli = time.perf_counter() - t0
-        print(f"  sklearn-psf compare --quick --n-jobs 2: {t_cli:.1f} s (target < 300 s), "
-              f"exit status {proc.returncode}")
-        if proc.returncode:
-            print(proc.stderr[-2000:])
-            status = 1
+        status |= time_cli_quick(args.cli_serial)
     return status
 
 

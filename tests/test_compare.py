@@ -15,6 +15,7 @@ from sklearn_psf.study.compare import (
     make_psf_model,
     oracle_e_rms_ratio,
     paper_split,
+    run_studies,
     run_study,
 )
 from sklearn_psf.datasets import load_default_reference
@@ -78,6 +79,34 @@ def test_parallel_and_dask_give_the_serial_table(small_study):
             on_dask = run_study(SMALL, _schemes("polynomial", "kriging"), n_simulations=2,
                                 random_state=3, theta_bins=BINS)
     np.testing.assert_array_equal(on_dask.scores["e_rms"], small_study.scores["e_rms"])
+
+
+def test_studies_in_one_pool_give_each_study_s_tables(small_study):
+    """run_studies dispatches the simulations of every study together, costliest first (here
+    the 150-star configuration of the second study before the first study's): each study's
+    tables are those of its own run_study, the oracle's ratio only where it was asked."""
+    from dataclasses import replace
+
+    second = [replace(SMALL, label="n_stars=150", n_stars=150), replace(SMALL, label="snr=700",
+                                                                          snr=700.0)]
+    first_out, second_out = run_studies(
+        [{"configs": SMALL, "schemes": _schemes("polynomial", "kriging"), "n_simulations": 2},
+         {"configs": second, "schemes": _schemes("kriging"), "n_simulations": 1,
+          "oracle": True}], random_state=3, theta_bins=BINS, n_jobs=2)
+    alone = run_study(second, _schemes("kriging"), n_simulations=1, random_state=3,
+                      theta_bins=BINS, oracle=True)
+    for got, want in ((first_out, small_study), (second_out, alone)):
+        for name in ("scores", "correlations", "galaxies"):
+            a, b = getattr(got, name), getattr(want, name)
+            assert a.colnames == b.colnames
+            for col in a.colnames:
+                if col != "fit_seconds":
+                    np.testing.assert_array_equal(a[col], b[col], err_msg=f"{name}.{col}")
+        assert got.config == want.config
+    assert "e_rms_ratio" not in first_out.scores.colnames
+    assert second_out.scores["scheme"].tolist() == ["kriging", "oracle"] * 2
+    with pytest.raises(ValueError, match="studies is empty"):
+        run_studies([])
 
 
 def test_paper_split_cross_validate_matches_the_study(small_study):
@@ -310,3 +339,21 @@ def test_oracle_error_matches_its_variance_over_draws():
         pred, std = FieldOracle(f).fit(X, y, w).predict_coefficients(X_gal, return_std=True)
         z2.append(((pred - coef[n:]) / std) ** 2)
     assert 0.9 < np.mean(z2) < 1.1, np.mean(z2)
+
+
+def test_compare_default_n_jobs_is_the_usable_cores_within_free_memory(monkeypatch):
+    """The command's default --n-jobs: every usable core (affinity, quota) while the free memory
+    holds a 2 GB simulation task per worker, fewer otherwise, never below one."""
+    import os
+
+    from sklearn_psf.cli._compare import TASK_MEMORY, _default_n_jobs
+
+    page = os.sysconf("SC_PAGE_SIZE")
+    cores = joblib.cpu_count()
+    for free_tasks, expected in ((64 * cores, cores), (1.5, 1), (0, 1)):
+        pages = int(free_tasks * TASK_MEMORY // page)
+        monkeypatch.setattr(os, "sysconf", lambda name, p=pages: p if name == "SC_AVPHYS_PAGES"
+                            else page)
+        assert _default_n_jobs() == expected
+    if hasattr(os, "sched_getaffinity"):  # the cores this process may run on
+        assert cores <= len(os.sched_getaffinity(0))

@@ -284,6 +284,24 @@ def test_write_report_skips_figures_without_data(tmp_path):
     assert "fig_cor.png skipped" not in text
 
 
+def test_write_report_parallel_figures_are_the_serial_files(tmp_path):
+    """n_jobs=2 draws the figures in two worker processes: the same PNG bytes, the same
+    report (figure order, captions, the note of a figure without its data)."""
+    schemes = ["polynomial", "kriging"]
+    scores = make_scores({("default", s): (0.01, 1e-6, 1e-5) for s in schemes}, n_sim=2)
+    result = make_result(scores, make_galaxies(schemes), make_correlations(schemes))
+    wanted = {"fig_sim", "fig_ell", "fig_densell", "fig_outliers"}
+    files = {}
+    for n_jobs in (1, 2):
+        out = tmp_path / str(n_jobs)
+        paths = write_report(result, out, figures=wanted, dpi=30, n_jobs=n_jobs)
+        files[n_jobs] = {p.name: p.read_bytes() for p in paths
+                         if p.suffix in (".png", ".md")}
+    assert sorted(files[2]) == ["fig_densell.png", "fig_ell.png", "report.md"]
+    assert files[2] == files[1]
+    assert "fig_sim.png skipped: " in files[2]["report.md"].decode()
+
+
 def test_write_report_requires_scores(tmp_path):
     with pytest.raises(ValueError, match="scores"):
         write_report(SimpleNamespace(scores=None), tmp_path)

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import replace
+from functools import partial
 
-from ._fit import CLIInputError, _check_output, _positive_int
+from ._fit import CLIInputError, _check_output, _n_jobs, _positive_int
 from ._parallel import dask_backend
 
 #: Sizes of ``sklearn-psf compare``: ``"paper"`` (the default) and ``"quick"`` (``--quick``);
@@ -106,7 +107,11 @@ def add_compare_parser(sub):
     cmp.add_argument("--studies", type=_csv_list, default=list(STUDIES),
                      help=f"comma-separated studies among {','.join(STUDIES)}, or 'none'")
     cmp.add_argument("--seed", type=int, default=0, help="seed of the whole study [0]")
-    cmp.add_argument("--n-jobs", type=int, default=1, help="parallel simulations (joblib)")
+    cmp.add_argument("--n-jobs", type=_n_jobs,
+                     help="simulations and figures at once, each in its own process (-1: one "
+                          "per core) [the cores this process may use, fewer if the free memory "
+                          "cannot give each 2 GB; with --scheduler, the cluster's]; the tables "
+                          "are the same with any number")
     cmp.add_argument("--scheduler", metavar="ADDRESS",
                      help="run on the Dask cluster at ADDRESS (joblib's dask backend)")
     return cmp
@@ -163,6 +168,26 @@ def _check_earlier_run(folder, overwrite):
     return earlier
 
 
+# Peak memory of one simulation task: 2.0 GB measured with 4000 stars on the paper's image (the
+# density study's largest), 0.8 GB with 1000 stars and every scheme.
+TASK_MEMORY = 2 * 2**30
+
+
+def _default_n_jobs():
+    """The cores this process may run on (CPU affinity, container quota), fewer when the free
+    memory cannot hold one simulation task per core."""
+    import os
+
+    from joblib import cpu_count
+
+    cores = cpu_count()
+    try:
+        free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):  # not on every system
+        return cores
+    return max(1, min(cores, free // TASK_MEMORY))
+
+
 def _selected(names, available, what):
     unknown = [n for n in names if n not in available]
     if unknown:
@@ -172,11 +197,13 @@ def _selected(names, available, what):
 
 def run_compare(args) -> int:
     """Run ``sklearn-psf compare``: the study, its report, a summary on the terminal."""
+    import numpy as np
+    from joblib import delayed
     from tqdm.auto import tqdm
 
     from ..metrics import requirement_curves, survey_table
-    from ..model import PSFModel
     from ..study import compare
+    from ..study.exposures import run_exposure_study
     from ..study.report import write_report
 
     preset = dict(PRESETS["quick" if args.quick else "paper"])
@@ -187,6 +214,7 @@ def run_compare(args) -> int:
     names = _selected(args.schemes or list(all_schemes), list(all_schemes), "scheme")
     schemes = {n: all_schemes[n] for n in names}
     study_schemes = {n: all_schemes[n] for n in STUDY_SCHEMES}
+    n_jobs = args.n_jobs or (-1 if args.scheduler else _default_n_jobs())
     _check_output(args.output)
     earlier = _check_earlier_run(args.output, args.overwrite)
     reference = _load_reference(args.reference)
@@ -198,41 +226,53 @@ def run_compare(args) -> int:
         image_shape=args.image_shape or preset["image_shape"],
         smallest_scale=args.smallest_scale,
     ).validate()
-    tuning = None
-    with dask_backend(args.scheduler):
-        if "tuning" in studies:
-            with tqdm(total=len(compare.PARAM_GRIDS), desc="tuning", unit="scheme") as bar:
-                tuning = compare.tune_schemes(base, random_state=args.seed, reference=reference,
-                                              n_jobs=args.n_jobs, progress=bar.update)
+    # the side studies (their schemes are the paper's, not the tuned ones)
+    side = []
+    if "maps" in studies:
+        side.append(dict(configs=[replace(base, label="grid", galaxy_layout="grid")],
+                         schemes=dict(schemes), n_simulations=1, oracle=False))
+    # the oracle everywhere but in the grid maps and with planted outliers it does not model
+    if "snr" in studies:
+        side.append(dict(configs=compare.snr_study_configs(base), schemes=study_schemes,
+                         n_simulations=study_sims, oracle=True))
+    if "density" in studies:
+        side.append(dict(configs=compare.density_study_configs(base), schemes=study_schemes,
+                         n_simulations=study_sims, oracle=True))
+    if "outliers" in studies:
+        side.append(dict(configs=compare.outlier_study_configs(base), schemes=study_schemes,
+                         n_simulations=study_sims, oracle=False))
+    if "scale" in studies:
+        side.append(dict(configs=compare.scale_study_configs(base, SCALE_STUDY),
+                         schemes=study_schemes, n_simulations=study_sims, oracle=True))
+    # other tasks of the same pool: the tuning, the example stars of fig_sim and, under
+    # --quick, the small exposures study
+    seed = int(np.random.SeedSequence(args.seed).spawn(1)[0].generate_state(1, np.uint32)[0])
+    others = [delayed(compare.example_stars)(base, seed, reference)]
+    if "exposures" in studies and args.quick:
+        others.append(delayed(run_exposure_study)(random_state=args.seed, n_jobs=1,
+                                                  **EXPOSURES_QUICK))
+    tune = "tuning" in studies
+    if tune:
+        others.insert(0, delayed(compare.tune_schemes)(base, random_state=args.seed,
+                                                       reference=reference, n_jobs=1))
+    main_run = dict(configs=[base], schemes=schemes, n_simulations=n_sims, oracle=True)
+    total = n_sims + sum(len(r["configs"]) * r["n_simulations"] for r in side) + len(others)
+    with dask_backend(args.scheduler), tqdm(total=total, desc="simulations", unit="task") as bar:
+        run = partial(compare.run_studies, random_state=args.seed, reference=reference,
+                      n_jobs=n_jobs, progress=bar.update)
+        if tune:
+            # the main comparison needs the tuned schemes: the side studies run with the tuning
+            results = run(side, other_tasks=others)
+            tuning, (stamps, positions), *exposures = results[len(side):]
             schemes.update(compare.tuned_schemes(tuning))
-        if not args.schemes:
-            # the library's own defaults (basis, outlier rejection, interpolator) next to the
-            # paper's settings
-            schemes[compare.DEFAULT_MODEL] = PSFModel()
-        runs = [("comparison", [base], schemes, n_sims)]
-        if "maps" in studies:
-            runs.append(("maps", [replace(base, label="grid", galaxy_layout="grid")],
-                         {n: s for n, s in schemes.items() if n in all_schemes}, 1))
-        if "snr" in studies:
-            runs.append(("S/N study", compare.snr_study_configs(base), study_schemes, study_sims))
-        if "density" in studies:
-            runs.append(("density study", compare.density_study_configs(base), study_schemes,
-                         study_sims))
-        if "outliers" in studies:
-            runs.append(("outlier study", compare.outlier_study_configs(base), study_schemes,
-                         study_sims))
-        if "scale" in studies:
-            runs.append(("scale study", compare.scale_study_configs(base, SCALE_STUDY),
-                         study_schemes, study_sims))
-        results = []
-        for title, configs, run_schemes, sims in runs:
-            with tqdm(total=len(configs) * sims, desc=title, unit="sim") as bar:
-                results.append(compare.run_study(
-                    configs, run_schemes, n_simulations=sims, random_state=args.seed,
-                    reference=reference, n_jobs=args.n_jobs, progress=bar.update,
-                    # no oracle for the grid maps, nor with planted outliers it does not model
-                    oracle=title not in ("maps", "outlier study"),
-                ))
+            _add_default_model(schemes, args)
+            results = [*run([main_run]), *results[:len(side)]]
+        else:
+            tuning = None
+            _add_default_model(schemes, args)
+            results = run([main_run, *side], other_tasks=others)
+            (stamps, positions), *exposures = results[len(side) + 1:]
+            results = results[:len(side) + 1]
     result = compare.combine_results(results)
     curves = requirement_curves(result.theta)
     result.requirements = dict(zip(curves.levels, curves.d1_limit))
@@ -240,19 +280,30 @@ def run_compare(args) -> int:
     result.tuning = tuning
     result.config["quick"] = bool(args.quick)
     result.config["reference"] = args.reference
-    stamps, positions = compare.example_stars(base, result.config["seeds"][0], reference)
     for path in earlier:  # no figure of the earlier run stays next to the new report
         path.unlink(missing_ok=True)
-    paths = write_report(result, args.output, stamps=stamps, positions=positions)
+    paths = write_report(result, args.output, stamps=stamps, positions=positions,
+                         n_jobs=-1 if args.scheduler else n_jobs)  # figures drawn locally
     if "exposures" in studies:
-        paths = [*paths, *_run_exposures(args)]
+        paths = [*paths, *_run_exposures(args, n_jobs, *exposures)]
     print(_summary_text(result))
     print(f"\nWrote {len(paths)} files to {args.output}/ (report: {args.output}/report.md)")
     return 0
 
 
-def _run_exposures(args):
-    """The multi-exposure study: its table, figure and exposures.md, its section in report.md."""
+def _add_default_model(schemes, args):
+    """The library's own defaults (basis, outlier rejection, interpolator) next to the paper's
+    settings, after the tuned schemes, unless the user chose the schemes."""
+    from ..model import PSFModel
+    from ..study.compare import DEFAULT_MODEL
+
+    if not args.schemes:
+        schemes[DEFAULT_MODEL] = PSFModel()
+
+
+def _run_exposures(args, n_jobs, result=None):
+    """The multi-exposure study (unless its ``result`` is given): its table, figure and
+    exposures.md, its section in report.md."""
     from pathlib import Path
 
     from tqdm.auto import tqdm
@@ -263,10 +314,11 @@ def _run_exposures(args):
         write_exposure_report,
     )
 
-    with dask_backend(args.scheduler), tqdm(desc="exposures study", unit="sim") as bar:
-        result = run_exposure_study(random_state=args.seed, n_jobs=args.n_jobs,
-                                    progress=bar.update,
-                                    **(EXPOSURES_QUICK if args.quick else {}))
+    if result is None:
+        with dask_backend(args.scheduler), tqdm(desc="exposures study", unit="sim") as bar:
+            result = run_exposure_study(random_state=args.seed, n_jobs=n_jobs,
+                                        progress=bar.update,
+                                        **(EXPOSURES_QUICK if args.quick else {}))
     md = write_exposure_report(result, args.output)
     with open(Path(args.output) / "report.md", "a", encoding="utf-8") as fh:
         fh.write("\n" + exposure_report_section(result))

@@ -193,6 +193,15 @@ def _primitive_x2_j0(x):
     return x * x * special.j1(x) + x * special.j0(x) - int_j0
 
 
+@functools.lru_cache(maxsize=8)  # the same multipoles and separations for every xi of a study
+def _primitives(ell, t):
+    """Both antiderivatives at ``x = ell * t`` (tuples), shape (n_ell, n_nodes) each."""
+    x = np.reshape(ell, (-1, 1)) * np.asarray(t)
+    p1, p2 = _primitive_x_j0(x), _primitive_x2_j0(x)
+    p1.flags.writeable = p2.flags.writeable = False  # shared by the cache
+    return p1, p2
+
+
 def _check_theta_xi(theta_arcmin, xi):
     theta = np.asarray(theta_arcmin, dtype=np.float64)
     xi = np.asarray(xi, dtype=np.float64)
@@ -279,9 +288,7 @@ def hankel_xi_to_cl(theta_arcmin, xi, ell, *, extrapolation: str = "smooth"):
     slope = np.diff(values) / np.diff(t)
     intercept = values[:-1] - slope * t[:-1]
     flat_ell = ell.reshape(-1, 1)
-    x = flat_ell * t  # (n_ell, n_nodes)
-    p1 = _primitive_x_j0(x)
-    p2 = _primitive_x2_j0(x)
+    p1, p2 = _primitives(tuple(flat_ell[:, 0]), tuple(t))
     integral = (intercept * np.diff(p1, axis=1) / flat_ell**2
                 + slope * np.diff(p2, axis=1) / flat_ell**3).sum(axis=1)
     if hold_below:  # xi = xi(theta_min) on [0, theta_min]

@@ -8,6 +8,7 @@ Berge et al. 2012, section 3; slope 11/4 for Kolmogorov-like atmospheric turbule
 from __future__ import annotations
 
 import numbers
+from functools import lru_cache
 
 import numpy as np
 from scipy import ndimage
@@ -296,7 +297,7 @@ class RandomFieldSampler:
         ca = self._node_coords(positions_a)
         cb = ca if positions_b is None else self._node_coords(positions_b)
         if self._cov is None:
-            self._cov = _interpolated_covariance(self.grids.shape[1:], self.slope)
+            self._cov = _interpolated_covariance(tuple(self.grids.shape[1:]), float(self.slope))
         table, q, mean_cov, var_mean = self._cov
         gy, gx = self.grids.shape[1:]
         ma = ndimage.map_coordinates(mean_cov, ca, order=3, mode="nearest", prefilter=False)
@@ -325,6 +326,7 @@ def _beta7(t):
     return np.nan_to_num(BSpline.basis_element(np.arange(9) - 4.0, extrapolate=False)(t))
 
 
+@lru_cache(maxsize=4)  # the same for every field of a grid shape: computed once per process
 def _interpolated_covariance(grid_shape, slope, q=4):
     """Lag table of the interpolated field's covariance, grid-mean terms (see covariance)."""
     gy, gx = grid_shape
@@ -344,5 +346,6 @@ def _interpolated_covariance(grid_shape, slope, q=4):
     ones = np.zeros((py, px))
     ones[:gy, :gx] = 1.0 / (gy * gx)
     mean_nodes = np.fft.ifft2(np.fft.fft2(cov_grid) * np.fft.fft2(ones)).real[:gy, :gx]
-    return table, q, ndimage.spline_filter(mean_nodes, order=3, mode="nearest"), float(
-        mean_nodes.mean())
+    mean_cov = ndimage.spline_filter(mean_nodes, order=3, mode="nearest")
+    table.flags.writeable = mean_cov.flags.writeable = False  # shared by the cache
+    return table, q, mean_cov, float(mean_nodes.mean())

@@ -15,7 +15,7 @@ so that configurations are compared on the same PSF fields, and serial, ``n_jobs
 runs give the same tables.
 
 Stages: the schemes and the paper's PSF model (``_schemes``), the simulated configurations
-(``_configs``), one simulation evaluated (``_evaluate``), the run over simulations (``_run``),
+(``_configs``), one simulation evaluated (``_evaluate``), the run over simulations, of one study or several sharing a pool of workers (``_run``),
 hyperparameters by cross-validation (``_tuning``) and the optimal predictor on the same field
 (``_oracle``).
 """
@@ -30,7 +30,7 @@ from ._configs import (
     snr_study_configs,
 )
 from ._oracle import FieldOracle, oracle_e_rms_ratio
-from ._run import StudyResult, combine_results, run_study
+from ._run import StudyResult, combine_results, run_studies, run_study
 from ._schemes import (
     ARCMIN,
     default_schemes,
@@ -48,6 +48,7 @@ __all__ = [
     "make_psf_model",
     "oracle_e_rms_ratio",
     "paper_split",
+    "run_studies",
     "run_study",
     "snr_study_configs",
     "density_study_configs",

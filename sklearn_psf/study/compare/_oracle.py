@@ -265,6 +265,7 @@ class FieldOracle:
         self.mean_ = self._gls @ np.einsum("anb,an->b", ones, sol[:, :, 0])
         self._alpha = sol[:, :, 0] - sol[:, :, 1:] @ self.mean_  # Sigma^-1 (y - F mean)
         self.n_iter_ = self._system.iterations
+        self._last = None
         return self
 
     def predict_coefficients(self, X, return_std=False):
@@ -284,6 +285,9 @@ class FieldOracle:
             Only with ``return_std``.
         """
         X = np.asarray(X, dtype=np.float64)
+        last = getattr(self, "_last", None)
+        if not return_std and last is not None and np.array_equal(last[0], X):
+            return last[1].copy()  # the study asks for coefficients, then stamps, at the same X
         used = self.X_fit_[self.inlier_mask_]
         k, n = self._alpha.shape
         pred = np.empty((len(X), k))
@@ -303,6 +307,7 @@ class FieldOracle:
             extra = np.einsum("bag,bc,cag->ag", r, self._gls, r)
             own = np.stack([np.diag(m) for m in self._cross(X[sl], X[sl])])  # (k, b)
             var[sl] = (own - kk + extra).T
+        self._last = (X.copy(), pred.copy())
         if not return_std:
             return pred
         return pred, np.sqrt(np.maximum(var, 0.0))

@@ -203,6 +203,10 @@ def run_study(
     -------
     StudyResult
 
+    See Also
+    --------
+    run_studies : several studies in one pool of workers.
+
     Examples
     --------
     >>> from sklearn_psf.study.compare import SimulationConfig, default_schemes, run_study
@@ -212,8 +216,14 @@ def run_study(
     >>> sorted(set(result.scores["scheme"].tolist()))
     ['kriging', 'polynomial']
     """
-    from ...datasets import load_default_reference
+    study = {"configs": configs, "schemes": schemes, "n_simulations": n_simulations,
+             "oracle": oracle}
+    return run_studies([study], random_state=random_state, reference=reference, n_jobs=n_jobs,
+                       theta_bins=theta_bins, progress=progress)[0]
 
+
+def _checked_study(configs=None, schemes=None, n_simulations=50, oracle=False):
+    """A study's settings with their defaults, validated."""
     if configs is None:
         configs = [SimulationConfig()]
     elif isinstance(configs, SimulationConfig):
@@ -227,27 +237,109 @@ def run_study(
         raise ValueError("schemes is empty: give at least one interpolation scheme.")
     if not isinstance(n_simulations, Integral) or n_simulations < 1:
         raise ValueError(f"n_simulations must be a positive integer, got {n_simulations!r}.")
+    return configs, schemes, n_simulations, bool(oracle)
+
+
+def _cost(config, schemes, oracle):
+    """A rough relative cost of one simulation (fits grow faster than linearly with stars)."""
+    return (len(schemes) + 3 * oracle) * max(config.n_stars, 500) ** 1.2
+
+
+def run_studies(
+    studies,
+    random_state: int = 0,
+    reference=None,
+    n_jobs: int | None = None,
+    theta_bins=(0.5, 20.0, 10),
+    progress=None,
+    other_tasks=(),
+) -> list:
+    """Several studies (as :func:`run_study`) whose simulations share one pool of workers.
+
+    Every simulation of every study is one task; the tasks are dispatched together, the
+    costliest first (most schemes and stars), so that no worker waits for the end of one study
+    before starting the next. The tables are the same as those of one :func:`run_study` per
+    study, in any order and with any ``n_jobs``.
+
+    Parameters
+    ----------
+    studies : list of dict
+        Each with the keys ``configs``, ``schemes``, ``n_simulations`` and ``oracle`` of
+        :func:`run_study` (missing keys take its defaults).
+    random_state, reference, n_jobs, theta_bins, progress
+        As for :func:`run_study`, shared by every study (``progress`` is called once per
+        simulation of any study, and once per other task).
+    other_tasks : sequence of joblib ``delayed`` calls, optional
+        Independent tasks run in the same pool, before the simulations (e.g. a small side
+        study as one task, while the workers have simulations to share).
+
+    Returns
+    -------
+    list
+        One StudyResult per study, in the order given, then the result of each other task.
+
+    Examples
+    --------
+    >>> from sklearn_psf.study.compare import SimulationConfig, default_schemes, run_studies
+    >>> config = SimulationConfig(n_stars=150, n_galaxies=200, image_shape=(1500, 2000))
+    >>> schemes = {k: v for k, v in default_schemes().items() if k in ("kriging", "polynomial")}
+    >>> from dataclasses import replace
+    >>> studies = [{"configs": config, "schemes": schemes, "n_simulations": 1},
+    ...            {"configs": replace(config, label="snr=700", snr=700.0),
+    ...             "schemes": {"kriging": schemes["kriging"]}, "n_simulations": 1}]
+    >>> first, second = run_studies(studies, theta_bins=(0.3, 5.0, 4))
+    >>> len(first.scores), second.scores["config"].tolist()
+    (2, ['snr=700'])
+    """
+    from ...datasets import load_default_reference
+
+    studies = [_checked_study(**study) for study in studies]
+    if not studies:
+        raise ValueError("studies is empty: give at least one study.")
     min_sep, max_sep, nbins = theta_bins
     if not 0 < min_sep < max_sep:
         raise ValueError(f"theta_bins must have 0 < min_sep < max_sep, got {theta_bins}.")
     reference = load_default_reference() if reference is None else reference
 
-    children = np.random.SeedSequence(random_state).spawn(n_simulations)
-    seeds = [int(c.generate_state(1, dtype=np.uint32)[0]) for c in children]
-    tasks = [(c, i, seeds[i]) for c in configs for i in range(n_simulations)]
-    # few tasks of seconds each: dispatch them all at once, one per batch (joblib's default
-    # keeps 2 * n_jobs in flight, which leaves Dask workers waiting on callbacks)
+    tasks, all_seeds = [], []
+    for k, (configs, schemes, n_simulations, oracle) in enumerate(studies):
+        children = np.random.SeedSequence(random_state).spawn(n_simulations)
+        seeds = [int(c.generate_state(1, dtype=np.uint32)[0]) for c in children]
+        all_seeds.append(seeds)
+        tasks += [(k, c, i, seeds[i], schemes, oracle) for c in configs
+                  for i in range(n_simulations)]
+    tasks.sort(key=lambda t: -_cost(t[1], t[4], t[5]))  # stable: ties keep their order
+    # tasks of seconds each: dispatch them all at once, one per batch (joblib's default keeps
+    # 2 * n_jobs in flight, which leaves Dask workers waiting on callbacks)
+    other_tasks = list(other_tasks)
     jobs = Parallel(n_jobs=n_jobs, return_as="generator_unordered", pre_dispatch="all",
                     batch_size=1)(
-        delayed(_run_one)(c, i, s, schemes, reference, theta_bins, oracle)
-        for c, i, s in tasks
+        [delayed(_tagged)(-1 - j, func, args, kwargs)
+         for j, (func, args, kwargs) in enumerate(other_tasks)]
+        + [delayed(_tagged)(k, _run_one, (c, i, s, schemes, reference, theta_bins, oracle), {})
+           for k, c, i, s, schemes, oracle in tasks]
     )
-    outputs = []
-    for out in jobs:
-        outputs.append(out)
+    outputs = [[] for _ in studies]
+    others = [None] * len(other_tasks)
+    for k, out in jobs:
+        if k < 0:
+            others[-1 - k] = out
+        else:
+            outputs[k].append(out)
         if progress is not None:
             progress()
+    return [_assemble(out, *study, seeds, random_state, theta_bins)
+            for out, study, seeds in zip(outputs, studies, all_seeds)] + others
 
+
+def _tagged(k, func, args, kwargs):
+    """``func(*args, **kwargs)`` with the index of its study (negative: another task)."""
+    return k, func(*args, **kwargs)
+
+
+def _assemble(outputs, configs, schemes, n_simulations, oracle, seeds, random_state, theta_bins):
+    """One study's result tables from its simulations' rows, in a fixed order."""
+    labels = [c.label for c in configs]
     score_rows = [r for out in outputs for r in out[0]]
     corr_rows = [r for out in outputs for r in out[1]]
     order = {label: k for k, label in enumerate(labels)}
