@@ -197,7 +197,7 @@ def main(argv=None):
         from _baseline import check_version
 
         print(f"previous code: {check_version(args.baseline)}")
-    print(f"\nPSFModel().fit, S/N 100, 25x25 stamps, one BLAS thread (fresh process per size)")
+    print("\nPSFModel().fit, S/N 100, 25x25 stamps, one BLAS thread (fresh process per size)")
     results = {}
     for n in sizes:
         new = run(["fit", n, 1])

@@ -55,7 +55,7 @@ def add_validate_parser(sub):
     p.add_argument("--min-snr", type=float, default=20.0,
                    help="smallest S/N of a selected star, with --select [20]")
     p.add_argument("--stamp-size", type=_stamp_size,
-                   help="stamp side, odd [25; a catalogue's VIGNET side]")
+                   help="stamp side, odd or even [25; a catalogue's VIGNET side]")
     p.add_argument("--saturation", type=float,
                    help="saturation level [header SATURATE keyword, else none]")
     p.add_argument("--model-origin", type=int, choices=(0, 1), default=1,

@@ -442,16 +442,16 @@ def _open_checked(path):
         ) from None
 
 
-def _check_format(header, path, newest=MODEL_FORMAT_VERSION):
+def _check_format(header, path):
     version = header.get("FORMAT")
     if not isinstance(version, (int, np.integer)) or isinstance(version, bool):
         raise ValueError(f"{path!r} has no integer FORMAT keyword: not a valid model file.")
     version = int(version)
-    if version > newest:
+    if version > MODEL_FORMAT_VERSION:
         raise ValueError(
             f"{path!r} is a model file of format version {version}, written by sklearn_psf "
             f"{header.get('SKPSFVER', '?')}; this sklearn_psf reads format versions up to "
-            f"{newest}: upgrade sklearn_psf to read it."
+            f"{MODEL_FORMAT_VERSION}: upgrade sklearn_psf to read it."
         )
     if version not in _READERS:
         raise ValueError(
@@ -626,7 +626,7 @@ def read_exposure_model(path, model_class, psf_class):
     """
     path = os.fspath(path)
     header, content = _open_checked(path)
-    version = _check_format(header, path, newest=MODEL_FORMAT_VERSION)
+    version = _check_format(header, path)
     kind = header.get("MULTIEXP")
     wanted = "per-exposure" if "PerExposure" in model_class.__name__ else "pooled"
     if kind != wanted:
