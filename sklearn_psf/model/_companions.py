@@ -3,13 +3,18 @@
 A faint companion (a few per cent of the star's flux, 1-3 pixels away) is absorbed by the
 star's own fit on the basis: the fit widens the star and elongates it along the separation,
 so its pixel residual shows little (the basis holds 40-80% of such a companion's second
-moments; the chi^2 test of the pixels catches a few per cent of them). What gives it away is that the star's coefficients then depart from
-their interpolation from the other stars in the direction a companion moves them: a larger
-size and an ellipticity along the separation. :func:`companion_log_p` is the matched-filter
-(likelihood-ratio) test of that departure for a companion of positive flux at each offset of
-a grid, in units of the departure's noise (the star's coefficient noise) and the model's
-error (the interpolation's), so that it catches the companions that move the PSF more than
-the data can tell apart from noise, and only those.
+moments; the chi^2 test of the pixels catches a few per cent of them). What gives it away is
+that the star's coefficients then depart from their interpolation from the other stars in the
+direction a companion moves them (a larger size, an ellipticity along the separation), and
+that the rest of the companion, which the basis cannot hold, stays in the star's pixel
+residual with the shape a companion leaves there. :func:`companion_log_p` is the
+matched-filter (likelihood-ratio) test of both for a companion of positive flux at each
+offset of a grid, in units of their noise: the coefficients' departure in units of the
+star's coefficient noise and the model's error (the interpolation's, 1.5-4 times the noise
+variance on the package's default field at S/N 100), the pixel residual in units of the
+pixel noise and the basis's own error. On the default field (1000 stars, 10% of them with a
+companion of 2-8% of their flux at 1-3 pixels, S/N 100, ten seeds) the test with the pixels
+catches 42-57% of the companions, the coefficients alone 28-43%.
 """
 
 from __future__ import annotations

@@ -52,8 +52,9 @@ class PSFModel(RegressorMixin, BaseEstimator):
        own fit on the basis, or its coefficients from their interpolation from the other
        stars (5-fold cross-prediction), by more than its noise and the model's own error
        allow (:class:`~sklearn_psf.preprocessing.ChiSquareOutlierDetector`), or when that
-       departure has the shape an unresolved companion gives a star (a larger size, an
-       ellipticity along the separation; see the user guide); the basis is then fitted
+       departure and the star's pixel residual have the shape an unresolved companion gives
+       them (a larger size, an ellipticity along the separation; see the user guide); the
+       basis is then fitted
        again without the rejected stars;
     3. fits ``interpolator`` on (positions, coefficients) of the kept stars, passing each
        star's coefficient noise when the interpolator takes it: the full covariance across
