@@ -231,7 +231,8 @@ def _galsim_binaries(n, seed, fraction=0.1, side=25, sky=10.0):
         if binary[i]:
             q, sep, angle = rng.uniform(0.02, 0.08), rng.uniform(1.0, 3.0), rng.uniform(0, 6.3)
             shift = 0.2 * sep * np.array([np.cos(angle), np.sin(angle)])  # 0.2 arcsec / px
-            star = galsim.Add([star.withFlux(1 / (1 + q)), star.withFlux(q / (1 + q)).shift(*shift)])
+            star = galsim.Add([star.withFlux(1 / (1 + q)),
+                               star.withFlux(q / (1 + q)).shift(*shift)])
         image = star.drawImage(nx=side, ny=side, scale=0.2, offset=offset,
                                method="no_pixel").array
         flux = snr[i] * sky / image[image >= 0.5 * image.max()].mean()
