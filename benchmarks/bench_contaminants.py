@@ -116,9 +116,13 @@ def main(argv=None):
                   f"{d['kept']:11.4f} {c['kept']:14.4f} {d['caught']:7.3f} "
                   f"{d['seconds']:6.1f}{'' if ok else '  NOT met'}")
         bias = np.array([r["dirty"]["bias"] for r in rows])
+        share = bias - np.array([r["clean"]["bias"] for r in rows])
         ratio = np.array([r["dirty"]["e_rms"] / r["clean"]["e_rms"] for r in rows])
-        print(f"   median bias {np.median(bias):+.5f} (max |bias| {np.abs(bias).max():.5f}), "
-              f"median e_rms ratio {np.median(ratio):.4f} (max {ratio.max():.4f})")
+        print(f"   median bias {np.median(bias):+.5f} (max |bias| {np.abs(bias).max():.5f}; "
+              f"{np.sum(np.abs(bias) <= 1e-3)}/{len(bias)} fields <= 1e-3), the binaries' share "
+              f"(bias binaries - bias clean) median {np.median(share):+.5f} (max "
+              f"{share.max():+.5f}), median e_rms ratio {np.median(ratio):.4f} (max "
+              f"{ratio.max():.4f})")
     print("2. contaminants at natural strength (5% of each kind): fraction rejected by "
           "PSFModel()")
     for mix in ("100", "realistic"):

@@ -17,7 +17,7 @@ from ..preprocessing import (
     StampNormalizer,
 )
 from .._validation import rows_text
-from ._companions import COMPANION_P_VALUE, companion_log_p
+from ._companions import COMPANION_P_VALUE, companion_log_p, companion_weights
 from ._defaults import make_default_basis, make_default_interpolator
 from ._file import read_model, save_model
 from ._galsim import to_galsim
@@ -52,8 +52,9 @@ class PSFModel(RegressorMixin, BaseEstimator):
        own fit on the basis, or its coefficients from their interpolation from the other
        stars (5-fold cross-prediction), by more than its noise and the model's own error
        allow (:class:`~sklearn_psf.preprocessing.ChiSquareOutlierDetector`), or when that
-       departure has the shape an unresolved companion gives a star (a larger size, an
-       ellipticity along the separation; see the user guide); the basis is then fitted
+       departure and the star's pixel residual have the shape an unresolved companion gives
+       them (a larger size, an ellipticity along the separation; see the user guide); the
+       basis is then fitted
        again without the rejected stars;
     3. fits ``interpolator`` on (positions, coefficients) of the kept stars, passing each
        star's coefficient noise when the interpolator takes it: the full covariance across
@@ -405,18 +406,21 @@ class PSFModel(RegressorMixin, BaseEstimator):
         detector.fit(z_coef)
         ok = detector.predict(z_coef) == 1
         score[idx] = detector.score_samples(z_coef)
-        if basis is not None:  # an unresolved companion: see model/_companions.py
-            log_p = companion_log_p(basis, coef[idx], coef[idx] - predicted,
-                                    None if var is None else var[idx], floors, ref)
-            ok &= log_p >= np.log10(COMPANION_P_VALUE)
-            score[idx] = np.minimum(score[idx], log_p)
+        pixels = None
         if stamp_fit is not None:
-            z_pix, _ = pixel_residuals(np.where(np.isnan(y[idx]), 0.0, y[idx]),
-                                       stamp_fit.model[idx], stamp_fit.weights[idx],
-                                       reference=ref)
+            data, model = np.where(np.isnan(y[idx]), 0.0, y[idx]), stamp_fit.model[idx]
+            z_pix, eps2 = pixel_residuals(data, model, stamp_fit.weights[idx], reference=ref)
             pix = clone(detector).fit(z_pix)
             ok &= pix.predict(z_pix) == 1
             score[idx] = np.minimum(score[idx], pix.score_samples(z_pix))
+            pixels = (np.where(np.isfinite(z_pix), data - model, 0.0),  # z_pix: NaN if masked
+                      companion_weights(stamp_fit.weights[idx], model, eps2),
+                      stamp_fit.flux[idx], stamp_fit.offsets[idx])
+        if basis is not None:  # an unresolved companion: see model/_companions.py
+            log_p = companion_log_p(basis, coef[idx], coef[idx] - predicted,
+                                    None if var is None else var[idx], floors, ref, pixels)
+            ok &= log_p >= np.log10(COMPANION_P_VALUE)
+            score[idx] = np.minimum(score[idx], log_p)
         inliers[idx] = ok
         return inliers, score, full, caught
 
