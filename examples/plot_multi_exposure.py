@@ -121,7 +121,7 @@ star_stamps, _ = field.star_stamps()
 on_ccd = (xy[:, 0] < 580) | (xy[:, 0] >= 620)
 ccd = (xy[:, 0] >= 620).astype(int)
 local = np.column_stack([xy[:, 0] - origins[ccd, 0], xy[:, 1], ccd])[on_ccd]
-steps = [step for _, step in make_default_interpolator().steps]  # MinMaxScaler, Kriging
+steps = [step for _, step in make_default_interpolator().steps]  # IsotropicScaler, Kriging
 interp = make_pipeline(FocalPlaneMapper(origins), *steps)
 mosaic = PSFModel(interpolator=interp).fit(local, star_stamps[on_ccd])
 print(f"one model over 2 CCDs: {int(mosaic.inlier_mask_.sum())} stars kept of {len(local)}")

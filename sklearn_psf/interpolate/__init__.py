@@ -21,6 +21,7 @@ from ._variogram import (
 )
 from ._polynomial import ChebyshevRegressor, PolynomialRegressor
 from ._rbf import RBFRegressor
+from ._scaler import IsotropicScaler
 from ._shepard import ShepardRegressor
 
 __all__ = [
@@ -29,6 +30,7 @@ __all__ = [
     "DuplicateStarsWarning",
     "ExposureKrigingRegressor",
     "FewStarsWarning",
+    "IsotropicScaler",
     "KrigingRegressor",
     "PolynomialRegressor",
     "RBFRegressor",

@@ -74,7 +74,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
     ----------
     interpolator : regressor, optional
         A multi-output scikit-learn regressor from positions (n, d) to coefficients (n, k).
-        Default :func:`make_default_interpolator` (MinMaxScaler + Kriging with its range
+        Default :func:`make_default_interpolator` (IsotropicScaler + Kriging with its range
         and sills fitted by maximum likelihood).
     basis : transformer, optional
         Transformer from stamps to coefficients with ``inverse_transform``. Default
