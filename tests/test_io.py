@@ -13,6 +13,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 from scipy.spatial import cKDTree
 from sklearn.base import BaseEstimator, RegressorMixin
 from sklearn.neighbors import KNeighborsRegressor
+from sklearn.pipeline import make_pipeline
 
 from sklearn_psf.study.compare import SimulationConfig, default_schemes, make_psf_model, run_study
 from sklearn_psf.io import (
@@ -27,7 +28,8 @@ from sklearn_psf.io import (
 )
 from sklearn_psf.simulate import write_example_exposure
 from sklearn_psf.measure import adaptive_moments
-from sklearn_psf.model import PSFModel
+from sklearn_psf.interpolate import IsotropicScaler
+from sklearn_psf.model import PSFModel, make_default_interpolator
 from sklearn_psf.simulate import ReferenceBasis, make_psf_field
 from sklearn_psf.validation import fit_and_validate
 
@@ -93,15 +95,15 @@ def test_format_versions(tmp_path, star_data):
     model = PSFModel(interpolator=KNeighborsRegressor(4), outliers=None).fit(X, stamps)
     path = tmp_path / "m.fits"
     model.save(path)
-    assert fits.getheader(path)["FORMAT"] == MODEL_FORMAT_VERSION == 3
+    assert fits.getheader(path)["FORMAT"] == MODEL_FORMAT_VERSION == 4
     # the oldest known version (1) loads
     _restamp(path, tmp_path / "v1.fits", FORMAT=1)
     assert_allclose(load_model(tmp_path / "v1.fits").predict(X[:4]), model.predict(X[:4]),
                     rtol=1e-12, atol=1e-15)
     # a newer version: a clear message, not a wrong model
-    _restamp(path, tmp_path / "v4.fits", FORMAT=4)
-    with pytest.raises(ValueError, match="format version 4.*upgrade sklearn_psf"):
-        load_model(tmp_path / "v4.fits")
+    _restamp(path, tmp_path / "v5.fits", FORMAT=5)
+    with pytest.raises(ValueError, match="format version 5.*upgrade sklearn_psf"):
+        load_model(tmp_path / "v5.fits")
     # an older, unknown version
     _restamp(path, tmp_path / "v0.fits", FORMAT=0)
     with pytest.raises(ValueError, match="format version 0, which no sklearn_psf release"):
@@ -109,6 +111,28 @@ def test_format_versions(tmp_path, star_data):
     _restamp(path, tmp_path / "vs.fits", FORMAT="one")
     with pytest.raises(ValueError, match="no integer FORMAT"):
         load_model(tmp_path / "vs.fits")
+
+
+def test_files_before_format_4_keep_their_scaler(tmp_path, star_data):
+    """Formats 1-3 fitted the default Kriging on MinMaxScaler-scaled positions: such a file
+    still predicts as that model did, a format-4 file as the IsotropicScaler default."""
+    from sklearn.preprocessing import MinMaxScaler
+
+    X, stamps = star_data
+    X = X * [1.0, 0.6]  # a rectangular field, where the two scalers differ
+    path = tmp_path / "m.fits"
+    PSFModel(outliers=None).fit(X, stamps).save(path)
+    _restamp(path, tmp_path / "v3.fits", FORMAT=3)
+    old_default = make_pipeline(MinMaxScaler(), make_default_interpolator()[-1])
+    old = PSFModel(interpolator=old_default, outliers=None).fit(X, stamps)
+    grid = X[:6] + 3.0
+    assert_allclose(load_model(tmp_path / "v3.fits").predict(grid), old.predict(grid),
+                    rtol=1e-8, atol=1e-12)
+    new = load_model(path)
+    assert isinstance(new.interpolator_[0], IsotropicScaler)
+    assert_allclose(new.predict(grid), PSFModel(outliers=None).fit(X, stamps).predict(grid),
+                    rtol=1e-8, atol=1e-12)
+    assert np.abs(new.predict(grid) - old.predict(grid)).max() > 1e-6
 
 
 def test_wrong_or_damaged_model_files(tmp_path, star_data):

@@ -37,6 +37,10 @@ column) plus an ``EXPOSURES`` table; a per-exposure model has an ``EXPOSURES`` t
 (``exposure``, ``ncomp``) and the HDUs of each exposure's model with names prefixed by
 ``E<i>_`` (``E0_SPEC``, ``E0_STARS``, ...).
 
+Format 4 changes no HDU: the default interpolator (``interpolator`` null in ``SPEC``) scales
+positions with :class:`~sklearn_psf.interpolate.IsotropicScaler`; files of formats 1-3 were
+fitted with ``MinMaxScaler`` and are still refitted with it, so that they predict as when saved.
+
 Loading rebuilds the basis (``StampNormalizer`` steps + a fitted :class:`FixedBasis` of the
 stored mean and components, or the ``StampPCA``) and refits the interpolator (with the
 stored hyperparameters and coefficient noise) and the outlier detector on the stored stars:
@@ -47,6 +51,7 @@ the file does not depend on pickled internals of any library version.
 from __future__ import annotations
 
 import datetime
+import functools
 import importlib
 import json
 import os
@@ -57,7 +62,8 @@ from astropy.io import fits
 from astropy.table import Table
 from astropy.utils.exceptions import AstropyUserWarning
 from sklearn.base import BaseEstimator, clone
-from sklearn.pipeline import Pipeline
+from sklearn.pipeline import Pipeline, make_pipeline
+from sklearn.preprocessing import MinMaxScaler
 
 from .._files import one_line, write_fits_atomic
 from .._version import __version__
@@ -72,7 +78,7 @@ MODEL_FORMAT = "SKPSF-MODEL"
 #: Format version written by this version of the package (``FORMAT`` keyword), for PSF
 #: model files and multi-exposure model files alike (the PSF model reader refuses the latter,
 #: which carry ``MULTIEXP``).
-MODEL_FORMAT_VERSION = 3
+MODEL_FORMAT_VERSION = 4
 _ALLOWED_MODULES = ("sklearn", "sklearn_psf")
 
 
@@ -288,7 +294,7 @@ def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = F
     >>> path = os.path.join(tempfile.mkdtemp(), "psf.fits")
     >>> save_model(model, path)
     >>> fits.getheader(path)["FORMAT"], [h.name for h in fits.open(path)][1:3]
-    (3, ['SPEC', 'BASIS_MEAN'])
+    (4, ['SPEC', 'BASIS_MEAN'])
     """
     primary = fits.PrimaryHDU()
     h = primary.header
@@ -461,8 +467,16 @@ def _check_format(header, path):
     return version
 
 
-def _read(header, content, path, model_class):
-    """Formats 1 and 2 (format 1: linear basis, no noise, interpolator refitted as given)."""
+def _default_interpolator(version):
+    """The default interpolator that a file of format ``version`` was fitted with."""
+    if version >= 4:
+        return make_default_interpolator()
+    # formats 1-3: the same Kriging on positions scaled by MinMaxScaler
+    return make_pipeline(MinMaxScaler(), make_default_interpolator()[-1])
+
+
+def _read(header, content, path, model_class, version):
+    """Every format (format 1: linear basis, no noise, interpolator refitted as given)."""
     try:
         spec_table = content["SPEC"]
         spec = {str(k): json.loads(str(v)) for k, v in zip(spec_table["key"], spec_table["json"])}
@@ -492,7 +506,7 @@ def _read(header, content, path, model_class):
     detector = model._make_outliers()
     if detector is not None:
         detector.fit(coef[np.isfinite(coef).all(axis=1)])
-    interp = make_default_interpolator() if interpolator is None else clone(interpolator)
+    interp = _default_interpolator(version) if interpolator is None else clone(interpolator)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # warnings were already shown when the model was fitted
         fit_interpolator(interp, X[mask], coef[mask], None if var is None else var[mask],
@@ -519,7 +533,7 @@ def _read(header, content, path, model_class):
     return model
 
 
-_READERS = {1: _read, 2: _read, 3: _read}
+_READERS = {v: functools.partial(_read, version=v) for v in (1, 2, 3, 4)}
 
 
 def read_model(path, model_class):

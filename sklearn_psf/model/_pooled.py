@@ -80,7 +80,7 @@ class _ExposureModel(RegressorMixin, BaseEstimator):
                               multioutput="variance_weighted"))
 
     def save(self, path, *, overwrite: bool = False) -> None:
-        """Write the fitted model to a FITS model file (format 3, written atomically).
+        """Write the fitted model to a FITS model file (the current format, written atomically).
 
         The file holds the basis, the stars (positions, exposure, coefficients and their
         noise, inlier flags) and the parameters of every model; see
