@@ -123,10 +123,7 @@ def fit_worker(n_stars, seed):
 
 def accuracy_worker(n_stars, seed):
     """e_rms at the galaxies of PSFModel() and of the same model with exact Kriging."""
-    from sklearn.pipeline import make_pipeline
-    from sklearn.preprocessing import MinMaxScaler
-
-    from sklearn_psf.interpolate import KrigingRegressor
+    from sklearn_psf.model import make_default_interpolator
 
     f = field(n_stars, seed, n_galaxies=2000)
     X, stamps, weights = star_data(f)
@@ -134,8 +131,8 @@ def accuracy_worker(n_stars, seed):
     out = {}
     with threadpool_limits(1), warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        for name, interp in (("default", None), ("exact", make_pipeline(
-                MinMaxScaler(), KrigingRegressor(range="auto", n_neighbors=None)))):
+        exact = make_default_interpolator().set_params(krigingregressor__n_neighbors=None)
+        for name, interp in (("default", None), ("exact", exact)):
             model = PSFModel(interpolator=interp).fit(X, stamps, weights=weights)
             mom = adaptive_moments(model.predict(Xg))
             ok = np.asarray(mom["flag"]) == 0

@@ -77,8 +77,9 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         Variogram model, see :data:`variogram_models`. The exponential variogram of
         range ``a`` is the covariance ``Matern(length_scale=a, nu=0.5)``.
     range : float or "auto", default=0.5
-        Range ``a`` in the units of ``X`` (0.5 is the paper's value for positions in the
-        unit square: use ``make_pipeline(MinMaxScaler(), KrigingRegressor())``).
+        Range ``a`` in the units of ``X`` (0.5 is the paper's value for positions scaled to
+        the unit square, ``make_pipeline(MinMaxScaler(), KrigingRegressor())``; on a
+        rectangular field :class:`IsotropicScaler` keeps the distances' proportions).
         ``"auto"``: maximum likelihood (see Notes).
     nugget : float or "auto", default=0.0
         Nugget as a fraction of the sill, in [0, 1]. ``"auto"``: maximum likelihood.

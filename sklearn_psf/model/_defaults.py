@@ -115,10 +115,12 @@ def make_paper_interpolator():
                          KrigingRegressor(variogram="exponential", range=0.5, nugget=0.0))
 
 
-#: Interpolation schemes by name for real data (:func:`make_interpolator`), each behind a
-#: ``MinMaxScaler`` but Kriging, which is :func:`make_default_interpolator`; the polynomial with its
-#: degree chosen from the data (BIC, at most 8); Chebyshev polynomials of degree 5 (the paper's
-#: best); Delaunay; Shepard with p = 3; a thin-plate spline RBF, smoothed by each star's noise.
+#: Interpolation schemes by name for real data (:func:`make_interpolator`): Kriging is
+#: :func:`make_default_interpolator`; the polynomial with its degree chosen from the data (BIC,
+#: at most 8) and Chebyshev polynomials of degree 5 (the paper's best), behind a
+#: ``MinMaxScaler`` (their domain is the unit square); Delaunay, Shepard with p = 3 and a
+#: thin-plate spline RBF smoothed by each star's noise, which work on distances, behind an
+#: :class:`~sklearn_psf.interpolate.IsotropicScaler`.
 INTERPOLATORS = ("kriging", "polynomial", "chebyshev", "delaunay", "shepard", "rbf")
 
 
@@ -148,9 +150,9 @@ def make_interpolator(name: str = "kriging"):
         "kriging": make_default_interpolator,
         "polynomial": lambda: make_pipeline(MinMaxScaler(), PolynomialRegressor(degree="auto")),
         "chebyshev": lambda: make_pipeline(MinMaxScaler(), ChebyshevRegressor(degree=5)),
-        "delaunay": lambda: make_pipeline(MinMaxScaler(), DelaunayRegressor()),
-        "shepard": lambda: make_pipeline(MinMaxScaler(), ShepardRegressor(power=3.0)),
-        "rbf": lambda: make_pipeline(MinMaxScaler(), RBFRegressor(kernel="thin_plate_spline")),
+        "delaunay": lambda: make_pipeline(IsotropicScaler(), DelaunayRegressor()),
+        "shepard": lambda: make_pipeline(IsotropicScaler(), ShepardRegressor(power=3.0)),
+        "rbf": lambda: make_pipeline(IsotropicScaler(), RBFRegressor(kernel="thin_plate_spline")),
     }
     if name not in makers:
         raise ValueError(f"Unknown interpolator {name!r}: choose one of {list(INTERPOLATORS)}.")

@@ -352,7 +352,7 @@ class FocalPlaneMapper(TransformerMixin, BaseEstimator):
 
     Focal-plane position = ``ccd_origins[ccd] + R(ccd_angles[ccd]) @ (x, y)`` (pixels, angle
     in degrees counter-clockwise). Put it first in a PSF model's interpolator, e.g.
-    ``PSFModel(interpolator=make_pipeline(FocalPlaneMapper(origins), MinMaxScaler(),
+    ``PSFModel(interpolator=make_pipeline(FocalPlaneMapper(origins), IsotropicScaler(),
     KrigingRegressor(...)))`` fitted on X = (x, y, ccd).
 
     Parameters
