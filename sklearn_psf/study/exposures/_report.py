@@ -143,9 +143,9 @@ def cheapest_configuration(result, requirement: float = STAGE_IV) -> dict:
             "requirement": requirement}
 
 
-def _paired(scores, a, b):
+def _paired(scores, a, b, column="sigma_sys2"):
     """Per (n_stars, n_exposures): fraction of simulations where a < b, median ratio a / b,
-    and the 16-84% range of the ratio."""
+    and the 16-84% range of the ratio, of ``column``."""
     rows = []
     s = np.asarray(scores["scheme"]).astype(str)
     for m in np.unique(scores["n_stars"]):
@@ -156,7 +156,7 @@ def _paired(scores, a, b):
                 continue
             pa.sort("simulation")
             pb.sort("simulation")
-            ratio = np.asarray(pa["sigma_sys2"]) / np.asarray(pb["sigma_sys2"])
+            ratio = np.asarray(pa[column]) / np.asarray(pb[column])
             rows.append((int(m), int(n), float(np.mean(ratio < 1)), float(np.median(ratio)),
                          float(np.percentile(ratio, 16)), float(np.percentile(ratio, 84))))
     return rows
