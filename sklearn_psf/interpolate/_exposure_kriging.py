@@ -190,8 +190,11 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
     static_sill_, atmosphere_sill_ : ndarray of shape (n_targets,)
         Fitted sills of the two parts (of each target; with ``noise_cov``, the diagonals of
         ``static_coregionalization_`` and ``atmosphere_coregionalization_``).
-    static_coregionalization_, atmosphere_coregionalization_ : ndarray of shape (n_targets, n_targets)
-        Signal covariance across the targets of each part (diagonal without ``noise_cov``).
+    static_coregionalization_ : ndarray of shape (n_targets, n_targets)
+        Signal covariance across the targets of the static part (diagonal without
+        ``noise_cov``).
+    atmosphere_coregionalization_ : ndarray of shape (n_targets, n_targets)
+        The same for the atmospheric part.
     n_cg_iter_ : int
         Conjugate-gradient iterations of the co-Kriging solve (0 without ``noise_cov`` or
         in the inducing-point mode).
