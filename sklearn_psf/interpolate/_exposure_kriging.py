@@ -377,8 +377,8 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
             L = _factor(K)
             sol = cho_solve(L, rhs[:, [0, t + 1]], check_finite=False)
             self._set_target(t, sol[:, 0], sol[:, 1], Y[:, t], _inverse_diagonal(L[0]))
-            if noise_z is not None:
-                factors.append(np.tril(L[0]))
+            if noise_z is not None:  # (Fortran-ordered: solves without copies)
+                factors.append(L[0])
         self._dual_loo = self.dual_coef_
         if noise_z is None:
             return
