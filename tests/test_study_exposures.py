@@ -88,6 +88,17 @@ def test_report_and_figure(small_study, tmp_path):
     assert len(summary) == 2 * 3
     pooled = summary[summary["scheme"] == "pooled"]
     assert np.all(np.isfinite(pooled["oracle_ratio"])) and np.all(pooled["oracle_ratio"] > 0.9)
+    # the figure the oracle minimises in expectation: the mean squared averaged residual
+    assert "e^2 / oracle" in text
+    s = small_study.scores
+    last = s[s["n_exposures"] == 4]
+    for row in pooled:
+        sel = last[(last["variance_ratio"] == row["variance_ratio"])]
+        a, b = (sel[sel["scheme"] == k] for k in ("pooled", "oracle"))
+        a.sort("simulation")
+        b.sort("simulation")
+        expected = np.median((a["e_rms_averaged"] / b["e_rms_averaged"]) ** 2)
+        assert row["oracle_ratio_e2"] == pytest.approx(expected, rel=1e-12)
     fig = plot_sigma_sys_vs_exposures(small_study)
     assert len(fig.axes) == 2
     ax = fig.axes[0]

@@ -12,6 +12,13 @@ atmospheric term needs no dither. Ranges ``a_s``, ``a_a`` (shared by the targets
 sills ``p_t``, ``q_t`` are fitted by maximum likelihood with the mean ``mu_t`` profiled out
 (generalised least squares); ``R`` is a variogram's correlation (:mod:`._variogram`).
 
+With each star's noise covariance across the targets (``noise_cov``, co-Kriging) the targets
+are modelled in the frame ``z = y A`` where they are nearly independent (the coregionalisation
+frame of :mod:`._kriging_co`): each of ``z``'s targets has its own static and atmospheric
+sills (a linear model of coregionalisation with two kernels), fitted by maximum likelihood
+with the frame's marginal noise; the Kriging system is then solved exactly with the full
+noise covariances by conjugate gradients, preconditioned by the independent targets' systems.
+
 Exact solve up to ``max_exact_samples`` stars; beyond, the static part across exposures goes
 through a grid of inducing points while every exposure's block (its atmosphere, its noise and
 the static part between its own stars) stays exact (the partially independent training
@@ -23,14 +30,17 @@ Woodbury's identity: cost ``O(n m^2 + n n_e^2)`` for ``n`` stars, ``m`` inducing
 from __future__ import annotations
 
 import numbers
+import warnings
 
 import numpy as np
 from scipy.linalg import LinAlgError, blas, cho_factor, cho_solve, lapack, solve_triangular
 from scipy.spatial.distance import cdist
+from sklearn.exceptions import ConvergenceWarning
 from sklearn.utils import check_random_state
 
 from ._base import _check_n_samples, _NoiseAwareInterpolator, _query_chunks
 from ._exposure_kriging_ml import JITTER, fit_joint_hyperparameters
+from ._kriging_co import _CG_MAXITER, CoupledSystem, coregionalization_frame
 from ._variogram import _CORRELATIONS
 
 __all__ = ["ExposureKrigingRegressor"]
@@ -91,6 +101,31 @@ def _inverse_diagonal(L):
     return np.einsum("ij,ij->j", Linv, Linv)
 
 
+class _CoupledExposureSystem(CoupledSystem):
+    """``K V`` and the independent targets' bordered solve (constant mean) for co-Kriging
+    across exposures: ``K_t = p_t Rs + q_t Ra`` per frame target plus every star's full noise
+    covariance ``noise`` (n, T, T); ``factors`` the lower Cholesky factors of ``K_t`` plus the
+    diagonal of the noise (and jitter)."""
+
+    def __init__(self, Rs, Ra, p, q, noise, jitter, factors):
+        self.Rs, self.Ra, self.p, self.q = Rs, Ra, p, q
+        self.noise, self.jitter, self.L = noise, jitter, factors
+        self.F = np.ones((Rs.shape[0], 1))
+        self.k1 = [cho_solve((L, True), self.F[:, 0], check_finite=False) for L in factors]
+
+    def matvec(self, V):
+        return (self.Rs @ V) * self.p + (self.Ra @ V) * self.q + self.jitter * V \
+            + np.einsum("itu,iu->it", self.noise, V)
+
+    def project(self, R):
+        G, V = np.empty_like(R), np.empty((1, R.shape[1]))
+        for t, (L, k1) in enumerate(zip(self.L, self.k1)):
+            w = cho_solve((L, True), R[:, t], check_finite=False)
+            V[0, t] = w.sum() / k1.sum()
+            G[:, t] = w - k1 * V[0, t]
+        return G, V
+
+
 def _check_positive(value, name, auto=True):
     if auto and isinstance(value, str) and value == "auto":
         return
@@ -118,7 +153,11 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
     (per-exposure Kriging); with no atmospheric part, from all stars as one static field.
 
     Predictions are the best linear unbiased predictor of the noise-free value at
-    ``(position, exposure)``, for exposures seen in ``fit``.
+    ``(position, exposure)``, for exposures seen in ``fit``. Given each star's noise
+    covariance across the targets (``fit(X, y, noise_cov=...)``, as :class:`PSFModel` passes
+    the coefficients' noise) the targets are co-Kriged: modelled in the frame where they are
+    nearly independent, each with its own static and atmospheric sills, and solved with the
+    full noise covariances (see Notes).
 
     Parameters
     ----------
@@ -149,7 +188,16 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
     range_, atmosphere_range_ : float
         Fitted ranges (unit-square units).
     static_sill_, atmosphere_sill_ : ndarray of shape (n_targets,)
-        Fitted sills of the two parts.
+        Fitted sills of the two parts (of each target; with ``noise_cov``, the diagonals of
+        ``static_coregionalization_`` and ``atmosphere_coregionalization_``).
+    static_coregionalization_ : ndarray of shape (n_targets, n_targets)
+        Signal covariance across the targets of the static part (diagonal without
+        ``noise_cov``).
+    atmosphere_coregionalization_ : ndarray of shape (n_targets, n_targets)
+        The same for the atmospheric part.
+    n_cg_iter_ : int
+        Conjugate-gradient iterations of the co-Kriging solve (0 without ``noise_cov`` or
+        in the inducing-point mode).
     mean_ : ndarray of shape (n_targets,)
         Generalised-least-squares mean.
     exposures_ : ndarray of int
@@ -175,6 +223,14 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
 
     The closed-form leave-one-out of :meth:`loo_predict` is Dubrule's (1983) with the
     generalised-least-squares mean, in both modes.
+
+    Co-Kriging (``noise_cov``): with ``A`` solving the generalised eigenproblem of the
+    targets' sample covariance against the stars' mean noise covariance, the frame ``z = y A``
+    has nearly independent targets; each gets sills ``p_t``, ``q_t`` (the ranges are shared),
+    so that the targets' signal covariance is ``A^-T diag(p) A^-1 Rs + A^-T diag(q) A^-1 Ra``.
+    The exact mode solves the system with every star's full noise covariance (the frame's
+    off-diagonal noise included) by preconditioned conjugate gradients; the inducing-point
+    mode and the leave-one-out leave the frame's off-diagonal noise out.
 
     Examples
     --------
@@ -227,7 +283,9 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
         _check_int(self.n_inducing, "n_inducing", 4)
 
     # ------------------------------------------------------------------ fit
-    def _fit(self, X, Y, noise):
+    _joint_noise = True  # fit(noise_cov=...) is co-Kriging
+
+    def _fit(self, X, Y, noise, noise_cov=None):
         self._check_params()
         _check_n_samples(_NAME, X.shape[0], 3, "")
         pos, _ = split_exposure_column(X, self.exposure_column, f"{_NAME}: ")
@@ -237,13 +295,38 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
         U, exposure = self._split(X, reset=True)
         n, T = Y.shape
         self.exposures_ = np.unique(exposure)
-        self._fit_hyperparameters(U, exposure, Y, noise)
         self.noise_var_ = noise
+        self._frame, Z, noise_z = None, Y, None
+        if noise_cov is not None:  # co-Kriging in the frame of nearly independent targets
+            A, A_inv, noise_z = coregionalization_frame(Y, noise_cov)
+            self._frame, Z = (A, A_inv), Y @ A
+            noise = np.einsum("itt->it", noise_z).copy()
+            self.noise_var_ = np.einsum("itt->it", noise_cov).copy()
+        self._fit_hyperparameters(U, exposure, Z, noise)
         self.X_fit_ = X
-        self._U_fit, self._e_fit, self._y_fit = U, exposure, Y
+        self._U_fit, self._e_fit, self._z_fit = U, exposure, Z
         self.exact_ = n <= self.max_exact_samples
-        (self._fit_exact if self.exact_ else self._fit_inducing)(U, exposure, Y, noise)
+        self.n_cg_iter_ = 0
+        (self._fit_exact if self.exact_ else self._fit_inducing)(U, exposure, Z, noise, noise_z)
+        self._to_targets()
         return self
+
+    def _to_targets(self):
+        """Sills, mean and dual coefficients of the frame's targets -> the targets'."""
+        p, q = self._p, self._q
+        self._dual_static, self._dual_atm = self.dual_coef_ * p, self.dual_coef_ * q
+        if self._frame is None:
+            self.static_sill_, self.atmosphere_sill_ = p, q
+            self.static_coregionalization_, self.atmosphere_coregionalization_ = (
+                np.diag(p), np.diag(q))
+            return
+        A_inv = self._frame[1]
+        self.static_coregionalization_ = (A_inv.T * p) @ A_inv
+        self.atmosphere_coregionalization_ = (A_inv.T * q) @ A_inv
+        self.static_sill_ = np.diag(self.static_coregionalization_).copy()
+        self.atmosphere_sill_ = np.diag(self.atmosphere_coregionalization_).copy()
+        self._dual_static, self._dual_atm = self._dual_static @ A_inv, self._dual_atm @ A_inv
+        self.mean_ = self.mean_ @ A_inv
 
     def _ml_subset(self, exposure):
         n = len(exposure)
@@ -268,14 +351,16 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
             U[sub], exposure[sub], Y[sub], None if noise is None else noise[sub],
             self.variogram, range_=self.range, atmosphere_range=self.atmosphere_range)
         self.range_, self.atmosphere_range_ = fit["range"], fit["atmosphere_range"]
-        self.static_sill_, self.atmosphere_sill_ = fit["static_sill"], fit["atmosphere_sill"]
+        self._p, self._q = fit["static_sill"], fit["atmosphere_sill"]  # of the frame's targets
         self.log_likelihood_ = fit["log_likelihood"]
+        if self._frame is not None:  # the likelihood of y = z A^-1: the frame's Jacobian
+            self.log_likelihood_ += len(sub) * np.linalg.slogdet(self._frame[0])[1]
 
     def _diagonal(self, noise, t, n):
-        p, q = self.static_sill_[t], self.atmosphere_sill_[t]
+        p, q = self._p[t], self._q[t]
         return (0.0 if noise is None else noise[:, t]) + JITTER * (p + q) * np.ones(n)
 
-    def _fit_exact(self, U, exposure, Y, noise):
+    def _fit_exact(self, U, exposure, Y, noise, noise_z=None):
         n, T = Y.shape
         D = cdist(U, U)
         Rs = _correlation(self.variogram, D, self.range_)
@@ -285,12 +370,28 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
         self.mean_, self.dual_coef_ = np.empty(T), np.empty((n, T))
         self._loo_pdiag = np.empty((n, T))
         rhs = np.column_stack([np.ones(n), Y])
+        factors = []
         for t in range(T):
-            K = self.static_sill_[t] * Rs + self.atmosphere_sill_[t] * Ra
+            K = self._p[t] * Rs + self._q[t] * Ra
             K[np.diag_indices(n)] += self._diagonal(noise, t, n)
             L = _factor(K)
             sol = cho_solve(L, rhs[:, [0, t + 1]], check_finite=False)
             self._set_target(t, sol[:, 0], sol[:, 1], Y[:, t], _inverse_diagonal(L[0]))
+            if noise_z is not None:  # (Fortran-ordered: solves without copies)
+                factors.append(L[0])
+        self._dual_loo = self.dual_coef_
+        if noise_z is None:
+            return
+        # co-Kriging: the full noise covariances, the independent targets as preconditioner
+        jitter = JITTER * (self._p + self._q)
+        system = _CoupledExposureSystem(Rs, Ra, self._p, self._q, noise_z, jitter, factors)
+        alpha, beta, self.n_cg_iter_ = system.solve_gls(Y)
+        if self.n_cg_iter_ >= _CG_MAXITER:
+            warnings.warn(f"{_NAME}: the co-Kriging system did not converge in {_CG_MAXITER} "
+                          "conjugate-gradient iterations (noise covariances far from one "
+                          "another's shape?); predictions may be inaccurate.",
+                          ConvergenceWarning, stacklevel=4)
+        self.dual_coef_, self.mean_ = alpha, beta[0].copy()
 
     def _set_target(self, t, k1, ky, y, diag_inv):
         """Mean, dual coefficients and leave-one-out diagonal of target t from ``K^-1 1``,
@@ -306,7 +407,7 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
         axes = [np.linspace(0.0, 1.0, g)] * d
         return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, d)
 
-    def _fit_inducing(self, U, exposure, Y, noise):
+    def _fit_inducing(self, U, exposure, Y, noise, noise_z=None):
         n, T = Y.shape
         Z = self._inducing_grid(U.shape[1])
         m = len(Z)
@@ -328,7 +429,7 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
         VT = np.asfortranarray(V.T)  # (n, m): rows of each block contiguous per column
         G = np.empty((n, m), order="F")  # L_e^-1 V_e^T, block by block
         for t in range(T):
-            p, q = self.static_sill_[t], self.atmosphere_sill_[t]
+            p, q = self._p[t], self._q[t]
             diag = self._diagonal(noise, t, n)
             rhs = np.column_stack([np.ones(n), Y[:, t]])
             r, lam_diag, factors = np.empty((n, 2)), np.empty(n), []
@@ -357,8 +458,7 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
             diag_inv = lam_diag - np.einsum("ij,ij->j", W, W, dtype=np.float64)
             self._set_target(t, sol[:, 0], sol[:, 1], Y[:, t], diag_inv)
         self._Z, self._Lu, self._V = Z, Lu, V
-        # the static part through the inducing points: Q(x, X) p alpha = V_x^T (V p alpha)
-        self._static_u = V @ (self.dual_coef_ * self.static_sill_)  # (m, T)
+        self._dual_loo = self.dual_coef_
 
     # ------------------------------------------------------------------ predict
     def _predict(self, X):
@@ -368,11 +468,13 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
             for sl in _query_chunks(len(U), len(self._U_fit)):
                 out[sl] = self._predict_exact(U[sl], exposure[sl])
             return out
+        # the static part through the inducing points: Q(x, X) p alpha = V_x^T (V p alpha)
+        static_u = self._V @ self._dual_static  # (m, T)
         for e in np.unique(exposure):
             rows = np.flatnonzero(exposure == e)
             stars = np.flatnonzero(self._e_fit == e)
             for sl in _query_chunks(len(rows), max(len(stars), len(self._Z))):
-                out[rows[sl]] = self._predict_inducing(U[rows[sl]], stars)
+                out[rows[sl]] = self._predict_inducing(U[rows[sl]], stars, static_u)
         return out
 
     def _predict_exact(self, U, exposure):
@@ -380,20 +482,18 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
         same = exposure[:, None] == self._e_fit[None, :]
         Ra = _correlation(self.variogram, D.copy(), self.atmosphere_range_) * same
         Rs = _correlation(self.variogram, D, self.range_)
-        return (self.mean_ + Ra @ (self.dual_coef_ * self.atmosphere_sill_)
-                + Rs @ (self.dual_coef_ * self.static_sill_))
+        return self.mean_ + Ra @ self._dual_atm + Rs @ self._dual_static
 
-    def _predict_inducing(self, U, stars):
+    def _predict_inducing(self, U, stars, static_u):
         """Queries of one exposure: exact towards its own stars, inducing points beyond."""
         D = cdist(U, self._U_fit[stars])
-        alpha = self.dual_coef_[stars]
         Vq = solve_triangular(self._Lu, _correlation(self.variogram, cdist(self._Z, U),
                                                      self.range_),
                               lower=True, check_finite=False)  # (m, q)
         Rs = _correlation(self.variogram, D.copy(), self.range_) - Vq.T @ self._V[:, stars]
         Ra = _correlation(self.variogram, D, self.atmosphere_range_)
-        return (self.mean_ + Vq.T @ self._static_u + Rs @ (alpha * self.static_sill_)
-                + Ra @ (alpha * self.atmosphere_sill_))
+        return (self.mean_ + Vq.T @ static_u + Rs @ self._dual_static[stars]
+                + Ra @ self._dual_atm[stars])
 
     def loo_predict(self, return_std=False):
         """Leave-one-out predictions at the stars, in closed form.
@@ -408,8 +508,17 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
         -------
         y_loo : ndarray of shape (n_stars,) or (n_stars, n_targets)
         y_std : ndarray, same shape (only with ``return_std=True``)
+
+        Notes
+        -----
+        With ``noise_cov`` (co-Kriging) it is that of the independent targets of the frame
+        the system is solved in (the frame's off-diagonal noise left out).
         """
-        pred = self._format_output(self._y_fit - self.dual_coef_ / self._loo_pdiag)
+        pred = self._z_fit - self._dual_loo / self._loo_pdiag
+        var = 1.0 / self._loo_pdiag
+        if self._frame is not None:
+            pred, var = pred @ self._frame[1], var @ self._frame[1] ** 2
+        pred = self._format_output(pred)
         if not return_std:
             return pred
-        return pred, self._format_output(np.sqrt(1.0 / self._loo_pdiag))
+        return pred, self._format_output(np.sqrt(var))

@@ -234,8 +234,10 @@ class PooledPSFModel(_ExposureModel):
     whose interpolator is an :class:`~sklearn_psf.interpolate.ExposureKrigingRegressor` on
     (position, exposure): the covariance of two stars' coefficients is a static part (chip
     or focal-plane frame, shared by every exposure) plus, for stars of the same exposure, an
-    atmospheric part, plus each star's coefficient noise. The variance and correlation
-    length of each part are fitted by maximum likelihood from the stars of all exposures, so
+    atmospheric part, plus each star's coefficient noise covariance across the components
+    (the components are co-Kriged, as in :class:`PSFModel`'s default). The variance and
+    correlation length of each part are fitted by maximum likelihood from the stars of all
+    exposures, so
     the model reduces to one model per exposure when the atmosphere dominates and to one
     static model when it does not. The outlier test's leave-one-out is the regressor's
     closed form. With one exposure the two parts cannot be told apart: the model is then
