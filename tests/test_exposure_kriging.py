@@ -36,7 +36,7 @@ def _draw(static, atmosphere, seed=0, n_exp=4, per=30, a_s=0.3, a_a=0.15, noise=
 
 def _dense_reference(reg, X, Y, noise, Xq):
     """Predictions and leave-one-out of the same model written out with dense inverses."""
-    lo, span = X[:, :2].min(0), X[:, :2].max(0) - X[:, :2].min(0)
+    lo, span = X[:, :2].min(0), (X[:, :2].max(0) - X[:, :2].min(0)).max()
     U, Uq = (X[:, :2] - lo) / span, (Xq[:, :2] - lo) / span
     e, eq = X[:, 2].astype(int), Xq[:, 2].astype(int)
     pred, loo = np.empty((len(Xq), Y.shape[1])), np.empty_like(Y)
@@ -56,12 +56,15 @@ def _dense_reference(reg, X, Y, noise, Xq):
     return pred, loo
 
 
-def test_exact_mode_is_the_dense_gaussian_process():
+@pytest.mark.parametrize("aspect", [1.0, 2.5])
+def test_exact_mode_is_the_dense_gaussian_process(aspect):
+    # aspect 2.5: a rectangular field, whose distances keep their proportions (one factor)
     X, Y, noise = _draw(0.6, 0.3, per=20)
+    X[:, 0] *= aspect
     reg = ExposureKrigingRegressor().fit(X, Y, noise_var=noise)
     assert reg.exact_
     rng = np.random.default_rng(1)
-    Xq = np.column_stack([rng.uniform(0, 1000, (25, 2)), rng.integers(0, 4, 25)])
+    Xq = np.column_stack([rng.uniform(0, 1000, (25, 2)) * [aspect, 1.0], rng.integers(0, 4, 25)])
     pred, loo = _dense_reference(reg, X, Y, noise, Xq)
     np.testing.assert_allclose(reg.predict(Xq), pred, rtol=0, atol=1e-9)
     np.testing.assert_allclose(reg.loo_predict(), loo, rtol=0, atol=1e-9)
@@ -85,7 +88,7 @@ def test_co_kriging_is_the_dense_multi_output_gaussian_process():
     # three targets with correlated signal and each star's full noise covariance: the model
     # written out as one (n T x n T) system with the fitted coregionalisation matrices
     rng, xy, e = _stars(3, 20, seed=5)
-    U = (xy - xy.min(0)) / (xy.max(0) - xy.min(0))
+    U = (xy - xy.min(0)) / (xy.max(0) - xy.min(0)).max()  # the regressor's isotropic scaling
     n, T = len(U), 3
     mix = np.array([[1.0, 0.5, 0.0], [0.0, 0.8, 0.3], [0.2, 0.0, 0.6]])
     G = np.stack([rng.multivariate_normal(np.zeros(n), _cov(U, e, U, e, 0.6, 0.4, 0.3, 0.15))
@@ -110,7 +113,7 @@ def test_co_kriging_is_the_dense_multi_output_gaussian_process():
     y = Y.T.ravel()
     mean = np.linalg.solve(F.T @ Ki @ F, F.T @ Ki @ y)
     Xq = np.column_stack([rng.uniform(0, 1000, (15, 2)), rng.integers(0, 3, 15)])
-    Uq = (Xq[:, :2] - xy.min(0)) / (xy.max(0) - xy.min(0))
+    Uq = (Xq[:, :2] - xy.min(0)) / (xy.max(0) - xy.min(0)).max()
     eq = Xq[:, 2].astype(int)
     Rsq = np.exp(-cdist(Uq, U) / reg.range_)
     Raq = np.exp(-cdist(Uq, U) / reg.atmosphere_range_) * (eq[:, None] == e[None, :])
@@ -127,7 +130,7 @@ def test_inducing_points_at_the_stars_are_exact(monkeypatch):
     # this checks the Woodbury algebra, the exposure blocks and the leave-one-out diagonal
     X, Y, noise = _draw(0.6, 0.3, per=20)
     exact = ExposureKrigingRegressor(range=0.3, atmosphere_range=0.15).fit(X, Y, noise_var=noise)
-    lo, span = X[:, :2].min(0), X[:, :2].max(0) - X[:, :2].min(0)
+    lo, span = X[:, :2].min(0), (X[:, :2].max(0) - X[:, :2].min(0)).max()
     U = (X[:, :2] - lo) / span
     monkeypatch.setattr(ExposureKrigingRegressor, "_inducing_grid", lambda self, d: U)
     blocks = ExposureKrigingRegressor(range=0.3, atmosphere_range=0.15, max_exact_samples=10)

@@ -279,6 +279,31 @@ def test_save_and_load_predict_identically(cls, exposures, tmp_path):
         load_model(path)
 
 
+def test_pooled_files_before_format_4_keep_their_scaling(exposures, tmp_path, monkeypatch):
+    # formats 1-3 scaled each axis to [0, 1]: on a rectangular field such a file still
+    # predicts as the model it was written from, not as today's isotropic scaling
+    from astropy.io import fits
+
+    from sklearn_psf.interpolate import ExposureKrigingRegressor
+
+    X, stamps = exposures.star_data()
+    X_gal, _ = exposures.galaxy_data()
+    X, X_gal = X * [2.5, 1.0, 1.0], X_gal * [2.5, 1.0, 1.0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        new = PooledPSFModel().fit(X, stamps)
+        monkeypatch.setattr(ExposureKrigingRegressor, "_per_axis_scaling", True)
+        old = PooledPSFModel().fit(X, stamps)
+    monkeypatch.undo()
+    old.save(tmp_path / "old.fits")
+    with fits.open(tmp_path / "old.fits") as hdul:
+        hdul[0].header["FORMAT"] = 3
+        hdul.writeto(tmp_path / "v3.fits")
+    np.testing.assert_allclose(PooledPSFModel.load(tmp_path / "v3.fits").predict(X_gal),
+                               old.predict(X_gal), rtol=0, atol=1e-10)
+    assert np.abs(old.predict(X_gal) - new.predict(X_gal)).max() > 1e-6
+
+
 def test_per_exposure_n_jobs_identical_to_serial(exposures):
     X, stamps = exposures.star_data()
     X_gal, _ = exposures.galaxy_data()

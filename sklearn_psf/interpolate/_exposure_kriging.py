@@ -146,8 +146,10 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
     ``X`` holds the positions and an integer exposure column. The covariance of targets
     ``t`` at stars ``i`` and ``j`` is ``static_sill_[t] R(h / range_) + [same exposure]
     atmosphere_sill_[t] R(h / atmosphere_range_)`` plus each star's measurement noise
-    (``noise_var``), with ``h`` the distance between the stars' positions scaled to the unit
-    square and ``R`` the variogram's correlation. The ranges and sills are fitted by maximum
+    (``noise_var``), with ``h`` the distance between the stars' positions scaled by the
+    field's longer side (one factor for both axes, as
+    :class:`~sklearn_psf.interpolate.IsotropicScaler`: the longer side spans [0, 1]) and ``R``
+    the variogram's correlation. The ranges and sills are fitted by maximum
     likelihood on the stars of all exposures, so the model learns how much of the pattern
     every exposure shares: with no static part it predicts each exposure from its own stars
     (per-exposure Kriging); with no atmospheric part, from all stars as one static field.
@@ -164,7 +166,7 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
     variogram : {"exponential", "spherical", "gaussian"}, default="exponential"
         Correlation of both parts.
     range : float or "auto", default="auto"
-        Range of the static part, in units of the unit square the positions are scaled to;
+        Range of the static part, in units of the field's longer side;
         "auto": maximum likelihood. The sills are always fitted by maximum likelihood.
     atmosphere_range : float or "auto", default="auto"
         Range of the atmospheric part.
@@ -179,7 +181,8 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
         Up to this many stars the Kriging system is solved exactly; beyond, the static part
         between exposures goes through ``n_inducing`` inducing points (see Notes).
     n_inducing : int, default=900
-        Inducing points on a square grid over the unit square (rounded to a square number).
+        Inducing points on a grid of the same number of points along each axis over the
+        stars' bounding box (rounded to a square number).
     random_state : int, RandomState instance or None, default=0
         Seed of the maximum-likelihood subset.
 
@@ -284,6 +287,7 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
 
     # ------------------------------------------------------------------ fit
     _joint_noise = True  # fit(noise_cov=...) is co-Kriging
+    _per_axis_scaling = False  # set by the reader of model files of formats 1-3
 
     def _fit(self, X, Y, noise, noise_cov=None):
         self._check_params()
@@ -291,7 +295,11 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
         pos, _ = split_exposure_column(X, self.exposure_column, f"{_NAME}: ")
         self._lo = pos.min(axis=0)
         span = pos.max(axis=0) - self._lo
-        self._span = np.where(span > 0, span, 1.0)
+        if self._per_axis_scaling:  # model files of formats 1-3: each axis to [0, 1]
+            self._span = np.where(span > 0, span, 1.0)
+        else:  # one factor, the longer side (as IsotropicScaler): the field's own distances
+            self._span = float(span.max()) if span.max() > 0 else 1.0
+        self._extent = np.where(span > 0, span / self._span, 1.0)
         U, exposure = self._split(X, reset=True)
         n, T = Y.shape
         self.exposures_ = np.unique(exposure)
@@ -404,7 +412,7 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
     # -- inducing points (PITC over exposure blocks)
     def _inducing_grid(self, d):
         g = max(2, int(round(self.n_inducing ** (1.0 / d))))
-        axes = [np.linspace(0.0, 1.0, g)] * d
+        axes = [np.linspace(0.0, extent, g) for extent in self._extent]
         return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, d)
 
     def _fit_inducing(self, U, exposure, Y, noise, noise_z=None):

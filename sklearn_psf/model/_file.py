@@ -39,7 +39,10 @@ column) plus an ``EXPOSURES`` table; a per-exposure model has an ``EXPOSURES`` t
 
 Format 4 changes no HDU: the default interpolator (``interpolator`` null in ``SPEC``) scales
 positions with :class:`~sklearn_psf.interpolate.IsotropicScaler`; files of formats 1-3 were
-fitted with ``MinMaxScaler`` and are still refitted with it, so that they predict as when saved.
+fitted with ``MinMaxScaler`` and are still refitted with it, so that they predict as when saved;
+likewise a pooled model's :class:`~sklearn_psf.interpolate.ExposureKrigingRegressor`, which
+now scales positions by the longer side too, refits a file of formats 1-3 with each axis
+scaled to [0, 1].
 
 Loading rebuilds the basis (``StampNormalizer`` steps + a fitted :class:`FixedBasis` of the
 stored mean and components, or the ``StampPCA``) and refits the interpolator (with the
@@ -66,6 +69,7 @@ from sklearn.pipeline import Pipeline, make_pipeline
 from sklearn.preprocessing import MinMaxScaler
 
 from .._files import one_line, write_fits_atomic
+from ..interpolate import ExposureKrigingRegressor
 from .._version import __version__
 from ._defaults import make_default_interpolator
 from ._noise import fit_interpolator
@@ -507,6 +511,8 @@ def _read(header, content, path, model_class, version):
     if detector is not None:
         detector.fit(coef[np.isfinite(coef).all(axis=1)])
     interp = _default_interpolator(version) if interpolator is None else clone(interpolator)
+    if version < 4 and isinstance(interp, ExposureKrigingRegressor):
+        interp._per_axis_scaling = True  # as fitted then: each axis scaled to [0, 1]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # warnings were already shown when the model was fitted
         fit_interpolator(interp, X[mask], coef[mask], None if var is None else var[mask],
