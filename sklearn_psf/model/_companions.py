@@ -212,11 +212,3 @@ def _log_p(g, score, info, ref):
     empirical = np.log((1.0 + beyond) / (1.0 + len(anti)))
     return np.maximum(log_p, empirical) / np.log(10.0)
 
-
-def companion_weights(weights, model, eps2):
-    """Inverse variance of each pixel with the model's relative error ``eps2`` (as
-    :func:`~sklearn_psf.model._noise.pixel_residuals` finds it): ``1 / (1 / w + eps2
-    model^2)``, 0 where ``w`` is 0."""
-    good = weights > 0
-    inv_w = 1.0 / np.where(good, weights, 1.0)
-    return np.where(good, 1.0 / (inv_w + eps2 * model**2), 0.0)

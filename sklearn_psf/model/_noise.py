@@ -212,5 +212,13 @@ def pixel_residuals(stamps, model, weights, reference=None):
 
     typical = float(np.median(dof[bright]))
     eps2 = _solve_floor(reduced, float(stats.chi2.ppf(_FLOOR_QUANTILE, typical)) / typical)
-    z = (stamps - model) / np.sqrt(inv_w + eps2 * m2)
+    z = (stamps - model) * np.sqrt(pixel_inverse_variance(weights, model, eps2))
     return np.where(good, z, np.nan), eps2
+
+
+def pixel_inverse_variance(weights, model, eps2):
+    """Inverse variance of each pixel with the relative model error ``eps2`` (as
+    :func:`pixel_residuals` finds it): ``1 / (1 / w + eps2 model^2)``, 0 where ``w`` is 0."""
+    good = weights > 0
+    inv_w = 1.0 / np.where(good, weights, 1.0)
+    return np.where(good, 1.0 / (inv_w + eps2 * model**2), 0.0)

@@ -17,7 +17,7 @@ from ..preprocessing import (
     StampNormalizer,
 )
 from .._validation import rows_text
-from ._companions import COMPANION_P_VALUE, companion_log_p, companion_weights
+from ._companions import COMPANION_P_VALUE, companion_log_p
 from ._defaults import make_default_basis, make_default_interpolator
 from ._file import read_model, save_model
 from ._galsim import to_galsim
@@ -25,6 +25,7 @@ from ._noise import (
     coefficient_residuals,
     fit_interpolator,
     leave_out_predict,
+    pixel_inverse_variance,
     pixel_residuals,
 )
 
@@ -414,7 +415,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
             ok &= pix.predict(z_pix) == 1
             score[idx] = np.minimum(score[idx], pix.score_samples(z_pix))
             pixels = (np.where(np.isfinite(z_pix), data - model, 0.0),  # z_pix: NaN if masked
-                      companion_weights(stamp_fit.weights[idx], model, eps2),
+                      pixel_inverse_variance(stamp_fit.weights[idx], model, eps2),
                       stamp_fit.flux[idx], stamp_fit.offsets[idx])
         if basis is not None:  # an unresolved companion: see model/_companions.py
             log_p = companion_log_p(basis, coef[idx], coef[idx] - predicted,
