@@ -528,6 +528,36 @@ def test_ccds_in_parallel_give_the_serial_models(tmp_path, ccds, capsys):
                     load_model(tmp_path / "psf_CCD2.fits").predict(X), rtol=1e-9, atol=1e-14)
 
 
+def _pid_after(seconds):
+    import time
+
+    time.sleep(seconds)
+    return os.getpid()
+
+
+def test_map_ordered_shares_the_items_with_a_worker_and_keeps_their_order():
+    """The fits of many CCDs: this process and a worker each take the next item when free,
+    the results come in the items' order, an item's exception is raised at its turn."""
+    import math
+
+    import cloudpickle
+
+    from sklearn_psf.cli._parallel import map_ordered
+
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the worker cannot import it
+    try:
+        pids = list(map_ordered(_pid_after, [0.25] * 12, n_jobs=2))
+    finally:
+        cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
+    assert os.getpid() in pids and len(set(pids)) == 2
+    assert list(map_ordered(math.sqrt, [4, 9, 16, 25, 36], n_jobs=2)) == [2, 3, 4, 5, 6]
+    results = map_ordered(math.sqrt, [4, -1, 9, 16], n_jobs=2)
+    assert next(results) == 2
+    with pytest.raises(ValueError, match="math domain error"):
+        next(results)
+    assert list(map_ordered(math.sqrt, [4, 9], n_jobs=1)) == [2, 3]
+
+
 def test_ccds_on_a_dask_cluster_give_the_serial_models(tmp_path, ccds, capsys, environ_kept):
     distributed = pytest.importorskip("distributed", reason="the dask extra is not installed")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,

@@ -359,7 +359,7 @@ def _fit_many(jobs, args):
     from joblib import Parallel, delayed
     from tqdm.auto import tqdm
 
-    from ._parallel import dask_backend
+    from ._parallel import dask_backend, map_ordered
 
     for job in jobs:  # the workers may run in another folder, or on another machine
         job.shown, job.image, job.stars, job.output = (
@@ -368,8 +368,9 @@ def _fit_many(jobs, args):
     failed, registry = [], {}
     with dask_backend(args.scheduler), tqdm(total=len(jobs), desc="fitting",
                                             unit="model") as bar:
-        outcomes = Parallel(n_jobs=args.n_jobs, return_as="generator")(
-            delayed(_fit_of_many)(job) for job in jobs)
+        outcomes = (map_ordered(_fit_of_many, jobs, args.n_jobs) if args.scheduler is None
+                    else Parallel(n_jobs=args.n_jobs, return_as="generator")(
+                        delayed(_fit_of_many)(job) for job in jobs))
         for job, outcome in zip(jobs, outcomes):
             with tqdm.external_write_mode():
                 print(f"{job.source} -> {job.shown}")
