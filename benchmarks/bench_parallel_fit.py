@@ -7,7 +7,7 @@ command ``sklearn-psf fit EXPOSURE --hdu all -o psf.fits`` as a user runs it (a 
 imports, figures included; ``--no-plots`` leaves the figures out) with
 
 - ``--n-jobs 1``,
-- ``--n-jobs 2`` (joblib's processes, started by the command),
+- ``--n-jobs 2`` (the command's own process and one worker process it starts),
 - ``--scheduler ADDRESS`` of a ``LocalCluster(n_workers=2, threads_per_worker=1)``: once with
   Dask's default worker environment (``MALLOC_TRIM_THRESHOLD_=65536``) and once started as
   the documentation says (that variable left unset). Each cluster is fresh for its first
