@@ -2,6 +2,6 @@
 
 import sys
 
-from .cli import command
+from .cli import _console_script
 
-sys.exit(command())
+sys.exit(_console_script())

@@ -54,7 +54,7 @@ def main(argv=None) -> int:
         return 130
 
 
-def command() -> int:
+def _console_script() -> int:
     """The ``sklearn-psf`` console script (and ``python -m sklearn_psf``): :func:`main`, then
     the objects it leaves are frozen (:func:`gc.freeze`), so that the interpreter's final
     garbage collections skip every imported module's objects: about 0.5 s of each command."""
@@ -66,4 +66,4 @@ def command() -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(command())
+    sys.exit(_console_script())
