@@ -1,5 +1,7 @@
 """The multi-exposure study: regimes, pooled vs per-exposure and the oracle, figure, verdict."""
 
+import re
+
 import matplotlib
 
 matplotlib.use("Agg")
@@ -90,6 +92,10 @@ def test_report_and_figure(small_study, tmp_path):
     assert np.all(np.isfinite(pooled["oracle_ratio"])) and np.all(pooled["oracle_ratio"] > 0.9)
     # the figure the oracle minimises in expectation: the mean squared averaged residual
     assert "e^2 / oracle" in text
+    # the oracle's own ratios read as its reference, no cell reads nan
+    assert re.search(r"\bnan\b", text, flags=re.IGNORECASE) is None
+    oracle_rows = [line for line in text.splitlines() if line.startswith("| oracle |")]
+    assert len(oracle_rows) == 2 and all(line.count("| reference ") == 3 for line in oracle_rows)
     s = small_study.scores
     last = s[s["n_exposures"] == 4]
     for row in pooled:

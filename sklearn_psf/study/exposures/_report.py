@@ -226,8 +226,9 @@ def regime_summary(result) -> Table:
 def _regime_title(v, d):
     if not np.isfinite(v):
         return ""
+    dithers = f"dithers up to {d:g} pixels" if d > 0 else "no dithers"
     return (f"### Atmospheric / static variance {v:g} (static {100 / (1 + v):.0f}% of the PSF "
-            f"variance), dithers up to {d:g} pixels")
+            f"variance), {dithers}")
 
 
 def exposure_report_section(result, figure: str | None = "sigma_sys_vs_exposures.png") -> str:
@@ -292,16 +293,25 @@ def exposure_report_section(result, figure: str | None = "sigma_sys_vs_exposures
                   "N | / oracle at largest N | largest / oracle, N >= 2 | e^2 / oracle at "
                   "largest N |",
                   "|---|---|---|---|---|---|---|---|"]
-        lines += [f"| {r['scheme']} | {r['n_stars']} | {r['slope']:.2f} | "
-                  f"{r['rho_exposures']:.3f} | {r['sigma_sys2_median']:.2e} (N = "
-                  f"{r['n_exposures']}) | {r['oracle_ratio']:.2f} | {r['oracle_ratio_max']:.2f} "
-                  f"| {r['oracle_ratio_e2']:.3f} |" for r in sub]
+        for r in sub:
+            # the oracle's own ratios are its reference, not a figure; n/a: not measured
+            missing = "reference" if r["scheme"] == ORACLE else "n/a"
+            ratios = [_cell(r[c], f, missing) for c, f in (
+                ("oracle_ratio", ".2f"), ("oracle_ratio_max", ".2f"), ("oracle_ratio_e2", ".3f"))]
+            lines.append(f"| {r['scheme']} | {r['n_stars']} | {_cell(r['slope'], '.2f')} | "
+                         f"{_cell(r['rho_exposures'], '.3f')} | {r['sigma_sys2_median']:.2e} "
+                         f"(N = {r['n_exposures']}) | {' | '.join(ratios)} |")
         lines += _paired_lines(scores)
         lines += ["", _verdict_text(cheapest_configuration(
             type(result)(scores, Table(), None)))]
         lines.append("")
     lines += _assumptions(result, cfg)
     return "\n".join(lines) + "\n"
+
+
+def _cell(value, spec, missing="n/a"):
+    """A table cell: ``value`` formatted, or ``missing`` where it is not finite."""
+    return format(value, spec) if np.isfinite(value) else missing
 
 
 def _paired_lines(scores):
