@@ -49,11 +49,10 @@ from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import MinMaxScaler
 
 from sklearn_psf import PSFModel, adaptive_moments
-from sklearn_psf.interpolate import KrigingRegressor
 from sklearn_psf.model import make_default_interpolator
 from sklearn_psf.model._noise import fit_interpolator
 from sklearn_psf.study.compare import FieldOracle
-from sklearn_psf.study.compare._oracle import _CoKriging
+from sklearn_psf.study.compare._oracle import _CoKriging, universal_co_kriging
 
 from bench_optimum import field, galaxies, star_data
 
@@ -68,14 +67,7 @@ def blup(f, X, coef, noise_cov, X_query, M=None):
     z = coef @ Minv.T  # weights plus an offset: the field's covariance
     noise_z = Minv @ noise_cov @ Minv.T
     d, K = f.weight_covariance_factors(X)
-    system = _CoKriging((d, K), noise_z)
-    n = len(X)
-    ones = np.zeros((k, n, k))
-    ones[np.arange(k), :, np.arange(k)] = 1.0
-    sol = system.solve(np.concatenate([z.T[:, :, None], ones], axis=2))
-    gls = np.linalg.inv(np.einsum("anb,anc->bc", ones, sol[:, :, 1:]))
-    mean = gls @ np.einsum("anb,an->b", ones, sol[:, :, 0])
-    alpha = sol[:, :, 0] - sol[:, :, 1:] @ mean
+    _, mean, alpha = universal_co_kriging(_CoKriging((d, K), noise_z), z)
     _, Kq = f.weight_covariance_factors(X_query, X)
     pred_z = mean + (Kq @ alpha.T) * d
     return pred_z @ M.T
@@ -89,7 +81,7 @@ def e_errors(stamps, f):
 
 def minmax_interpolator():
     """The previous default interpolator: each axis scaled to [0, 1]."""
-    return make_pipeline(MinMaxScaler(), KrigingRegressor(range="auto", n_neighbors="auto"))
+    return make_pipeline(MinMaxScaler(), make_default_interpolator()[-1])
 
 
 def decompose(seed, snr):

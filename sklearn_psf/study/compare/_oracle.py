@@ -44,6 +44,23 @@ _MAX_ITER = 500
 _CHUNK = 256  # galaxy-PSFs per block of right-hand sides for the prediction variance
 
 
+def universal_co_kriging(system, coefficients):
+    """Generalised least squares of the co-Kriging system ``system`` (a :class:`_CoKriging`)
+    with one unknown mean per component, for ``coefficients`` (n, k).
+
+    Returns ``(F' S^-1 F)^-1`` (k, k), the means (k,) and ``S^-1 (y - F mean)`` (k, n): a
+    query's prediction is ``mean + sum_n cov(query, star n) alpha[:, n]`` per component.
+    """
+    coef = np.asarray(coefficients, dtype=np.float64).T  # (k, n)
+    k, n = coef.shape
+    ones = np.zeros((k, n, k))
+    ones[np.arange(k), :, np.arange(k)] = 1.0  # F: one unknown mean per component
+    sol = system.solve(np.concatenate([coef[:, :, None], ones], axis=2))
+    gls = np.linalg.inv(np.einsum("anb,anc->bc", ones, sol[:, :, 1:]))  # (F' S^-1 F)^-1
+    mean = gls @ np.einsum("anb,an->b", ones, sol[:, :, 0])
+    return gls, mean, sol[:, :, 0] - sol[:, :, 1:] @ mean
+
+
 def _nearest_psd(matrix):
     """The matrix with its negative eigenvalues set to zero."""
     values, vectors = eigh(matrix)
@@ -256,14 +273,8 @@ class FieldOracle:
         self.noise_cov_ = noise[rows]
         self.inlier_mask_ = used
         self._system = _CoKriging(self._covariance(X[used]), self.noise_cov_[used])
-        coef = self.coefficients_[used].T  # (k, n)
-        k, n = coef.shape
-        ones = np.zeros((k, n, k))
-        ones[np.arange(k), :, np.arange(k)] = 1.0  # F: one unknown mean per component
-        sol = self._system.solve(np.concatenate([coef[:, :, None], ones], axis=2))
-        self._gls = np.linalg.inv(np.einsum("anb,anc->bc", ones, sol[:, :, 1:]))  # F'S^-1F
-        self.mean_ = self._gls @ np.einsum("anb,an->b", ones, sol[:, :, 0])
-        self._alpha = sol[:, :, 0] - sol[:, :, 1:] @ self.mean_  # Sigma^-1 (y - F mean)
+        self._gls, self.mean_, self._alpha = universal_co_kriging(self._system,
+                                                                  self.coefficients_[used])
         self.n_iter_ = self._system.iterations
         self._last = None
         return self
