@@ -594,6 +594,29 @@ def test_documented_dask_workers_leave_the_trim_threshold_unset():
     assert FAST_WORKERS.split(" dask worker")[0] in docs   # the same setting documented
 
 
+def test_documented_dask_preload_imports_the_fitting_code_before_the_first_task(
+        environ_kept):
+    """Workers started with the documented --preload have the modules a fit imports loaded
+    before any task (a fresh cluster's first fits do not wait for them)."""
+    distributed = pytest.importorskip("distributed", reason="the dask extra is not installed")
+    import shlex
+
+    from sklearn_psf.cli._parallel import FAST_WORKERS, PRELOAD
+
+    words = shlex.split(FAST_WORKERS)
+    assert words[words.index("--preload") + 1] == PRELOAD
+    assert f"--preload {PRELOAD}" in (Path(__file__).parents[1] / "docs" / "cli.rst").read_text()
+    fit_modules = ("sklearn", "sklearn_psf.io", "sklearn_psf.model", "sklearn_psf.validation")
+
+    def loaded():
+        return [m for m in fit_modules if m in sys.modules]
+
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                                  dashboard_address=None, preload=[PRELOAD]) as cluster, \
+            distributed.Client(cluster) as client:
+        assert list(client.run(loaded).values()) == [list(fit_modules)]
+
+
 def test_images_and_catalogues_paired_in_order(tmp_path, exposure, capsys):
     """Several images with one catalogue each: one model per image, named after it, each
     from its own catalogue."""
