@@ -23,8 +23,11 @@ joblib tasks in local processes and in the Dask workers of both environments, th
 CPU time measured inside each task (dispatch excluded), so that the per-task ratio Dask /
 local process is measured apart from the command's start-up.
 
-Prints the ratios of the best of ``--repeats`` runs of each command and the load average;
-exits 1 when a model differs.
+Prints the ratios of the best of ``--repeats`` runs of each command, the load average, and
+the machine's own ratio in the same run: two copies of a CPU-bound loop (no data, no I/O) side
+by side against one after the other, the most any two processes can gain on these cores at
+that time (on a virtual machine whose cores are shared with other work it can be well below
+2); exits 1 when a model differs.
 
 Usage::
 
@@ -93,6 +96,25 @@ def run_command(exposure, out, extra):
         raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stderr[-3000:]}")
     cpu = sum(getattr(after, k) - getattr(before, k) for k in ("ru_utime", "ru_stime"))
     return elapsed, cpu, proc.stderr
+
+
+#: The machine's control: a CPU-bound loop with no data and no I/O, timed inside its process.
+SPIN = ("import time; t = time.perf_counter(); x = 0\n"
+        "for i in range(40_000_000): x += i\n"
+        "print(time.perf_counter() - t)")
+
+
+def machine_ratio():
+    """How much faster two copies of one CPU-bound task run side by side than one after the
+    other here and now: ``2 t_one / max(t_a, t_b)`` (2 on two free cores; below it where the
+    cores are shared with other machines' work or slow each other down)."""
+    def spin(n):
+        procs = [subprocess.Popen([sys.executable, "-c", SPIN], stdout=subprocess.PIPE,
+                                  text=True, env=CLEAN_ENV) for _ in range(n)]
+        return [float(p.communicate()[0]) for p in procs]
+
+    one = spin(1)[0]
+    return 2 * one / max(spin(2))
 
 
 def same_files(a, b):
@@ -207,9 +229,11 @@ def main(argv=None):
             cpus.setdefault(label, []).append(cpu)
             folders[label], noted[label] = out, "MALLOC_TRIM_THRESHOLD_" in err
 
+        control = []
         for _ in range(args.repeats):  # interleaved: a burst of load hits every setting
             timed("--n-jobs 1", "serial", [])
             timed("--n-jobs 2", "jobs2", ["--n-jobs", "2"])
+            control.append(machine_ratio())
             if args.no_dask:
                 continue
             import dask
@@ -236,6 +260,11 @@ def main(argv=None):
             print(f"  {label:76s} {t:7.1f} s ({', '.join(f'{v:.1f}' for v in ts)})  "
                   f"{t1 / t:5.2f} x faster than --n-jobs 1" + target
                   + ("; the command noted the workers' setting" if noted.get(label) else ""))
+        print(f"  the machine itself: two copies of a CPU-bound loop side by side "
+              f"{max(control):.2f} x faster than one after the other (best of "
+              f"{len(control)}: {', '.join(f'{v:.2f}' for v in control)}; 2 on two free "
+              f"cores): --n-jobs 2 reaches {t1 / min(times['--n-jobs 2']) / max(control):.0%} "
+              "of it")
         c1, c2 = min(cpus["--n-jobs 1"]), min(cpus["--n-jobs 2"])
         print(f"  CPU time of all the command's processes: --n-jobs 1 {c1:.1f} s, --n-jobs 2 "
               f"{c2:.1f} s: on 2 idle cores (--n-jobs 1 taking its CPU time), --n-jobs 2 would "
