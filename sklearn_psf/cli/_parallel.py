@@ -7,8 +7,8 @@ Dask's nannies start their workers with ``MALLOC_TRIM_THRESHOLD_=65536`` (the de
 one 200-star CCD then faults three times as many pages and takes 1.3x the CPU time of the same
 fit in a local process. The command says so when the workers it joins run that way, with the
 setting that starts them as fast as local processes (:data:`FAST_WORKERS`). That setting also
-imports the library when each worker starts (Dask's ``--preload``), as a local worker process
-does before its first task, so that a fresh cluster's first fits do not wait for it.
+imports the library when each worker starts (Dask's ``--preload``), so that a fresh cluster's
+first fits do not wait for it.
 """
 
 from __future__ import annotations
