@@ -59,6 +59,10 @@ CLEAN_ENV = dict(os.environ)
 #: the library imported as each worker starts.
 FAST_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
 FAST_WORKERS = {"preload": [PRELOAD]}
+#: The two Dask clusters: (label, dask config, LocalCluster worker options, output folder).
+DASK_SETTINGS = (("default environment", {}, {}, "dask"),
+                 ("as documented (preload, no MALLOC_TRIM_THRESHOLD_)", FAST_CONFIG,
+                  FAST_WORKERS, "dask_fast"))
 
 
 def load():
@@ -177,10 +181,8 @@ def per_task(exposure, out, plots):
     results = {}
     results["local processes (loky)"] = joblib.Parallel(n_jobs=2)(
         joblib.delayed(timed_task)(j) for j in twice)
-    for label, config, workers in (
-            ("Dask, default workers", {}, {}),
-            ("Dask, as documented (MALLOC_TRIM_THRESHOLD_ unset, preload)", FAST_CONFIG,
-             FAST_WORKERS)):
+    for label, config, workers, _ in DASK_SETTINGS:
+        label = f"Dask, {label}"
         with dask.config.set(config), LocalCluster(n_workers=2, threads_per_worker=1,
                                                    dashboard_address=None,
                                                    **workers) as cluster:
@@ -239,10 +241,8 @@ def main(argv=None):
             import dask
             from distributed import LocalCluster
 
-            for label, config, workers, folder in (
-                    ("Dask 2 workers, default environment", {}, {}, "dask"),
-                    ("Dask 2 workers, as documented (preload, no MALLOC_TRIM_THRESHOLD_)",
-                     FAST_CONFIG, FAST_WORKERS, "dask_fast")):
+            for label, config, workers, folder in DASK_SETTINGS:
+                label = f"Dask 2 workers, {label}"
                 with dask.config.set(config), LocalCluster(
                         n_workers=2, threads_per_worker=1, dashboard_address=None,
                         **workers) as cluster:
