@@ -22,14 +22,15 @@ minimises, unlike sigma_sys^2 (D1 over 0.3-3 arcmin only, absolute values).
 
 ``--cells`` runs chosen (variance ratio, dither, stars per exposure) cells only, each as its
 own study (``--n-sims`` simulations, the same seeds as the full grid's first ones), writing
-each cell's scores as soon as it is done::
+each cell's scores as soon as it is done; ``--random-state 1`` draws simulations independent of
+the default's, to add to them::
 
     python benchmarks/bench_exposures.py --cells 0.2:300:240,5:1000:120 --n-sims 10
 
 Usage::
 
     python benchmarks/bench_exposures.py [--quick] [--n-jobs 2] [--n-sims 3] [--out DIR]
-        [--cells RATIO:DITHER:STARS,...] [--n-exposures 1,2,4,8]
+        [--cells RATIO:DITHER:STARS,...] [--n-exposures 1,2,4,8] [--random-state 0]
 """
 
 from __future__ import annotations
@@ -89,8 +90,11 @@ def main(argv=None):
     parser.add_argument("--cells", default=None,
                         help="comma-separated RATIO:DITHER:STARS cells to run on their own")
     parser.add_argument("--n-exposures", default=None, help="comma-separated N (default 1,2,4,8)")
+    parser.add_argument("--random-state", type=int, default=0,
+                        help="seed of the simulations (another value gives independent ones)")
     args = parser.parse_args(argv)
     kwargs = dict(QUICK) if args.quick else {}
+    kwargs["random_state"] = args.random_state
     if args.n_exposures:
         kwargs["n_exposures"] = tuple(int(v) for v in args.n_exposures.split(","))
     out = args.out or tempfile.mkdtemp(prefix="bench_exposures_")
