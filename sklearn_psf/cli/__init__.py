@@ -16,7 +16,8 @@ import argparse
 import os
 import sys
 
-from ._fit import CLIInputError, _add_fit_parsers, _fit, _predict
+from ._common import CLIInputError
+from ._fit import _add_fit_parsers, _fit, _predict
 from ._compare import PRESETS, STUDIES, STUDY_SCHEMES, add_compare_parser, run_compare
 from ._validate import add_validate_parser, run_validate
 

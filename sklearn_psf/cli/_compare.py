@@ -6,7 +6,7 @@ import argparse
 from dataclasses import replace
 from functools import partial
 
-from ._fit import CLIInputError, _check_output, _n_jobs, _positive_int
+from ._common import CLIInputError, _check_output, _n_jobs, _positive_int
 from ._parallel import dask_backend
 
 #: Sizes of ``sklearn-psf compare``: ``"paper"`` (the default) and ``"quick"`` (``--quick``);

@@ -1,83 +1,23 @@
 """The ``fit`` and ``predict`` commands of ``sklearn-psf``: their parsers and runners.
 
-Errors are raised as :class:`CLIInputError` (a ``ValueError``) with a one-line message naming
-the user's path; the entry point prints them and exits with status 2.
+``fit`` is :func:`sklearn_psf.validation.fit_exposure` for each input, its report printed and
+its model and figures saved; errors are raised as :class:`CLIInputError` (see ``_common``).
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import sys
-import tempfile
 from typing import NamedTuple
 
-
-class CLIInputError(ValueError):
-    """A problem with the input of ``fit`` or ``predict``, reported in one line."""
-
-
-def _positive_int(text):
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
+from ._common import (CLIInputError, _about, _bits, _check_input, _check_output_file,
+                      _fraction, _n_jobs, _positive_int, _stamp_size, _width)
 
 
 #: The schemes ``fit --interpolator`` takes (sklearn_psf.model.INTERPOLATORS, listed here so
 #: that building the parser imports no library module).
 FIT_INTERPOLATORS = ("kriging", "polynomial", "chebyshev", "delaunay", "shepard", "rbf")
-
-
-def _fraction(text):
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 1), got {text!r}") from None
-    if not 0 <= value < 1:
-        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 1), got {value}")
-    return value
-
-
-def _n_jobs(text):
-    try:
-        value = int(text)
-    except ValueError:
-        value = None
-    if not value:
-        raise argparse.ArgumentTypeError(f"expected a number of jobs (1, 2, ..., or -1 for "
-                                         f"one per core), got {text!r}")
-    return value
-
-
-def _stamp_size(text):
-    value = _positive_int(text)
-    if value < 5:
-        raise argparse.ArgumentTypeError(f"expected a stamp size >= 5, got {value}")
-    return value
-
-
-def _number(text):
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-
-
-def _bits(text):
-    try:
-        return int(text, 0)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected an integer (e.g. 254 or 0xfe), got {text!r}") from None
-
-
-def _width(text):
-    return text if text == "auto" else _number(text)
 
 
 #: ``sklearn-psf fit`` options relaxing each selection cut (the parameters of select_stars).
@@ -208,48 +148,6 @@ def _stem(output):
 
 def _figure_paths(output):
     return {name: f"{_stem(output)}_{name}.png" for name in ("stamps", "whiskers", "rho", "maps")}
-
-
-def _check_input(path, what):
-    """Fail at once (before importing the library) when an input file is missing."""
-    if not os.path.exists(path):
-        raise CLIInputError(f"the {what} {path!r} does not exist")
-    if os.path.isdir(path):
-        raise CLIInputError(f"the {what} {path!r} is a folder: give a file")
-
-
-def _check_output_file(path, overwrite=False, also=()):
-    """Fail before any work when ``path`` cannot be written, or when it (or one of ``also``,
-    files written with it) exists and ``overwrite`` is not set."""
-    folder = os.path.dirname(os.path.abspath(path)) or "."
-    if not os.path.isdir(folder):
-        raise CLIInputError(f"the folder of the output file {path!r} does not exist")
-    if os.path.isdir(path):
-        raise CLIInputError(f"the output {path!r} is a folder: give a file name")
-    existing = [p for p in (path, *also) if os.path.exists(p)]
-    if existing and not overwrite:
-        more = f" (and {len(existing) - 1} more output files)" if len(existing) > 1 else ""
-        raise CLIInputError(f"{existing[0]!r} already exists{more}: pass --overwrite to "
-                            "replace it")
-    try:  # the atomic write creates a temporary file there: try one now
-        with tempfile.NamedTemporaryFile(dir=folder):
-            pass
-        if os.path.exists(path) and not os.access(path, os.W_OK):
-            raise PermissionError(13, "permission denied")
-    except OSError as exc:
-        raise CLIInputError(f"cannot write the output file {path!r}: "
-                            f"{(exc.strerror or str(exc)).lower()}") from None
-
-
-@contextlib.contextmanager
-def _about(path):
-    """Errors of the library about ``path``'s content name the user's path."""
-    try:
-        yield
-    except ValueError as exc:
-        if isinstance(exc, CLIInputError) or str(path) in str(exc):
-            raise
-        raise CLIInputError(f"{path}: {exc}") from None
 
 
 def _image_hdus(path):
@@ -385,148 +283,6 @@ def _fit_many(jobs, args):
     return 0
 
 
-def _counts_text(counts, keys):
-    """``"flags 2, low_snr 28"``: the non-zero counts of ``keys``."""
-    return ", ".join(f"{k} {counts[k]}" for k in keys if counts.get(k))
-
-
-def _too_few(head, counts, hint):
-    """The error when fewer than 5 stars are selected: each cut's count and its option."""
-    from ..io import SELECTION_OPTIONS, SELECTION_REASONS
-
-    options = {reason: CLI_OPTIONS.get(param, param)
-               for reason, param in SELECTION_OPTIONS.items()}
-    per_cut = ", ".join(f"{k} {counts[k]} ({options[k]})" for k in SELECTION_REASONS
-                        if counts.get(k) and k in options)
-    return CLIInputError(
-        f"{head}: too few for a PSF model (need 5)"
-        + (f"; dropped by cut (option relaxing it): {per_cut}" if per_cut else "")
-        + f"; {hint}")
-
-
-def _selection_lines(counts, n_kept, lines, head, args):
-    import numpy as np
-
-    from ..io import SELECTION_REASONS
-
-    rejected = _counts_text(counts, SELECTION_REASONS)
-    lines.append(f"{head}{n_kept}" + (f" (rejected: {rejected})" if rejected else ""))
-    size = {"flux_radius": "FLUX_RADIUS", "adaptive_sigma": "adaptive-moment sigma of the "
-            "VIGNETs"}.get(counts.get("locus_size"))
-    if size and np.isfinite(counts["locus_radius"]):
-        lines.append(f"  size-magnitude locus: {size} {counts['locus_radius']:.3g} pixels "
-                     f"(median over the selected stars), accepted within +-"
-                     f"{counts['locus_width']:.1%} (median; wider at low S/N)")
-    cuts = {"class_star": f"CLASS_STAR >= {args.min_class_star:g} (--min-class-star)",
-            "spread_model": f"|SPREAD_MODEL| <= {args.max_spread_model:g} "
-                            "(--max-spread-model)"}
-    for name, fraction in counts.get("not_applied", {}).items():
-        lines.append(f"  not applied: {cuts[name]}, which would reject {fraction:.0%} of the "
-                     "sources on the size-magnitude locus"
-                     + (" (SExtractor's CLASS_STAR depends on the SEEING_FWHM it was given)"
-                        if name == "class_star" else ""))
-
-
-def _select(args, catalog, saturation, image_shape, stamp_size, lines):
-    """The star/galaxy selection of a catalogue given with --stars."""
-    import numpy as np
-
-    from ..io import select_stars
-
-    lines.append(f"sources in the catalogue: {len(catalog)}"
-                 f" ({'1' if catalog.meta['one_based'] else '0'}-based "
-                 f"{catalog.meta['x_column']}, {catalog.meta['y_column']})")
-    if image_shape is not None:
-        x, y = np.asarray(catalog["x"]), np.asarray(catalog["y"])
-        ny, nx = image_shape
-        if not ((x > -0.5) & (x < nx - 0.5) & (y > -0.5) & (y < ny - 0.5)).any():
-            raise CLIInputError(
-                f"All {len(catalog)} catalogue positions fall outside the image {args.image} "
-                f"(ny, nx = {ny}, {nx}): check the HDU, or whether the positions are 1-based "
-                "(--one-based)")
-    if args.no_select:
-        return catalog
-    # positions off the image or at its edge are counted when the stamps are cut
-    keep, counts = select_stars(
-        catalog, min_snr=args.min_snr, saturation=saturation, flag_mask=args.flag_mask,
-        stamp_size=stamp_size, isolation=args.isolation, locus_width=args.locus_width,
-        max_spread_model=args.max_spread_model, min_class_star=args.min_class_star,
-        min_stars=0)
-    _selection_lines(counts, int(keep.sum()), lines, "selected as stars: ", args)
-    if keep.sum() < 5:
-        raise _too_few(f"{int(keep.sum())} of the {len(catalog)} sources of {args.stars} pass "
-                       "the star selection", counts,
-                       "or use --no-select if the catalogue holds stars only")
-    catalog = catalog[keep]
-    if args.flag_mask is not None and "flags" in catalog.colnames:
-        # flags outside the mask were accepted: the stamp cutters must not skip them again
-        catalog["flags"] = np.asarray(catalog["flags"]).astype(np.int64) & int(args.flag_mask)
-    return catalog
-
-
-def _gain(header):
-    """Detector gain (e-/ADU): GAIN, else the gain SExtractor used (SEXGAIN); None."""
-    for key in ("GAIN", "SEXGAIN"):
-        value = header.get(key)
-        if isinstance(value, (int, float)) and value > 0:
-            return float(value)
-    return None
-
-
-class _Inputs(NamedTuple):
-    """What ``fit`` and ``validate`` read: the image (None without one), its weight and
-    header (else the catalogue's image header), the catalogue (None without --stars), the
-    saturation level (--saturation, else the header's SATURATE) and the gain."""
-
-    image: object
-    weight: object
-    header: dict
-    catalog: object
-    saturation: float | None
-    gain: float | None
-
-
-def _read_inputs(args) -> _Inputs:
-    """Read ``args.image`` (``--hdu``, ``--weight-hdu``) and the catalogue ``args.stars``."""
-    from ..io import read_catalog, read_image
-
-    header, image, weight, catalog = {}, None, None, None
-    if args.image is not None:
-        image, weight, header = read_image(args.image, hdu=args.hdu,
-                                           weight_hdu=args.weight_hdu)
-    if args.stars:
-        with _about(args.stars):
-            catalog = read_catalog(args.stars, one_based=True if args.one_based else None,
-                                   x_col=args.x_col, y_col=args.y_col)
-        if image is None:
-            header = catalog.meta.get("image_header") or {}
-    saturation = args.saturation
-    if saturation is None and "SATURATE" in header:
-        saturation = float(header["SATURATE"])
-    return _Inputs(image, weight, header, catalog, saturation, _gain(header))
-
-
-def _cut_stamps(inputs, catalog, args):
-    """The stamps of ``catalog``'s stars: the VIGNETs without an image (at ``--stamp-size``,
-    default their side), else cut from the image (default side 25)."""
-    from ..io import extract_star_stamps, extract_vignettes
-
-    if inputs.image is None:
-        with _about(args.stars):
-            return extract_vignettes(catalog, args.stamp_size, saturation=inputs.saturation,
-                                     gain=inputs.gain)
-    with _about(args.stars or args.image):
-        return extract_star_stamps(inputs.image, catalog, args.stamp_size or 25,
-                                   weight=inputs.weight, saturation=inputs.saturation)
-
-
-def _skipped_text(counts):
-    """`` (skipped: masked 2, saturated 1)`` from the counts of a stamp cut, or ""."""
-    skipped = {k: v for k, v in counts.items() if k not in ("input", "used") and v}
-    return (" (skipped: " + ", ".join(f"{k} {v}" for k, v in skipped.items()) + ")"
-            if skipped else "")
-
-
 class _FitOutcome(NamedTuple):
     """What a fit prints: its report ``lines``; the ``warnings`` to replay, each
     ``(message, category, filename, lineno)``, and this package's warnings about the fitted
@@ -603,175 +359,75 @@ def _show(outcome, warnings_registry, shown_output=None):
 
 
 def _fit_steps(args, lines, fit_warnings, quiet=False):
+    """Fit one input with :func:`~sklearn_psf.validation.fit_exposure`, save the model and
+    its figures; ``lines`` gets the report, ``fit_warnings`` the warnings of the fit (those
+    of the reading and selection go on to the caller's record). Returns the files written."""
     import warnings
 
-    import numpy as np
     from tqdm.auto import tqdm
 
-    from ..io import celestial_wcs, find_stars, save_model
-    from ..model import PSFModel, make_interpolator
-    from ..validation import fit_and_validate
+    from ..io import save_model
+    from ..validation import StarSelectionError, fit_exposure
 
-    with tqdm(total=6, desc="reading", unit="step", disable=quiet) as bar:
-        inputs = _read_inputs(args)
-        image, header, catalog, saturation = (inputs.image, inputs.header, inputs.catalog,
-                                              inputs.saturation)
-        n_nan = 0
-        if image is not None:
-            n_nan = int(np.isnan(image).sum())
-            weight = inputs.weight
-            n_zero = 0 if weight is None else int(np.sum(~(np.asarray(weight) > 0)))
-            lines.append(f"image: {image.shape[1]} x {image.shape[0]} pixels; NaN pixels: "
-                         f"{n_nan}" + ("" if weight is None else
-                                       f"; zero-weight pixels: {n_zero}")
-                         + " (masked: a star with one in its core is skipped)")
-        vignettes = image is None and catalog is not None and "VIGNET" in [
-            c.upper() for c in catalog.colnames]
-        stamp_size = args.stamp_size
-        if stamp_size is None:
-            stamp_size = (int(np.shape(catalog[[c for c in catalog.colnames
-                                                if c.upper() == "VIGNET"][0]])[1])
-                          if vignettes else 25)
-        bar.update()
-        bar.set_description("selecting stars")
-        if catalog is not None:
-            catalog = _select(args, catalog, saturation,
-                              None if image is None else image.shape, stamp_size, lines)
-        else:
-            catalog = find_stars(image, weight=inputs.weight, stamp_size=stamp_size,
-                                 min_snr=args.min_snr, saturation=saturation,
-                                 isolation=args.isolation, locus_width=args.locus_width)
-            counts = {**catalog.meta["rejected"], "locus_size": None}
-            _selection_lines(counts, len(catalog), lines, f"sources detected: "
-                             f"{catalog.meta['n_detections']}, selected as stars: ", args)
-            if len(catalog) < 5:
-                raise _too_few(f"found {len(catalog)} usable stars in {args.image} "
-                               f"({catalog.meta['n_detections']} detections)", counts,
-                               "or give a star catalogue with --stars")
-        bar.update()
-        bar.set_description("cutting stamps")
-        cut = _cut_stamps(inputs, catalog, args)
-        lines.append(f"stars used: {cut.counts['used']} of {cut.counts['input']}"
-                     + _skipped_text(cut.counts))
-        bar.update()
-        bar.set_description("fitting and validating")
-        wcs = celestial_wcs(header)
-        options = {"reserve": args.reserve, "random_state": args.seed, "weights": cut.weights,
-                   "wcs": wcs}
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            if args.interpolator == "auto":
-                candidates = {n: PSFModel(interpolator=make_interpolator(n))
-                              for n in FIT_INTERPOLATORS}
-                model, residuals, summary = fit_and_validate(
-                    cut.positions, cut.stamps, candidates=candidates, **options)
-            else:
-                model, residuals, summary = fit_and_validate(
-                    cut.positions, cut.stamps,
-                    PSFModel(interpolator=make_interpolator(args.interpolator)), **options)
-        fit_warnings += caught
-        summary["selection"] = dict(cut.counts)
-        summary["image"] = os.path.abspath(args.image or args.stars)
-        summary["interpolator"] = summary.get("scheme", args.interpolator)
-        summary["nan_pixels"] = n_nan
-        summary["saturation"] = saturation
-        summary["gain"] = inputs.gain
-        if wcs is not None:  # predict can then take and return (RA, Dec)
-            summary["wcs"] = wcs.to_header_string()
+    with tqdm(total=5, desc="reading", unit="step", disable=quiet) as bar:
+        fitting = []  # where the fit's own warnings start among those caught
+
+        def progress(name):
+            if name == "fitting and validating":
+                fitting.append(len(caught))
+            bar.update()
+            bar.set_description(name)
+
+        try:
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                fit = fit_exposure(
+                    args.image, args.stars, hdu=args.hdu, weight_hdu=args.weight_hdu,
+                    one_based=True if args.one_based else None, x_col=args.x_col,
+                    y_col=args.y_col, select=not args.no_select, flag_mask=args.flag_mask,
+                    min_snr=args.min_snr, saturation=args.saturation, isolation=args.isolation,
+                    locus_width=args.locus_width, max_spread_model=args.max_spread_model,
+                    min_class_star=args.min_class_star, stamp_size=args.stamp_size,
+                    interpolator=args.interpolator, reserve=args.reserve,
+                    random_state=args.seed, progress=progress)
+        except StarSelectionError as exc:
+            hint = ("or use --no-select if the catalogue holds stars only" if args.stars
+                    else "or give a star catalogue with --stars")
+            lines += exc.lines
+            raise CLIInputError(exc.text(CLI_OPTIONS, hint)) from None
+        finally:
+            start = fitting[0] if fitting else len(caught)
+            for w in caught[:start]:  # the reading's and selection's: shown first
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+            fit_warnings += caught[start:]
+        lines += fit.report()
         bar.update()
         bar.set_description("saving")
         try:
-            save_model(model, args.output, residuals=residuals if len(residuals) else None,
-                       summary=summary, overwrite=args.overwrite)
+            save_model(fit.model, args.output,
+                       residuals=fit.residuals if len(fit.residuals) else None,
+                       summary=fit.summary, overwrite=args.overwrite)
         except OSError as exc:
             raise CLIInputError(f"cannot write {args.output!r}: {exc.strerror or exc}") from None
-        bar.update()
         written = [args.output]
-        if not args.no_plots and len(residuals):
+        if not args.no_plots:
             bar.set_description("figures")
-            if image is not None:
-                shape = image.shape
-            elif "NAXIS2" in header and "NAXIS1" in header:
-                shape = (int(header["NAXIS2"]), int(header["NAXIS1"]))
-            else:  # catalogue without image header: the stars' extent
-                shape = tuple(int(v) + 1 for v in cut.positions.max(axis=0)[::-1])
-            written += _fit_figures(residuals, summary, args.output, model, shape)
+            written += _save_figures(fit.figures(), _figure_paths(args.output))
         bar.update()
-    lines += _report(summary, wcs is not None)
     return written
 
 
-def _report(summary, sky):
-    """The lines of the fit's report after the selection: basis, residuals, verdict."""
-    import numpy as np
-
-    lines = []
-    if "cv" in summary:
-        lines.append("cross-validation (e rms): " + ", ".join(
-            f"{r['scheme']} {r['e_rms']:.4f}" for r in summary["cv"])
-            + f" -> {summary['scheme']}")
-    lines.append(f"interpolator: {summary['interpolator']}; fitted stars: {summary['n_fit']}, "
-                 f"outliers rejected: {summary['n_outliers']}, reserved: "
-                 f"{summary['n_reserved']}")
-    if "n_components" in summary:
-        lines.append(f"basis: {summary['n_components']} components: "
-                     f"{summary['components_reason']}")
-    if summary.get("kriging_range") is not None:
-        lines.append(f"Kriging range (maximum likelihood): {summary['kriging_range']:.3g}; "
-                     f"stars' typical spacing: {summary['star_spacing']:.3g} (median distance "
-                     "to the nearest star; both in the interpolator's coordinates, the field "
-                     "scaled to the unit square)")
-    if summary["n_measured"]:
-        lines.append(
-            f"reserved stars (star - model, {summary['n_measured']} measured): "
-            f"e rms {summary['e_rms']:.4f} (e1 mean {summary['de1_mean']:+.4f} rms "
-            f"{summary['de1_rms']:.4f}, e2 mean {summary['de2_mean']:+.4f} rms "
-            f"{summary['de2_rms']:.4f}), size mean {summary['dsigma_mean']:+.4f} rms "
-            f"{summary['dsigma_rms']:.4f} pixels")
-    if summary.get("n_verdict"):
-        lines.append(
-            f"reserved stars against their own noise ({summary['n_verdict']} stars; a constant "
-            f"PSF fitted on the same stars in brackets): median chi^2 per degree of freedom "
-            f"{summary['chi2_dof_median']:.3f} ({summary['chi2_dof_median_constant']:.3f}); "
-            f"e residual rms "
-            f"over e noise rms {summary['e_resid_over_noise']:.2f} "
-            f"({summary['e_resid_over_noise_constant']:.2f}; e noise per component "
-            f"{summary['e_noise']:.4f}); 1 is pure noise")
-    if summary.get("rho1"):
-        unit = "arcmin" if sky else "pixel"
-        means = []
-        for k in range(1, 6):
-            xi = np.asarray((summary.get(f"rho{k}") or {}).get("xi", []), dtype=float)
-            means.append(f"rho{k} {np.nanmean(np.abs(xi)):.2e}" if np.isfinite(xi).any()
-                         else f"rho{k} -")
-        theta = summary["rho1"]["theta"]
-        lines.append(f"rho statistics of the reserved stars (mean |rho| over {len(theta)} bins, "
-                     f"{theta[0]:.3g}-{theta[-1]:.3g} {unit}): " + ", ".join(means))
-    return lines
-
-
-def _fit_figures(residuals, summary, output, model, shape):
+def _save_figures(figures, paths):
+    """Save each figure at its path, close it; the paths written."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..validation import plot_psf_maps, plot_rho_statistics, plot_stamp_residuals, \
-        plot_whiskers
-
-    paths = _figure_paths(output)
-    written = []
-    makers = {"stamps": lambda: plot_stamp_residuals(residuals),
-              "whiskers": lambda: plot_whiskers(residuals),
-              "maps": lambda: plot_psf_maps(model, shape)}
-    if summary.get("rho1"):
-        makers["rho"] = lambda: plot_rho_statistics(summary)
-    for name, make in makers.items():
-        fig = make()
+    for name, fig in figures.items():
         fig.savefig(paths[name], dpi=100)
         plt.close(fig)
-        written.append(paths[name])
-    return written
+    return [paths[name] for name in figures]
 
 
 def _predict(args):
@@ -852,13 +508,3 @@ def _predict(args):
           + (f"; {n_extra} extrapolated (flagged in column 'extrapolated')" if n_extra else ""))
     print(f"Wrote {args.output}")
     return 0
-
-
-def _check_output(path):
-    try:
-        os.makedirs(path, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=path):
-            pass
-    except OSError as exc:
-        raise CLIInputError(
-            f"cannot write to the output folder {path!r}: {exc.strerror or exc}") from None

@@ -17,7 +17,7 @@ import contextlib
 import os
 import sys
 
-from ._fit import CLIInputError
+from ._common import CLIInputError
 
 #: The module a Dask worker imports when it starts (``--preload``): the fitting, measuring and
 #: reading code (about 2 s of imports, mostly scikit-learn, SciPy and Astropy).

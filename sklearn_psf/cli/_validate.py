@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import os
 
-from ._fit import CLIInputError, _about, _cut_stamps, _read_inputs, _skipped_text, _stamp_size
+from ._common import CLIInputError, _about, _stamp_size
 
 #: Files ``validate`` writes in its output folder (figures only without --no-plots).
 OUTPUTS = {"table": "validation.csv", "rho": "validation_rho.png",
@@ -69,8 +69,13 @@ def add_validate_parser(sub):
 def _stars(args):
     """Positions, stamps, weights, WCS and a line on the stars used."""
     from ..io import celestial_wcs, select_stars
+    from ..validation import read_exposure
 
-    inputs = _read_inputs(args)
+    with _about(args.stars):
+        inputs = read_exposure(args.image, args.stars, hdu=args.hdu,
+                               weight_hdu=args.weight_hdu,
+                               one_based=True if args.one_based else None, x_col=args.x_col,
+                               y_col=args.y_col, saturation=args.saturation)
     catalog = inputs.catalog
     n_rows = len(catalog)
     if args.select:
@@ -82,10 +87,12 @@ def _stars(args):
             raise CLIInputError(f"no star of {args.stars} passes the selection ({reasons}); "
                                 "leave out --select or lower --min-snr")
         catalog = catalog[keep]
-    cut = _cut_stamps(inputs, catalog, args)
+    cut = inputs.cut_stamps(catalog, args.stamp_size)
+    skipped = ", ".join(f"{k} {v}" for k, v in cut.counts.items()
+                        if k not in ("input", "used") and v)
     line = (f"stars: {cut.counts['used']} used of {n_rows} rows"
             + (f" ({len(catalog)} selected)" if args.select else "")
-            + _skipped_text(cut.counts))
+            + (f" (skipped: {skipped})" if skipped else ""))
     return cut, celestial_wcs(inputs.header), line
 
 

@@ -83,7 +83,8 @@ from ._catalog import read_catalog, write_ldac
 from ._draw import draw_psf, extrapolation_flags
 from ._image import FITSHeaderWarning, read_image
 from ._psf_stamps import read_psf_stamps, write_psf_stamps
-from ._select import SELECTION_OPTIONS, SELECTION_REASONS, select_stars
+from ._select import (PSFEX_FLAG_MASK, SELECTION_OPTIONS, SELECTION_REASONS, neighbour_masks,
+                      select_stars)
 from ._stars import REJECTION_REASONS, StarStamps, extract_star_stamps, find_stars
 from ._vignettes import VIGNET_MASKED, extract_vignettes
 from ._wcs import celestial_wcs, pixel_to_sky, sky_to_pixel
@@ -101,6 +102,7 @@ __all__ = [
     "FITSHeaderWarning",
     "MODEL_FORMAT",
     "MODEL_FORMAT_VERSION",
+    "PSFEX_FLAG_MASK",
     "REJECTION_REASONS",
     "SELECTION_OPTIONS",
     "SELECTION_REASONS",
@@ -113,6 +115,7 @@ __all__ = [
     "extrapolation_flags",
     "find_stars",
     "load_model",
+    "neighbour_masks",
     "pixel_to_sky",
     "read_catalog",
     "read_image",

@@ -18,7 +18,8 @@ from astropy.table import Table
 from scipy.optimize import nnls
 from scipy.spatial import cKDTree
 
-__all__ = ["select_stars", "SELECTION_REASONS", "SELECTION_OPTIONS"]
+__all__ = ["select_stars", "neighbour_masks", "PSFEX_FLAG_MASK", "SELECTION_REASONS",
+           "SELECTION_OPTIONS"]
 
 #: Why a source is not selected as a star, in the order the cuts are applied (a source is
 #: counted under the first cut it fails); ``bad_stamp`` is applied when stamps are cut.
@@ -40,6 +41,124 @@ SELECTION_OPTIONS = {
 _MAD = 1.4826
 #: A secondary cut that rejects more than this fraction of the locus is not applied.
 _MOST = 0.5
+#: PSFEx's default ``SAMPLE_FLAGMASK``: every SExtractor flag but 1 (neighbours close enough
+#: to bias the photometry, which most stars of a real image have) rejects a source.
+PSFEX_FLAG_MASK = 0xFE
+#: Gaussian sigma over half-light radius (``FLUX_RADIUS`` with ``PHOT_FLUXFRAC`` 0.5).
+_SIGMA_PER_RADIUS = 1 / np.sqrt(2 * np.log(2))
+#: A neighbour is masked out to where its profile (Gaussian of its size) falls below this
+#: fraction of the star's peak, and never less than 1 pixel beyond its core.
+_NEIGHBOUR_LEVEL = 1e-3
+
+
+def _neighbour_radii(catalog, rows):
+    """(mask radius of every source, core radius of the sources ``rows``), pixels.
+
+    A neighbour of flux F_n and Gaussian sigma s_n (from ``flux_radius``) around a star of
+    flux F is masked out to ``s_n sqrt(2 ln(F_n / F / level)) + 1`` pixels (at least
+    ``s_n sqrt(2 ln 2) + 1``): where its light falls below ``level`` of the star's per unit
+    area; the star's core is ``2 s + 1`` pixels. Without ``flux_radius`` the sizes are 2
+    pixels; without a flux, the sources are taken as equally bright.
+    """
+    radius = _column(catalog, "flux_radius")
+    n = len(catalog)
+    sigma = np.full(n, 2.0) if radius is None else np.where(
+        np.isfinite(radius) & (radius > 0), radius * _SIGMA_PER_RADIUS, np.nan)
+    sigma = np.where(np.isfinite(sigma), sigma, np.nanmedian(sigma) if np.isfinite(
+        sigma).any() else 2.0)
+    flux = _column(catalog, "flux")
+    flux = np.ones(n) if flux is None else np.where(np.isfinite(flux) & (flux > 0), flux,
+                                                     np.nan)
+    return sigma, flux
+
+
+def _neighbours(catalog, rows, reach):
+    """For each of ``rows``: the other sources within ``reach`` pixels (Chebyshev)."""
+    x, y = _column(catalog, "x"), _column(catalog, "y")
+    xy = np.column_stack([np.nan_to_num(x, nan=-1e12), np.nan_to_num(y, nan=-1e12)])
+    tree = cKDTree(xy)
+    found = tree.query_ball_point(xy[rows], reach, p=np.inf)
+    return [np.asarray([j for j in near if j != i], dtype=np.intp)
+            for i, near in zip(rows, found)]
+
+
+def _mask_radius(sigma_n, flux_n, flux_star):
+    ratio = np.where(np.isfinite(flux_n), flux_n, flux_star) / flux_star
+    ratio = np.where(np.isfinite(ratio), ratio, 1.0)
+    return sigma_n * np.sqrt(2 * np.log(np.maximum(ratio / _NEIGHBOUR_LEVEL, 2.0))) + 1.0
+
+
+def _crowded(catalog, rows, stamp_size):
+    """True for each of ``rows`` whose core a neighbour's mask would reach."""
+    sigma, flux = _neighbour_radii(catalog, rows)
+    x, y = _column(catalog, "x"), _column(catalog, "y")
+    reach = (int(stamp_size) - 1) / 2 + 1.5 + 8 * np.nanmax(sigma, initial=2.0)
+    bad = np.zeros(len(rows), dtype=bool)
+    for k, (i, near) in enumerate(zip(rows, _neighbours(catalog, rows, reach))):
+        if near.size == 0:
+            continue
+        f = flux[i] if np.isfinite(flux[i]) else np.nanmedian(flux[near]) if np.isfinite(
+            flux[near]).any() else 1.0
+        d = np.hypot(x[near] - x[i], y[near] - y[i])
+        bad[k] = np.any(d < _mask_radius(sigma[near], flux[near], f) + 2 * sigma[i] + 1)
+    return bad
+
+
+def neighbour_masks(catalog, rows, stamp_size: int):
+    """Pixels of the stamps of the sources ``rows`` that their neighbours' light covers.
+
+    Each other source of ``catalog`` is masked within a disc whose radius grows with its size
+    (``flux_radius``) and its flux relative to the star's: out to where a Gaussian of its size
+    falls below 1e-3 of the star's light per unit area, plus 1 pixel (see
+    :func:`select_stars`, whose default crowding cut rejects only the stars whose core such a
+    disc reaches). The stamps are centred as the stamp cutters centre them: the star's pixel
+    ``floor(x + 0.5)`` at index ``stamp_size // 2``.
+
+    Parameters
+    ----------
+    catalog : astropy.table.Table
+        Every source of the image (0-based ``x``, ``y``; ``flux_radius`` and ``flux`` when
+        known), not only the stars.
+    rows : array-like of int
+        The stars' rows in ``catalog``.
+    stamp_size : int
+
+    Returns
+    -------
+    masks : ndarray of bool, shape (len(rows), stamp_size, stamp_size)
+        True where a neighbour's light is.
+
+    Examples
+    --------
+    >>> from astropy.table import Table
+    >>> from sklearn_psf.io import neighbour_masks
+    >>> cat = Table({"x": [50.0, 58.0], "y": [50.0, 50.0], "flux_radius": [1.5, 1.5],
+    ...              "flux": [1000.0, 100.0]})
+    >>> m = neighbour_masks(cat, [0], 25)
+    >>> m.shape, bool(m[0, 12, 20]), bool(m[0, 12, 12])    # the neighbour's pixel, the star's
+    ((1, 25, 25), True, False)
+    """
+    rows = np.asarray(rows, dtype=np.intp)
+    s = int(stamp_size)
+    masks = np.zeros((len(rows), s, s), dtype=bool)
+    if len(rows) == 0 or len(catalog) < 2:
+        return masks
+    sigma, flux = _neighbour_radii(catalog, rows)
+    x, y = _column(catalog, "x"), _column(catalog, "y")
+    reach = (s - 1) / 2 + 1.5 + 8 * np.nanmax(sigma, initial=2.0)
+    offsets = np.arange(s) - s // 2
+    for k, (i, near) in enumerate(zip(rows, _neighbours(catalog, rows, reach))):
+        if near.size == 0 or not (np.isfinite(x[i]) and np.isfinite(y[i])):
+            continue
+        f = flux[i] if np.isfinite(flux[i]) else np.nanmedian(flux[near]) if np.isfinite(
+            flux[near]).any() else 1.0
+        r = _mask_radius(sigma[near], flux[near], f)
+        px = np.floor(x[i] + 0.5) + offsets   # image pixel of each stamp column
+        py = np.floor(y[i] + 0.5) + offsets
+        dx = px[None, None, :] - x[near][:, None, None]
+        dy = py[None, :, None] - y[near][:, None, None]
+        masks[k] = np.any(dx**2 + dy**2 < r[:, None, None]**2, axis=0)
+    return masks
 
 
 def _column(table, name):

@@ -1,0 +1,503 @@
+"""The whole real-data path in one call: read an exposure (its image and/or its source
+catalogue), select the stars, cut their stamps, fit a PSF model with reserved stars, and judge
+it. ``sklearn-psf fit`` is this call plus printing and saving."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["ExposureInputs", "ExposureFit", "StarSelectionError", "fit_exposure",
+           "read_exposure"]
+
+
+class StarSelectionError(ValueError):
+    """Too few stars pass the selection for a PSF model.
+
+    The message counts the sources each cut dropped and names the parameter that relaxes it;
+    :meth:`text` renders it with other names for the parameters (e.g. the command line's
+    options).
+
+    Attributes
+    ----------
+    head : str
+        What was selected, in words.
+    counts : dict
+        Selection reason -> number of sources dropped (see
+        :func:`~sklearn_psf.io.select_stars`).
+    hint : str
+        What else the user can do.
+    lines : list of str
+        What was read and selected before (the start of :meth:`ExposureFit.report`).
+    """
+
+    def __init__(self, head, counts, hint, lines=()):
+        self.head, self.counts, self.hint, self.lines = head, counts, hint, list(lines)
+        super().__init__(self.text())
+
+    def text(self, names=None, hint=None) -> str:
+        """The message, each selection parameter shown as ``names[parameter]``, ending with
+        ``hint`` (default :attr:`hint`).
+
+        Examples
+        --------
+        >>> from sklearn_psf.validation import StarSelectionError
+        >>> err = StarSelectionError("3 of 40 sources pass", {"low_snr": 37}, "or give more")
+        >>> err.text({"min_snr": "--min-snr"})
+        '3 of 40 sources pass: too few for a PSF model (need 5); dropped by cut (option relaxing it): low_snr 37 (--min-snr); or give more'
+        """
+        from ..io import SELECTION_OPTIONS, SELECTION_REASONS
+
+        names = names or {}
+        per_cut = ", ".join(
+            f"{k} {self.counts[k]} ({names.get(SELECTION_OPTIONS[k], SELECTION_OPTIONS[k])})"
+            for k in SELECTION_REASONS if self.counts.get(k) and k in SELECTION_OPTIONS)
+        return (f"{self.head}: too few for a PSF model (need {MIN_STARS})"
+                + (f"; dropped by cut (option relaxing it): {per_cut}" if per_cut else "")
+                + f"; {self.hint if hint is None else hint}")
+
+
+#: Fewest stars :func:`fit_exposure` fits a model on.
+MIN_STARS = 5
+
+
+def _gain(header):
+    """Detector gain (e-/ADU): GAIN, else the gain SExtractor used (SEXGAIN); None."""
+    for key in ("GAIN", "SEXGAIN"):
+        value = header.get(key)
+        if isinstance(value, (int, float)) and value > 0:
+            return float(value)
+    return None
+
+
+class ExposureInputs(NamedTuple):
+    """An exposure as read by :func:`read_exposure`.
+
+    Attributes
+    ----------
+    image : ndarray of shape (ny, nx) or None
+        The image (None for a catalogue of VIGNETs alone).
+    weight : ndarray or None
+        Its weight map (inverse variance, 0 = bad pixel).
+    header : dict-like
+        The image's header, else the catalogue's image header (``LDAC_IMHEAD``), else {}.
+    catalog : astropy.table.Table or None
+        The catalogue (0-based ``x``, ``y``), None without one.
+    saturation : float or None
+        The saturation level given, else the header's ``SATURATE``.
+    gain : float or None
+        ``GAIN`` (else ``SEXGAIN``) of the header, e-/ADU.
+    image_path, catalog_path : str or None
+        Where they were read from (named in error messages).
+    """
+
+    image: object
+    weight: object
+    header: dict
+    catalog: object
+    saturation: float | None
+    gain: float | None
+    image_path: str | None = None
+    catalog_path: str | None = None
+
+    @property
+    def has_vignettes(self) -> bool:
+        """True when the stamps come from the catalogue's ``VIGNET`` (no image)."""
+        return self.image is None and self.catalog is not None and "VIGNET" in [
+            c.upper() for c in self.catalog.colnames]
+
+    @property
+    def default_stamp_size(self) -> int:
+        """The side of the catalogue's VIGNETs, else 25."""
+        if self.has_vignettes:
+            name = [c for c in self.catalog.colnames if c.upper() == "VIGNET"][0]
+            return int(np.shape(self.catalog[name])[1])
+        return 25
+
+    @property
+    def image_shape(self):
+        """(ny, nx) of the image, else of the catalogue's image header, else None."""
+        if self.image is not None:
+            return self.image.shape
+        if "NAXIS2" in self.header and "NAXIS1" in self.header:
+            return int(self.header["NAXIS2"]), int(self.header["NAXIS1"])
+        return None
+
+    def cut_stamps(self, catalog=None, stamp_size=None):
+        """The stars' stamps (:class:`~sklearn_psf.io.StarStamps`): the catalogue's VIGNETs
+        without an image (cropped to ``stamp_size``), else cut from the image (side 25 by
+        default), with the weight map and the saturation level."""
+        from ..io import extract_star_stamps, extract_vignettes
+
+        catalog = self.catalog if catalog is None else catalog
+        with _naming(self.catalog_path or self.image_path):
+            if self.image is None:
+                return extract_vignettes(catalog, stamp_size, saturation=self.saturation,
+                                         gain=self.gain)
+            return extract_star_stamps(self.image, catalog, stamp_size or 25,
+                                       weight=self.weight, saturation=self.saturation)
+
+
+@contextlib.contextmanager
+def _naming(path):
+    """Errors of the library about a file's content name the file."""
+    try:
+        yield
+    except ValueError as exc:
+        if path is None or str(path) in str(exc):
+            raise
+        raise ValueError(f"{path}: {exc}") from None
+
+
+def read_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
+                  one_based: bool | None = None, x_col: str | None = None,
+                  y_col: str | None = None, saturation: float | None = None) -> ExposureInputs:
+    """Read an exposure: a FITS image (and its weight map) and/or a source catalogue.
+
+    Parameters
+    ----------
+    image : str or os.PathLike, optional
+        FITS image (:func:`~sklearn_psf.io.read_image`); optional with a catalogue holding
+        ``VIGNET`` stamps.
+    catalog : str, os.PathLike or astropy.table.Table, optional
+        Source catalogue (:func:`~sklearn_psf.io.read_catalog`: FITS_LDAC, FITS table,
+        SExtractor ASCII, CSV).
+    hdu, weight_hdu : int or str, optional
+        The image's HDU and its weight map's HDU.
+    one_based, x_col, y_col :
+        Position columns and their convention (see :func:`~sklearn_psf.io.read_catalog`).
+    saturation : float, optional
+        Saturation level; default the header's ``SATURATE``.
+
+    Returns
+    -------
+    ExposureInputs
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astropy.table import Table
+    >>> from sklearn_psf.validation import read_exposure
+    >>> cat = Table({"x": [10.0, 20.0], "y": [5.0, 8.0], "VIGNET": np.zeros((2, 15, 15))})
+    >>> inputs = read_exposure(catalog=cat)
+    >>> inputs.has_vignettes, inputs.default_stamp_size, inputs.image_shape
+    (True, 15, None)
+    """
+    from ..io import read_catalog, read_image
+
+    if image is None and catalog is None:
+        raise ValueError("Give an image, or a catalogue with VIGNET stamps.")
+    header, data, weight, table = {}, None, None, None
+    if image is not None:
+        data, weight, header = read_image(image, hdu=hdu, weight_hdu=weight_hdu)
+    catalog_path = None if catalog is None or not isinstance(catalog, (str, os.PathLike)) \
+        else str(catalog)
+    if catalog is not None:
+        with _naming(catalog_path):
+            table = read_catalog(catalog, one_based=one_based, x_col=x_col, y_col=y_col)
+        if data is None:
+            header = table.meta.get("image_header") or {}
+    if saturation is None and "SATURATE" in header:
+        saturation = float(header["SATURATE"])
+    return ExposureInputs(data, weight, header, table, saturation, _gain(header),
+                          None if image is None else str(image), catalog_path)
+
+
+class ExposureFit:
+    """A PSF model of an exposure and its verdict, as :func:`fit_exposure` returns them.
+
+    Attributes
+    ----------
+    model : PSFModel
+        Fitted on the selected, non-reserved stars.
+    residuals : astropy.table.Table
+        The reserved stars' residuals (see :func:`fit_and_validate`).
+    summary : dict
+        The verdict (see :func:`fit_and_validate`) with ``selection`` (the stamp cut's
+        counts), ``image`` (the input's path), ``interpolator``, ``nan_pixels``,
+        ``saturation``, ``gain`` and ``wcs`` (header string) when the image has a celestial
+        WCS.
+    selection : dict
+        The star selection's counts (:func:`~sklearn_psf.io.select_stars`), {} without one.
+    stars : StarStamps
+        The stamps the model was fitted and validated on.
+    lines : list of str
+        What was read and selected, in words (the start of :meth:`report`).
+    image_shape : tuple
+        (ny, nx) of the field (the image, its header, else the stars' extent).
+    """
+
+    def __init__(self, model, residuals, summary, selection, stars, lines, image_shape):
+        self.model, self.residuals, self.summary = model, residuals, summary
+        self.selection, self.stars, self.lines = selection, stars, lines
+        self.image_shape = image_shape
+
+    def __repr__(self):
+        return (f"ExposureFit(stars={self.summary['n_stars']}, fitted={self.summary['n_fit']}, "
+                f"reserved={self.summary['n_reserved']})")
+
+    def report(self) -> list:
+        """The fit's report, line by line: what was read and selected, the basis, the
+        reserved stars' residuals, the verdict against their noise, the rho statistics."""
+        return list(self.lines) + _report(self.summary)
+
+    def figures(self) -> dict:
+        """The diagnostic figures (matplotlib): ``stamps`` (reserved stars, model, residuals),
+        ``whiskers`` (e of stars, model, residuals), ``maps`` (model e and size across the
+        field) and ``rho`` (rho1-rho5, with enough reserved stars); {} without measured
+        reserved stars."""
+        from ._figures import plot_psf_maps, plot_rho_statistics, plot_stamp_residuals, \
+            plot_whiskers
+
+        if not self.summary.get("n_measured"):
+            return {}
+        figures = {"stamps": plot_stamp_residuals(self.residuals),
+                   "whiskers": plot_whiskers(self.residuals),
+                   "maps": plot_psf_maps(self.model, self.image_shape)}
+        if self.summary.get("rho1"):
+            figures["rho"] = plot_rho_statistics(self.summary)
+        return figures
+
+
+def _selection_lines(counts, n_kept, head, max_spread_model, min_class_star):
+    from ..io import SELECTION_REASONS
+
+    rejected = ", ".join(f"{k} {counts[k]}" for k in SELECTION_REASONS if counts.get(k))
+    lines = [f"{head}{n_kept}" + (f" (rejected: {rejected})" if rejected else "")]
+    size = {"flux_radius": "FLUX_RADIUS", "adaptive_sigma": "adaptive-moment sigma of the "
+            "VIGNETs"}.get(counts.get("locus_size"))
+    if size and np.isfinite(counts["locus_radius"]):
+        lines.append(f"  size-magnitude locus: {size} {counts['locus_radius']:.3g} pixels "
+                     f"(median over the selected stars), accepted within +-"
+                     f"{counts['locus_width']:.1%} (median; wider at low S/N)")
+    cuts = {"class_star": f"CLASS_STAR >= {min_class_star:g}",
+            "spread_model": f"|SPREAD_MODEL| <= {max_spread_model:g}"}
+    for name, fraction in counts.get("not_applied", {}).items():
+        lines.append(f"  not applied: {cuts[name]}, which would reject {fraction:.0%} of the "
+                     "sources on the size-magnitude locus"
+                     + (" (SExtractor's CLASS_STAR depends on the SEEING_FWHM it was given)"
+                        if name == "class_star" else ""))
+    return lines
+
+
+def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
+                 one_based: bool | None = None, x_col: str | None = None,
+                 y_col: str | None = None, select: bool = True, flag_mask: int | None = 0xfe,
+                 min_snr: float = 20.0, saturation: float | None = None,
+                 isolation: float | None = None, locus_width: float | str = "auto",
+                 max_spread_model: float = 0.003, min_class_star: float = 0.8,
+                 stamp_size: int | None = None, interpolator: str = "kriging",
+                 reserve: float = 0.2, random_state=0, progress=None) -> ExposureFit:
+    """Fit and validate the PSF model of an exposure, from its files to the verdict.
+
+    What ``sklearn-psf fit`` does, as one call:
+
+    1. read the image (and weight map) and/or the source catalogue (:func:`read_exposure`);
+    2. select the stars: with a catalogue, :func:`~sklearn_psf.io.select_stars` (flags,
+       S/N, saturation, crowding, the size-magnitude locus, then SPREAD_MODEL/CLASS_STAR
+       where they agree with it); without one, :func:`~sklearn_psf.io.find_stars` on the
+       image;
+    3. cut their stamps (the catalogue's VIGNETs without an image, else from the image with
+       its weight map), counting the stars skipped by reason;
+    4. reserve a fraction of the stars, fit :class:`~sklearn_psf.model.PSFModel` with the
+       chosen interpolator on the others, and judge it on the reserved ones
+       (:func:`fit_and_validate`).
+
+    Parameters
+    ----------
+    image, catalog, hdu, weight_hdu, one_based, x_col, y_col :
+        The inputs, as :func:`read_exposure` takes them. The catalogue's x, y must fall on
+        the image.
+    select : bool, default=True
+        False uses every catalogue row as a star (a catalogue of stars only).
+    flag_mask, min_snr, saturation, isolation, locus_width, max_spread_model, min_class_star :
+        The selection's cuts (:func:`~sklearn_psf.io.select_stars`). ``flag_mask`` defaults
+        to PSFEx's ``0xfe``: sources flagged only 1 (neighbours) are kept. ``saturation``
+        defaults to the header's ``SATURATE``.
+    stamp_size : int, optional
+        Stamp side; default the catalogue's VIGNET side, else 25.
+    interpolator : str, default="kriging"
+        A scheme of :func:`~sklearn_psf.model.make_interpolator`, or ``"auto"`` to choose it
+        by cross-validation among them.
+    reserve : float, default=0.2
+        Fraction of the stars reserved for the verdict.
+    random_state : int, default=0
+        Seed of the reserved-star draw.
+    progress : callable, optional
+        Called with the name of each step (``"selecting stars"``, ``"cutting stamps"``,
+        ``"fitting and validating"``) as it starts: a progress bar's hook.
+
+    Returns
+    -------
+    ExposureFit
+
+    Raises
+    ------
+    StarSelectionError
+        Fewer than 5 stars pass the selection (the counts of each cut in the message).
+    ValueError
+        Unreadable inputs (the file named), positions all off the image.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astropy.table import Table
+    >>> from sklearn_psf import make_psf_field
+    >>> from sklearn_psf.validation import fit_exposure
+    >>> field = make_psf_field(n_stars=60, n_galaxies=1, image_shape=(1000, 1000),
+    ...                        random_state=0)
+    >>> stamps, weights, flags = field.star_stamps(normalize=False, return_weights=True)
+    >>> side = int(np.sqrt(stamps.shape[1]))
+    >>> cat = Table({"x": field.stars["x"], "y": field.stars["y"],
+    ...              "VIGNET": stamps.reshape(-1, side, side)})
+    >>> fit = fit_exposure(catalog=cat, select=False, reserve=0.2)
+    >>> fit.summary["n_reserved"], fit.summary["n_fit"]
+    (12, 48)
+    >>> fit.report()[0]
+    'sources in the catalogue: 60 (0-based x, y)'
+    """
+    from ..io import celestial_wcs, find_stars, select_stars
+    from ..model import INTERPOLATORS, PSFModel, make_interpolator
+    from ._fit import fit_and_validate
+
+    step = progress or (lambda name: None)
+    inputs = read_exposure(image, catalog, hdu=hdu, weight_hdu=weight_hdu,
+                           one_based=one_based, x_col=x_col, y_col=y_col,
+                           saturation=saturation)
+    data, table = inputs.image, inputs.catalog
+    source = inputs.catalog_path or inputs.image_path or "the catalogue"
+    lines, counts = [], {}
+    n_nan = 0
+    if data is not None:
+        n_nan = int(np.isnan(data).sum())
+        weight = inputs.weight
+        n_zero = 0 if weight is None else int(np.sum(~(np.asarray(weight) > 0)))
+        lines.append(f"image: {data.shape[1]} x {data.shape[0]} pixels; NaN pixels: {n_nan}"
+                     + ("" if weight is None else f"; zero-weight pixels: {n_zero}")
+                     + " (masked: a star with one in its core is skipped)")
+    if stamp_size is None:
+        stamp_size = inputs.default_stamp_size
+    step("selecting stars")
+    if table is not None:
+        lines.append(f"sources in the catalogue: {len(table)}"
+                     f" ({'1' if table.meta['one_based'] else '0'}-based "
+                     f"{table.meta['x_column']}, {table.meta['y_column']})")
+        if data is not None:
+            x, y = np.asarray(table["x"]), np.asarray(table["y"])
+            ny, nx = data.shape
+            if not ((x > -0.5) & (x < nx - 0.5) & (y > -0.5) & (y < ny - 0.5)).any():
+                raise ValueError(
+                    f"All {len(table)} catalogue positions fall outside the image "
+                    f"{inputs.image_path} (ny, nx = {ny}, {nx}): check the HDU, or whether "
+                    "the positions are 1-based (one_based=True, --one-based)")
+        if select:
+            keep, counts = select_stars(
+                table, min_snr=min_snr, saturation=inputs.saturation, flag_mask=flag_mask,
+                stamp_size=stamp_size, isolation=isolation, locus_width=locus_width,
+                max_spread_model=max_spread_model, min_class_star=min_class_star,
+                min_stars=0)
+            n_kept = int(keep.sum())
+            lines += _selection_lines(counts, n_kept, "selected as stars: ", max_spread_model,
+                                      min_class_star)
+            if n_kept < MIN_STARS:
+                raise StarSelectionError(
+                    f"{n_kept} of the {len(table)} sources of {source} pass the star "
+                    "selection", counts, "or use no selection (select=False, --no-select) if "
+                    "the catalogue holds stars only", lines)
+            table = table[keep]
+            if flag_mask is not None and "flags" in table.colnames:
+                # flags outside the mask were accepted: the stamp cutters must not skip them
+                table["flags"] = np.asarray(table["flags"]).astype(np.int64) & int(flag_mask)
+    else:
+        table = find_stars(data, weight=inputs.weight, stamp_size=stamp_size, min_snr=min_snr,
+                           saturation=inputs.saturation, isolation=isolation,
+                           locus_width=locus_width)
+        counts = {**table.meta["rejected"], "locus_size": None}
+        lines += _selection_lines(counts, len(table), f"sources detected: "
+                                  f"{table.meta['n_detections']}, selected as stars: ",
+                                  max_spread_model, min_class_star)
+        if len(table) < MIN_STARS:
+            raise StarSelectionError(
+                f"found {len(table)} usable stars in {inputs.image_path} "
+                f"({table.meta['n_detections']} detections)", counts,
+                "or give a star catalogue", lines)
+    step("cutting stamps")
+    stars = inputs.cut_stamps(table, stamp_size)
+    skipped = {k: v for k, v in stars.counts.items() if k not in ("input", "used") and v}
+    lines.append(f"stars used: {stars.counts['used']} of {stars.counts['input']}"
+                 + (" (skipped: " + ", ".join(f"{k} {v}" for k, v in skipped.items()) + ")"
+                    if skipped else ""))
+    step("fitting and validating")
+    wcs = celestial_wcs(inputs.header)
+    options = {"reserve": reserve, "random_state": random_state, "weights": stars.weights,
+               "wcs": wcs}
+    if interpolator == "auto":
+        candidates = {n: PSFModel(interpolator=make_interpolator(n)) for n in INTERPOLATORS}
+        model, residuals, summary = fit_and_validate(stars.positions, stars.stamps,
+                                                     candidates=candidates, **options)
+    else:
+        model, residuals, summary = fit_and_validate(
+            stars.positions, stars.stamps, PSFModel(interpolator=make_interpolator(interpolator)),
+            **options)
+    summary["selection"] = dict(stars.counts)
+    summary["image"] = os.path.abspath(inputs.image_path or inputs.catalog_path or ".")
+    summary["interpolator"] = summary.get("scheme", interpolator)
+    summary["nan_pixels"] = n_nan
+    summary["saturation"] = inputs.saturation
+    summary["gain"] = inputs.gain
+    if wcs is not None:  # predict can then take and return (RA, Dec)
+        summary["wcs"] = wcs.to_header_string()
+    shape = inputs.image_shape
+    if shape is None:  # a catalogue without image header: the stars' extent
+        shape = tuple(int(v) + 1 for v in stars.positions.max(axis=0)[::-1])
+    return ExposureFit(model, residuals, summary, counts, stars, lines, shape)
+
+
+def _report(summary):
+    """The lines of the report after the selection: basis, residuals, verdict."""
+    lines = []
+    if "cv" in summary:
+        lines.append("cross-validation (e rms): " + ", ".join(
+            f"{r['scheme']} {r['e_rms']:.4f}" for r in summary["cv"])
+            + f" -> {summary['scheme']}")
+    lines.append(f"interpolator: {summary['interpolator']}; fitted stars: {summary['n_fit']}, "
+                 f"outliers rejected: {summary['n_outliers']}, reserved: "
+                 f"{summary['n_reserved']}")
+    if "n_components" in summary:
+        lines.append(f"basis: {summary['n_components']} components: "
+                     f"{summary['components_reason']}")
+    if summary.get("kriging_range") is not None:
+        lines.append(f"Kriging range (maximum likelihood): {summary['kriging_range']:.3g}; "
+                     f"stars' typical spacing: {summary['star_spacing']:.3g} (median distance "
+                     "to the nearest star; both in the interpolator's coordinates, the field "
+                     "scaled to the unit square)")
+    if summary["n_measured"]:
+        lines.append(
+            f"reserved stars (star - model, {summary['n_measured']} measured): "
+            f"e rms {summary['e_rms']:.4f} (e1 mean {summary['de1_mean']:+.4f} rms "
+            f"{summary['de1_rms']:.4f}, e2 mean {summary['de2_mean']:+.4f} rms "
+            f"{summary['de2_rms']:.4f}), size mean {summary['dsigma_mean']:+.4f} rms "
+            f"{summary['dsigma_rms']:.4f} pixels")
+    if summary.get("n_verdict"):
+        lines.append(
+            f"reserved stars against their own noise ({summary['n_verdict']} stars; a constant "
+            f"PSF fitted on the same stars in brackets): median chi^2 per degree of freedom "
+            f"{summary['chi2_dof_median']:.3f} ({summary['chi2_dof_median_constant']:.3f}); "
+            f"e residual rms "
+            f"over e noise rms {summary['e_resid_over_noise']:.2f} "
+            f"({summary['e_resid_over_noise_constant']:.2f}; e noise per component "
+            f"{summary['e_noise']:.4f}); 1 is pure noise")
+    if summary.get("rho1"):
+        unit = "arcmin" if "wcs" in summary else "pixel"
+        means = []
+        for k in range(1, 6):
+            xi = np.asarray((summary.get(f"rho{k}") or {}).get("xi", []), dtype=float)
+            means.append(f"rho{k} {np.nanmean(np.abs(xi)):.2e}" if np.isfinite(xi).any()
+                         else f"rho{k} -")
+        theta = summary["rho1"]["theta"]
+        lines.append(f"rho statistics of the reserved stars (mean |rho| over {len(theta)} bins, "
+                     f"{theta[0]:.3g}-{theta[-1]:.3g} {unit}): " + ", ".join(means))
+    return lines
