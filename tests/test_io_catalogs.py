@@ -289,10 +289,17 @@ def test_locus_selects_point_sources_whatever_class_star_says(sextractor_ldac):
         assert not keep[(kind == "saturated") | (kind == "blend")].any()
         assert counts["not_applied"] == {"class_star": 1.0} and counts["extended"] == 0
         assert counts["locus_size"] in ("flux_radius", "adaptive_sigma")
-    # a CLASS_STAR that agrees with the locus is applied
+    # with a size, the locus decides even where CLASS_STAR agrees with it (CLASS_STAR moves
+    # with SExtractor's detection threshold); without one, CLASS_STAR is applied
     cat["class_star"] = np.where(kind == "galaxy", 0.05, 0.95)
     keep, counts = select_stars(cat, saturation=saturation)
-    assert not counts["not_applied"] and not keep[kind == "galaxy"].any()
+    assert counts["extended"] == 0 and set(counts["not_applied"]) <= {"class_star"}
+    assert keep[kind == "star"].mean() >= 0.95 and keep[kind == "galaxy"].mean() <= 0.03
+    no_size = cat[[c for c in cat.colnames if c not in ("flux_radius", "VIGNET")]]
+    keep, counts = select_stars(no_size, saturation=saturation)
+    assert counts["locus_size"] is None and not counts["not_applied"]
+    assert counts["extended"] >= (kind == "galaxy").sum() - counts["low_snr"] - 5
+    assert not keep[kind == "galaxy"].any()
 
 
 def test_too_few_stars_error_names_each_cut_and_its_parameter(sextractor_ldac):

@@ -95,15 +95,18 @@ def _add_fit_parsers(sub):
         "order; the size-magnitude locus is the primary point-source test")
     sel.add_argument("--no-select", action="store_true",
                      help="use every catalogue row as a star (no star/galaxy selection)")
-    sel.add_argument("--flag-mask", type=_bits,
-                     help="bits of FLAGS that reject a source [every bit; PSFEx: 0xfe]")
+    sel.add_argument("--flag-mask", type=_bits, default=0xFE,
+                     help="bits of FLAGS that reject a source [0xfe, PSFEx's: sources flagged "
+                     "1, with neighbours, are kept and their neighbours masked]")
     sel.add_argument("--min-snr", type=float, default=20.0,
                      help="smallest S/N of a selected star [20]")
     sel.add_argument("--saturation", type=float,
                      help="saturation level [header SATURATE keyword, else none]")
     sel.add_argument("--isolation", type=float,
-                     help="smallest distance in pixels (along x and y) to another source "
-                     "[half the stamp + 3; 0: no crowding cut]")
+                     help="smallest distance in pixels (along x and y) to another source, "
+                     "instead of the default: a star is rejected only when a neighbour's "
+                     "light reaches its core, and the pixels of the other neighbours in its "
+                     "stamp are masked (0: no crowding cut)")
     sel.add_argument("--locus-width", type=_width, default="auto",
                      help="relative half-width of the size-magnitude locus, or 'auto': 3 times "
                      "its scatter at each star's S/N [auto]")

@@ -53,11 +53,16 @@ A SExtractor FITS_LDAC catalogue of every detection with ``VIGNET`` stamps is en
     sklearn-psf fit --stars ccd01.ldac -o ccd01_psf.fits
     sklearn-psf predict ccd01_psf.fits --positions galaxies.cat --centered -o psfs.fits
 
-or, in Python::
+or, in Python, in one call (:func:`sklearn_psf.validation.fit_exposure`, what ``fit`` runs)::
+
+    fit = fit_exposure(catalog="ccd01.ldac")            # model, residuals, summary, report()
+
+or step by step::
 
     stars = read_catalog("ccd01.ldac")                  # header in meta["image_header"]
     keep, counts = select_stars(stars, saturation=stars.meta["image_header"]["SATURATE"])
     cut = extract_vignettes(stars[keep])                # -1e30 pixels -> weight 0
+    # (fit_exposure also masks the neighbours' pixels: neighbour_masks(stars, rows, side))
     model, residuals, summary = fit_and_validate(cut.positions, cut.stamps,
                                                  weights=cut.weights)
     psf = draw_psf(model, [[1021.37, 88.62]], centered=True, oversampling=3)

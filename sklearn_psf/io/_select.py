@@ -299,7 +299,7 @@ def _relax_text(counts, options):
 
 
 def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = None,
-                 flag_mask: int | None = None, stamp_size: int = 25, image_shape=None,
+                 flag_mask: int | None = PSFEX_FLAG_MASK, stamp_size: int = 25, image_shape=None,
                  isolation: float | None = None, locus_width: float | str = "auto",
                  max_spread_model: float = 0.003, min_class_star: float = 0.8,
                  min_stars: int = 1):
@@ -314,9 +314,14 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
     - ``saturated``: highest raw pixel (``peak`` + ``background``, or the maximum of the
       ``VIGNET`` + ``background``) at or above 0.9 x ``saturation``;
     - ``near_edge``: closer than half a stamp + 2 pixels to the edge of ``image_shape``;
-    - ``crowded``: another source of the catalogue closer than ``isolation`` pixels along x
-      and y (by default, its centre falls within the star's stamp or 3 pixels from it; the
-      wings of farther ones are left to the model's outlier test);
+    - ``crowded``: by default, a neighbour whose light reaches the star's core (within 2
+      sigma + 1 pixel of its centre): each other source covers a disc out to where a
+      Gaussian of its size (``flux_radius``) falls below 1e-3 of the star's light per unit
+      area, plus 1 pixel, so a bright or large neighbour reaches farther than a faint one.
+      Neighbours farther out are kept in the stamp and their discs masked when the stamps are
+      cut (:func:`neighbour_masks`): the stars of a real image have neighbours (PSFEx keeps
+      them too), and a fixed distance would grow with the stamp. With ``isolation`` given,
+      the old rule instead: another source closer than ``isolation`` pixels along x and y;
     - ``off_locus``, the primary point-source criterion: the size-magnitude locus. The size is
       ``flux_radius`` (SExtractor ``FLUX_RADIUS``), else the adaptive-moment sigma of the
       ``VIGNET``; the locus is found as the densest size among the brighter half of the
@@ -325,10 +330,12 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
       ``locus_width="auto"``, a source is a point source within 3 times that scatter at its
       S/N; a float is a fixed relative half-width;
     - ``extended``, secondary: ``|spread_model|`` above ``max_spread_model`` (plus 2 times
-      ``spreaderr_model`` when given) if that column exists, else ``class_star`` below
-      ``min_class_star``. The cut is first checked against the locus: when it would reject
-      more than half of the sources on the locus it is not applied, and reported in
-      ``counts["not_applied"]``. Without a size column it is applied as it is.
+      ``spreaderr_model`` when given) if that column exists. The cut is first checked against
+      the locus: when it would reject more than half of the sources on the locus it is not
+      applied, and reported in ``counts["not_applied"]``. ``class_star`` below
+      ``min_class_star`` is used only without a size column: SExtractor's ``CLASS_STAR``
+      changes with its ``SEEING_FWHM`` and detection threshold, and the locus is the better
+      judge (the fraction of the locus it would reject is then in ``counts["not_applied"]``).
 
     Parameters
     ----------
@@ -341,16 +348,17 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
         Smallest S/N (PSFEx's default too): a noise-aware model uses faint stars.
     saturation : float, optional
         Saturation level of the raw image (header ``SATURATE``); None: no cut.
-    flag_mask : int, optional
-        Bits of ``flags`` that reject a source; default every bit. PSFEx's default, ``0xfe``,
-        keeps sources flagged 1 (neighbours close enough to bias the photometry).
+    flag_mask : int or None, default=PSFEX_FLAG_MASK
+        Bits of ``flags`` that reject a source (None: every bit). PSFEx's default, ``0xfe``,
+        keeps sources flagged 1 (neighbours close enough to bias the photometry: most stars
+        of a real image); their neighbours are judged by the ``crowded`` cut.
     stamp_size : int, default=25
         Side of the stamps (edge margin, default isolation).
     image_shape : tuple (ny, nx), optional
         Shape of the image; None: no edge cut.
     isolation : float, optional
-        Smallest Chebyshev distance to another source, pixels; default ``stamp_size // 2 +
-        3``. 0: no crowding cut.
+        Smallest Chebyshev distance to another source, pixels, instead of the default
+        neighbour-aware ``crowded`` cut (see above). 0: no crowding cut.
     locus_width : float or "auto", default="auto"
         Relative half-width of the locus (see above).
     max_spread_model : float, default=0.003
@@ -428,11 +436,15 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
         margin = half + 2
         cut("near_edge", (x >= margin) & (x <= nx - 1 - margin) & (y >= margin)
             & (y <= ny - 1 - margin))
-    if n > 1:
+    if n > 1 and isolation is None:
+        left = np.flatnonzero(keep)
+        ok = np.ones(n, dtype=bool)
+        ok[left] = ~_crowded(catalog, left, stamp_size)
+        cut("crowded", ok)
+    elif n > 1:
         finite = np.column_stack([np.nan_to_num(x, nan=-1e12), np.nan_to_num(y, nan=-1e12)])
         d, _ = cKDTree(finite).query(finite, k=2, p=np.inf)
-        iso = int(stamp_size) // 2 + 3 if isolation is None else float(isolation)
-        cut("crowded", d[:, 1] >= iso)
+        cut("crowded", d[:, 1] >= float(isolation))
 
     size, size_name = _size(catalog) if keep.any() else (None, None)
     on_locus = None
@@ -467,7 +479,10 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
         name, ok = secondary
         rejected = float(np.mean(~ok[on_locus])) if on_locus is not None and on_locus.any() \
             else 0.0
-        if rejected > _MOST:
+        if name == "class_star" and size is not None:
+            if rejected > 0:
+                counts["not_applied"][name] = rejected
+        elif rejected > _MOST:
             counts["not_applied"][name] = rejected
         else:
             cut("extended", ok)

@@ -130,8 +130,9 @@ def _find_stars(data, *, weight=None, stamp_size=25, detect_thresh=5.0, min_snr=
     measured["x"][~np.isfinite(xw)] = x[~np.isfinite(xw)]
     measured["y"][~np.isfinite(yw)] = y[~np.isfinite(yw)]
     keep, cuts = select_stars(measured, min_snr=min_snr, saturation=saturation, stamp_size=s,
-                              image_shape=(ny, nx), isolation=isolation, locus_width=locus_width,
-                              min_stars=0)
+                              image_shape=(ny, nx), flag_mask=None,
+                              isolation=s // 2 + 3 if isolation is None else isolation,
+                              locus_width=locus_width, min_stars=0)
     locus = cuts["locus_radius"]
     counts.update({k: cuts[k] for k in SELECTION_REASONS})
     idx = np.flatnonzero(keep)

@@ -278,7 +278,8 @@ def _selection_lines(counts, n_kept, head, max_spread_model, min_class_star):
     for name, fraction in counts.get("not_applied", {}).items():
         lines.append(f"  not applied: {cuts[name]}, which would reject {fraction:.0%} of the "
                      "sources on the size-magnitude locus"
-                     + (" (SExtractor's CLASS_STAR depends on the SEEING_FWHM it was given)"
+                     + (" (the locus decides: SExtractor's CLASS_STAR depends on the "
+                        "SEEING_FWHM and detection threshold it was given)"
                         if name == "class_star" else ""))
     return lines
 
@@ -301,7 +302,9 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
        where they agree with it); without one, :func:`~sklearn_psf.io.find_stars` on the
        image;
     3. cut their stamps (the catalogue's VIGNETs without an image, else from the image with
-       its weight map), counting the stars skipped by reason;
+       its weight map), counting the stars skipped by reason, and mask the pixels of their
+       neighbours (:func:`~sklearn_psf.io.neighbour_masks`: every other source of the
+       catalogue, with the default crowding cut);
     4. reserve a fraction of the stars, fit :class:`~sklearn_psf.model.PSFModel` with the
        chosen interpolator on the others, and judge it on the reserved ones
        (:func:`fit_and_validate`).
@@ -369,7 +372,7 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
                            saturation=saturation)
     data, table = inputs.image, inputs.catalog
     source = inputs.catalog_path or inputs.image_path or "the catalogue"
-    lines, counts = [], {}
+    lines, counts, rows = [], {}, None
     n_nan = 0
     if data is not None:
         n_nan = int(np.isnan(data).sum())
@@ -407,7 +410,8 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
                     f"{n_kept} of the {len(table)} sources of {source} pass the star "
                     "selection", counts, "or use no selection (select=False, --no-select) if "
                     "the catalogue holds stars only", lines)
-            table = table[keep]
+            table, full = table[keep], table
+            rows = np.flatnonzero(keep)  # the stars' rows in the full catalogue
             if flag_mask is not None and "flags" in table.colnames:
                 # flags outside the mask were accepted: the stamp cutters must not skip them
                 table["flags"] = np.asarray(table["flags"]).astype(np.int64) & int(flag_mask)
@@ -430,6 +434,9 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     lines.append(f"stars used: {stars.counts['used']} of {stars.counts['input']}"
                  + (" (skipped: " + ", ".join(f"{k} {v}" for k, v in skipped.items()) + ")"
                     if skipped else ""))
+    if rows is not None and isolation is None:
+        _mask_neighbours(stars, full, rows[np.asarray(stars.catalog["used"], dtype=bool)],
+                         lines)
     step("fitting and validating")
     wcs = celestial_wcs(inputs.header)
     options = {"reserve": reserve, "random_state": random_state, "weights": stars.weights,
@@ -454,6 +461,26 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     if shape is None:  # a catalogue without image header: the stars' extent
         shape = tuple(int(v) + 1 for v in stars.positions.max(axis=0)[::-1])
     return ExposureFit(model, residuals, summary, counts, stars, lines, shape)
+
+
+def _mask_neighbours(stars, catalog, rows, lines):
+    """Zero the weight (and the value) of the stamps' pixels that the catalogue's other
+    sources cover (:func:`~sklearn_psf.io.neighbour_masks`); say how many."""
+    from ..io import neighbour_masks
+    from ..preprocessing import estimate_pixel_weights
+
+    side = int(round(np.sqrt(stars.stamps.shape[1])))
+    masks = neighbour_masks(catalog, rows, side).reshape(len(rows), -1)
+    hit = masks.any(axis=1)
+    if not hit.any():
+        return
+    weights = stars.weights if stars.weights is not None else \
+        estimate_pixel_weights(stars.stamps)
+    stars.weights = np.where(masks, 0.0, weights)
+    stars.stamps = np.where(masks, 0.0, stars.stamps)
+    lines.append(f"neighbours masked: in {int(hit.sum())} stamps (median "
+                 f"{int(np.median(masks[hit].sum(axis=1)))} pixels of {masks.shape[1]}), the "
+                 "pixels of the catalogue's other sources")
 
 
 def _report(summary):
