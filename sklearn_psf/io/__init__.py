@@ -88,6 +88,15 @@ from ._catalog import read_catalog, write_ldac
 from ._draw import draw_psf, extrapolation_flags
 from ._image import FITSHeaderWarning, read_image
 from ._psf_stamps import read_psf_stamps, write_psf_stamps
+from ._sextractor import (
+    DEFAULT_SEXTRACTOR_CONFIG,
+    DEFAULT_SEXTRACTOR_PARAMS,
+    ProgramError,
+    ProgramNotFoundError,
+    find_program,
+    run_psfex,
+    run_sextractor,
+)
 from ._select import (PSFEX_FLAG_MASK, SELECTION_OPTIONS, SELECTION_REASONS, neighbour_masks,
                       select_stars)
 from ._stars import REJECTION_REASONS, StarStamps, extract_star_stamps, find_stars
@@ -104,10 +113,14 @@ from ..model import (  # noqa: E402
 )
 
 __all__ = [
+    "DEFAULT_SEXTRACTOR_CONFIG",
+    "DEFAULT_SEXTRACTOR_PARAMS",
     "FITSHeaderWarning",
     "MODEL_FORMAT",
     "MODEL_FORMAT_VERSION",
     "PSFEX_FLAG_MASK",
+    "ProgramError",
+    "ProgramNotFoundError",
     "REJECTION_REASONS",
     "SELECTION_OPTIONS",
     "SELECTION_REASONS",
@@ -118,6 +131,7 @@ __all__ = [
     "extract_star_stamps",
     "extract_vignettes",
     "extrapolation_flags",
+    "find_program",
     "find_stars",
     "load_model",
     "neighbour_masks",
@@ -126,6 +140,8 @@ __all__ = [
     "read_image",
     "read_model_validation",
     "read_psf_stamps",
+    "run_psfex",
+    "run_sextractor",
     "save_model",
     "select_stars",
     "sky_to_pixel",
