@@ -44,32 +44,39 @@ _MOST = 0.5
 #: PSFEx's default ``SAMPLE_FLAGMASK``: every SExtractor flag but 1 (neighbours close enough
 #: to bias the photometry, which most stars of a real image have) rejects a source.
 PSFEX_FLAG_MASK = 0xFE
-#: Gaussian sigma over half-light radius (``FLUX_RADIUS`` with ``PHOT_FLUXFRAC`` 0.5).
-_SIGMA_PER_RADIUS = 1 / np.sqrt(2 * np.log(2))
-#: A neighbour is masked out to where its profile (Gaussian of its size) falls below this
-#: fraction of the star's peak, and never less than 1 pixel beyond its core.
-_NEIGHBOUR_LEVEL = 1e-3
+#: Moffat index of the profile the mask radii are worked out with (from each source's
+#: ``flux_radius``): wings between a Gaussian's and the atmosphere's (Kolmogorov).
+_BETA = 3.0
+#: A neighbour is masked out to where its surface brightness falls below this fraction of the
+#: star's peak surface brightness.
+_NEIGHBOUR_LEVEL = 3e-3
 
 
-def _neighbour_radii(catalog, rows):
-    """(mask radius of every source, core radius of the sources ``rows``), pixels.
-
-    A neighbour of flux F_n and Gaussian sigma s_n (from ``flux_radius``) around a star of
-    flux F is masked out to ``s_n sqrt(2 ln(F_n / F / level)) + 1`` pixels (at least
-    ``s_n sqrt(2 ln 2) + 1``): where its light falls below ``level`` of the star's per unit
-    area; the star's core is ``2 s + 1`` pixels. Without ``flux_radius`` the sizes are 2
-    pixels; without a flux, the sources are taken as equally bright.
-    """
+def _sizes_fluxes(catalog):
+    """Moffat alpha (pixels, from ``flux_radius``; the median where unknown, else 2) and flux
+    (NaN where unknown) of every source."""
     radius = _column(catalog, "flux_radius")
     n = len(catalog)
-    sigma = np.full(n, 2.0) if radius is None else np.where(
-        np.isfinite(radius) & (radius > 0), radius * _SIGMA_PER_RADIUS, np.nan)
-    sigma = np.where(np.isfinite(sigma), sigma, np.nanmedian(sigma) if np.isfinite(
-        sigma).any() else 2.0)
+    # alpha = hlr / sqrt(2^(1/(beta-1)) - 1) for a Moffat profile
+    alpha = np.full(n, np.nan) if radius is None else np.where(
+        np.isfinite(radius) & (radius > 0), radius / np.sqrt(2 ** (1 / (_BETA - 1)) - 1),
+        np.nan)
+    fill = np.nanmedian(alpha) if np.isfinite(alpha).any() else 2.0
+    alpha = np.where(np.isfinite(alpha), alpha, fill)
     flux = _column(catalog, "flux")
-    flux = np.ones(n) if flux is None else np.where(np.isfinite(flux) & (flux > 0), flux,
-                                                     np.nan)
-    return sigma, flux
+    flux = np.full(n, np.nan) if flux is None else np.where(np.isfinite(flux) & (flux > 0),
+                                                             flux, np.nan)
+    return alpha, flux
+
+
+def _mask_radius(alpha_n, flux_n, alpha_s, flux_s):
+    """Radius out to which neighbours (Moffat alpha_n, flux_n) outshine ``_NEIGHBOUR_LEVEL``
+    of the star's peak surface brightness: (1 + (r/alpha_n)^2)^-beta = level q, with
+    q = (F_s / F_n) (alpha_n / alpha_s)^2; at least alpha_n (the neighbour's core)."""
+    ratio = np.where(np.isfinite(flux_n) & np.isfinite(flux_s), flux_s / flux_n, 1.0)
+    q = ratio * (alpha_n / alpha_s) ** 2
+    reach = np.sqrt(np.maximum((_NEIGHBOUR_LEVEL * q) ** (-1 / _BETA) - 1, 1.0))
+    return alpha_n * reach
 
 
 def _neighbours(catalog, rows, reach):
@@ -82,25 +89,18 @@ def _neighbours(catalog, rows, reach):
             for i, near in zip(rows, found)]
 
 
-def _mask_radius(sigma_n, flux_n, flux_star):
-    ratio = np.where(np.isfinite(flux_n), flux_n, flux_star) / flux_star
-    ratio = np.where(np.isfinite(ratio), ratio, 1.0)
-    return sigma_n * np.sqrt(2 * np.log(np.maximum(ratio / _NEIGHBOUR_LEVEL, 2.0))) + 1.0
-
-
 def _crowded(catalog, rows, stamp_size):
-    """True for each of ``rows`` whose core a neighbour's mask would reach."""
-    sigma, flux = _neighbour_radii(catalog, rows)
+    """True for each of ``rows`` whose core (within alpha of its centre, about its FWHM)
+    a neighbour's mask reaches (see :func:`neighbour_masks`)."""
+    alpha, flux = _sizes_fluxes(catalog)
     x, y = _column(catalog, "x"), _column(catalog, "y")
-    reach = (int(stamp_size) - 1) / 2 + 1.5 + 8 * np.nanmax(sigma, initial=2.0)
+    reach = (int(stamp_size) - 1) / 2 + 1.5 + 30 * np.nanmax(alpha, initial=2.0)
     bad = np.zeros(len(rows), dtype=bool)
     for k, (i, near) in enumerate(zip(rows, _neighbours(catalog, rows, reach))):
-        if near.size == 0:
-            continue
-        f = flux[i] if np.isfinite(flux[i]) else np.nanmedian(flux[near]) if np.isfinite(
-            flux[near]).any() else 1.0
-        d = np.hypot(x[near] - x[i], y[near] - y[i])
-        bad[k] = np.any(d < _mask_radius(sigma[near], flux[near], f) + 2 * sigma[i] + 1)
+        if near.size:
+            d = np.hypot(x[near] - x[i], y[near] - y[i])
+            r = _mask_radius(alpha[near], flux[near], alpha[i], flux[i])
+            bad[k] = np.any(d < r + alpha[i])
     return bad
 
 
@@ -108,10 +108,13 @@ def neighbour_masks(catalog, rows, stamp_size: int):
     """Pixels of the stamps of the sources ``rows`` that their neighbours' light covers.
 
     Each other source of ``catalog`` is masked within a disc whose radius grows with its size
-    (``flux_radius``) and its flux relative to the star's: out to where a Gaussian of its size
-    falls below 1e-3 of the star's light per unit area, plus 1 pixel (see
+    (``flux_radius``) and its flux relative to the star's: out to where its surface brightness,
+    taken as a Moffat profile (beta = 3) of its half-light radius and flux, falls below 0.3%
+    of the star's peak surface brightness, and at least its Moffat alpha (see
     :func:`select_stars`, whose default crowding cut rejects only the stars whose core such a
-    disc reaches). The stamps are centred as the stamp cutters centre them: the star's pixel
+    disc reaches). Without ``flux`` the sources count as equally bright; without
+    ``flux_radius``, as large as the median source (else alpha = 2 pixels). The stamps are
+    centred as the stamp cutters centre them: the star's pixel
     ``floor(x + 0.5)`` at index ``stamp_size // 2``.
 
     Parameters
@@ -143,16 +146,14 @@ def neighbour_masks(catalog, rows, stamp_size: int):
     masks = np.zeros((len(rows), s, s), dtype=bool)
     if len(rows) == 0 or len(catalog) < 2:
         return masks
-    sigma, flux = _neighbour_radii(catalog, rows)
+    alpha, flux = _sizes_fluxes(catalog)
     x, y = _column(catalog, "x"), _column(catalog, "y")
-    reach = (s - 1) / 2 + 1.5 + 8 * np.nanmax(sigma, initial=2.0)
+    reach = (s - 1) / 2 + 1.5 + 30 * np.nanmax(alpha, initial=2.0)
     offsets = np.arange(s) - s // 2
     for k, (i, near) in enumerate(zip(rows, _neighbours(catalog, rows, reach))):
         if near.size == 0 or not (np.isfinite(x[i]) and np.isfinite(y[i])):
             continue
-        f = flux[i] if np.isfinite(flux[i]) else np.nanmedian(flux[near]) if np.isfinite(
-            flux[near]).any() else 1.0
-        r = _mask_radius(sigma[near], flux[near], f)
+        r = _mask_radius(alpha[near], flux[near], alpha[i], flux[i])
         px = np.floor(x[i] + 0.5) + offsets   # image pixel of each stamp column
         py = np.floor(y[i] + 0.5) + offsets
         dx = px[None, None, :] - x[near][:, None, None]
@@ -193,12 +194,26 @@ def _peak(table):
     return peak
 
 
-def _size(table):
-    """(size, name): ``flux_radius``, else the adaptive-moment sigma of the ``VIGNET``."""
+def _size(table, rows=None):
+    """(size, name) of each source: with ``rows`` and ``VIGNET``s, the adaptive-moment sigma
+    of those rows' VIGNETs with their neighbours masked (:func:`neighbour_masks`; NaN
+    elsewhere); else ``flux_radius``; else the adaptive-moment sigma of the ``VIGNET``."""
+    vig = _vignettes(table)
     radius = _column(table, "flux_radius")
+    if vig is not None and len(vig) and rows is not None:
+        from ..measure import adaptive_moments
+
+        sub = vig[rows]
+        valid = (np.isfinite(sub) & (sub > -1e29)
+                 & ~neighbour_masks(table, rows, vig.shape[1]))
+        mom = adaptive_moments(np.where(valid, sub, 0.0), weights=valid.astype(np.float64),
+                               guess_sigma=max(1.0, vig.shape[1] / 10))
+        sigma = np.full(len(table), np.nan)
+        sigma[rows] = np.where(np.asarray(mom["flag"]) == 0, np.asarray(mom["sigma"], float),
+                               np.nan)
+        return sigma, "adaptive_sigma_masked"
     if radius is not None:
         return radius, "flux_radius"
-    vig = _vignettes(table)
     if vig is None or len(vig) == 0:
         return None, None
     from ..measure import adaptive_moments
@@ -314,17 +329,19 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
     - ``saturated``: highest raw pixel (``peak`` + ``background``, or the maximum of the
       ``VIGNET`` + ``background``) at or above 0.9 x ``saturation``;
     - ``near_edge``: closer than half a stamp + 2 pixels to the edge of ``image_shape``;
-    - ``crowded``: by default, a neighbour whose light reaches the star's core (within 2
-      sigma + 1 pixel of its centre): each other source covers a disc out to where a
-      Gaussian of its size (``flux_radius``) falls below 1e-3 of the star's light per unit
-      area, plus 1 pixel, so a bright or large neighbour reaches farther than a faint one.
+    - ``crowded``: by default, a neighbour whose light reaches the star's core (a Moffat
+      alpha, about a FWHM, from its centre): each other source covers a disc out to where
+      its surface brightness (a Moffat profile, beta = 3, of its ``flux_radius`` and flux)
+      falls below 0.3% of the star's peak, so a bright or large neighbour reaches farther
+      than a faint one.
       Neighbours farther out are kept in the stamp and their discs masked when the stamps are
       cut (:func:`neighbour_masks`): the stars of a real image have neighbours (PSFEx keeps
       them too), and a fixed distance would grow with the stamp. With ``isolation`` given,
       the old rule instead: another source closer than ``isolation`` pixels along x and y;
     - ``off_locus``, the primary point-source criterion: the size-magnitude locus. The size is
-      ``flux_radius`` (SExtractor ``FLUX_RADIUS``), else the adaptive-moment sigma of the
-      ``VIGNET``; the locus is found as the densest size among the brighter half of the
+      the adaptive-moment sigma of the ``VIGNET`` with the neighbours masked (the default
+      crowding cut and VIGNETs), else ``flux_radius`` (SExtractor ``FLUX_RADIUS``, which a
+      neighbour's light inflates), else the adaptive-moment sigma of the ``VIGNET``; the locus is found as the densest size among the brighter half of the
       sources, follows the PSF's size over the field (a polynomial in x, y) and widens at low
       S/N by the measured scatter of the sources below it (galaxies lie only above it). With
       ``locus_width="auto"``, a source is a point source within 3 times that scatter at its
@@ -446,7 +463,8 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
         d, _ = cKDTree(finite).query(finite, k=2, p=np.inf)
         cut("crowded", d[:, 1] >= float(isolation))
 
-    size, size_name = _size(catalog) if keep.any() else (None, None)
+    size, size_name = (_size(catalog, np.flatnonzero(keep) if isolation is None else None)
+                       if keep.any() else (None, None))
     on_locus = None
     if size is not None:
         counts["locus_size"] = size_name

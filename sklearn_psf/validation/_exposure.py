@@ -268,7 +268,8 @@ def _selection_lines(counts, n_kept, head, max_spread_model, min_class_star):
     rejected = ", ".join(f"{k} {counts[k]}" for k in SELECTION_REASONS if counts.get(k))
     lines = [f"{head}{n_kept}" + (f" (rejected: {rejected})" if rejected else "")]
     size = {"flux_radius": "FLUX_RADIUS", "adaptive_sigma": "adaptive-moment sigma of the "
-            "VIGNETs"}.get(counts.get("locus_size"))
+            "VIGNETs", "adaptive_sigma_masked": "adaptive-moment sigma of the VIGNETs, "
+            "neighbours masked"}.get(counts.get("locus_size"))
     if size and np.isfinite(counts["locus_radius"]):
         lines.append(f"  size-magnitude locus: {size} {counts['locus_radius']:.3g} pixels "
                      f"(median over the selected stars), accepted within +-"
@@ -501,6 +502,11 @@ def _report(summary):
                      f"stars' typical spacing: {summary['star_spacing']:.3g} (median distance "
                      "to the nearest star; both in the interpolator's coordinates, the field "
                      "scaled to the unit square)")
+    if summary.get("n_reserved_outliers"):
+        rows = summary["reserved_outliers"]
+        lines.append(f"reserved stars rejected by the outlier test (left out of what follows): "
+                     f"{len(rows)} (rows " + ", ".join(map(str, rows[:10]))
+                     + (", ..." if len(rows) > 10 else "") + " of the stars used)")
     if summary["n_measured"]:
         lines.append(
             f"reserved stars (star - model, {summary['n_measured']} measured): "

@@ -12,9 +12,12 @@ from sklearn.utils import check_random_state
 
 from .._validation import as_stamps
 from ..metrics import make_ellipticity_rms_scorer, make_rho1_scorer
+from ..measure import adaptive_moments
 from ..metrics._correlation import EmptyBinsWarning
 from ..model import PSFModel
-from ._residuals import measure_residuals, rho_bins
+from ..model._noise import pixel_residuals
+from ..preprocessing import ChiSquareOutlierDetector, estimate_pixel_weights
+from ._residuals import _chi2, measure_residuals, rho_bins
 from ._verdict import PSFQualityWarning, model_verdict
 
 __all__ = ["fit_and_validate"]
@@ -33,6 +36,34 @@ def _accepted(model, fit_params):
     """The fit parameters ``model.fit`` accepts (pixel weights only where supported)."""
     accepted = inspect.signature(model.fit).parameters
     return {k: v for k, v in fit_params.items() if k in accepted}
+
+
+def _reserved_outliers(table, stamps, weights, model):
+    """The reserved stars that the model's outlier test would reject: their pixels against
+    the model's PSF at their position (flux, background and centroid fitted), in their noise
+    with the model error (estimated on the reserved stars themselves), judged by a
+    :class:`~sklearn_psf.preprocessing.ChiSquareOutlierDetector` at the model's p-value. A
+    blend or a galaxy among them then does not spoil the statistics."""
+    out = np.zeros(len(table), dtype=bool)
+    ok = np.flatnonzero(np.asarray(table["flag"]) == 0)
+    if ok.size < 5:
+        return out
+    d = np.asarray(stamps, dtype=np.float64)[ok]
+    w = estimate_pixel_weights(d) if weights is None else np.asarray(weights, np.float64)[ok]
+    w = np.where(np.isfinite(d), w, 0.0)
+    d = np.where(w > 0, np.nan_to_num(d), 0.0)
+    psf = np.asarray(table["stamp_model"], dtype=np.float64)[ok]
+    n, s = len(ok), int(round(np.sqrt(psf.shape[1])))
+    _, _, fitted = _chi2(d, w, psf, adaptive_moments(psf.reshape(n, s, s)), return_model=True)
+    usable = np.isfinite(fitted).all(axis=1)
+    if usable.sum() < 5:
+        return out
+    z, _ = pixel_residuals(d[usable], fitted[usable], w[usable])
+    detector = getattr(model, "outliers_", None)
+    p_value = detector.p_value if isinstance(detector, ChiSquareOutlierDetector) else 1e-4
+    rejected = ChiSquareOutlierDetector(p_value=p_value).fit(z).predict(z) == -1
+    out[ok[np.flatnonzero(usable)[rejected]]] = True
+    return out
 
 
 def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=None, *,
@@ -110,7 +141,12 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
         ``de2``, ``dsigma`` (star - model), ``resid_rms`` (pixel rms of the unit-flux
         residual stamp), ``chi2``, ``dof`` (raw stamp against the model, in the star's
         noise), ``flag`` (0: both measured; 1: star's moments failed; 2: model's),
-        ``stamp_star``, ``stamp_model`` (normalised); see :func:`measure_residuals`.
+        ``stamp_star``, ``stamp_model`` (normalised); see :func:`measure_residuals`; and
+        ``outlier``: True for the reserved stars that the model's outlier test rejects (their
+        pixels against the model's PSF, flux and centroid fitted, in their noise plus the
+        model error, by a :class:`~sklearn_psf.preprocessing.ChiSquareOutlierDetector` at
+        the model's p-value): blends, galaxies, cosmic rays. They are left out of the summary's
+        statistics and verdict.
     summary : dict
         ``n_stars``, ``n_fit``, ``n_reserved``, ``n_measured``, ``n_inliers``,
         ``n_outliers``, ``de1_mean``, ``de1_rms``, ``de2_mean``, ``de2_rms``, ``e_rms``
@@ -119,7 +155,8 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
         :func:`~sklearn_psf.metrics.rho_statistics` with T = 2 sigma^2; each a dict of
         ``theta`` [``rho_theta_units``: pixel, or arcmin with a ``wcs``], ``xi``,
         ``sigma_xi``, ``npairs``, or None with fewer than 10 measured stars),
-        ``rho_theta_units``, ``rho1_mean_abs`` and, with candidates,
+        ``rho_theta_units``, ``rho1_mean_abs``, ``n_reserved_outliers`` and
+        ``reserved_outliers`` (their rows in X), and, with candidates,
         ``cv`` (list of per-scheme mean/std scores) and ``scheme`` (the chosen one). The
         verdict: ``n_components`` and ``components_reason`` (text: the noise edge and the
         variance of the last kept and first dropped components over it), ``n_verdict``
@@ -236,13 +273,24 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
                     "n_inliers": int(np.sum(model.inlier_mask_)),
                     "n_outliers": int(np.sum(~model.inlier_mask_))})
     pred = model.predict(X[reserved]) if k else np.zeros((0, s * s))
-    table, measured = measure_residuals(
-        X[reserved], y[reserved], pred, weights=None if weights is None else w[reserved],
-        wcs=wcs, min_sep=min_sep, max_sep=max_sep, nbins=rho1_nbins, index=reserved)
+    w_res = None if weights is None else w[reserved]
+    options = {"wcs": wcs, "min_sep": min_sep, "max_sep": max_sep, "nbins": rho1_nbins}
+    table, measured = measure_residuals(X[reserved], y[reserved], pred, weights=w_res,
+                                        index=reserved, **options)
+    outlier = _reserved_outliers(table, y[reserved], w_res, model)
+    table["outlier"] = outlier
+    if outlier.any():  # the statistics and the verdict without them
+        _, measured = measure_residuals(X[reserved[~outlier]], y[reserved[~outlier]],
+                                        pred[~outlier], index=reserved[~outlier],
+                                        weights=None if w_res is None else w_res[~outlier],
+                                        **options)
     summary.update(measured)
+    summary["n_reserved_outliers"] = int(outlier.sum())
+    summary["reserved_outliers"] = [int(i) for i in reserved[outlier]]
     if hasattr(model, "coefficients_"):
-        summary.update(model_verdict(model, X, y, None if weights is None else w, reserved,
-                                     table, random_state=rng.randint(0, 2**31 - 1)))
+        summary.update(model_verdict(model, X, y, None if weights is None else w,
+                                     reserved[~outlier], table[~outlier],
+                                     random_state=rng.randint(0, 2**31 - 1)))
         for message in summary["warnings"]:
             warnings.warn(message, PSFQualityWarning, stacklevel=2)
     return model, table, summary

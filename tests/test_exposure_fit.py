@@ -1,0 +1,114 @@
+"""The real-data path as one call (fit_exposure), the neighbour masks of the star selection,
+and the reserved stars' outlier screening."""
+
+import warnings
+
+import numpy as np
+import pytest
+from astropy.table import Table
+
+from sklearn_psf import make_psf_field
+from sklearn_psf.io import neighbour_masks, select_stars
+from sklearn_psf.validation import StarSelectionError, fit_and_validate, fit_exposure
+
+
+def _field(seed=3, n_stars=200):
+    field = make_psf_field(n_stars=n_stars, n_galaxies=1, image_shape=(2000, 2000),
+                           random_state=seed)
+    stamps, weights, _ = field.star_stamps(normalize=False, return_weights=True)
+    return np.column_stack([field.stars["x"], field.stars["y"]]), stamps, weights
+
+
+def _e_rms(table):
+    ok = np.asarray(table["flag"]) == 0
+    return float(np.sqrt(np.mean(np.asarray(table["de1"])[ok] ** 2
+                                 + np.asarray(table["de2"])[ok] ** 2)))
+
+
+@pytest.mark.parametrize("offset, ratio", [((2, 3), 0.8), ((0, 5), 0.5)])
+def test_one_reserved_blend_does_not_change_the_verdict(offset, ratio):
+    """A blend among the reserved stars is rejected by the outlier test, counted and listed,
+    and the reported e and size rms stay within 10% of those without it (with it in the
+    statistics they would move by more)."""
+    X, stamps, weights = _field()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        _, clean, s0 = fit_and_validate(X, stamps, reserve=0.2, random_state=1,
+                                        weights=weights)
+        i = int(clean["index"][0])
+        side = int(np.sqrt(stamps.shape[1]))
+        blended = stamps.reshape(-1, side, side).copy()
+        blended[i] += ratio * np.roll(blended[i], offset, axis=(0, 1))
+        _, table, s1 = fit_and_validate(X, blended.reshape(len(X), -1), reserve=0.2,
+                                        random_state=1, weights=weights)
+    assert s0["n_reserved_outliers"] == 0
+    assert s1["n_reserved_outliers"] == 1 and s1["reserved_outliers"] == [i]
+    assert bool(table["outlier"][0]) and int(table["index"][0]) == i
+    for key in ("e_rms", "dsigma_rms"):
+        assert abs(s1[key] / s0[key] - 1) < 0.10, key
+    # the same statistics with the blend in them: more than 10% off for e or size
+    with_blend = _e_rms(table)
+    assert with_blend / s0["e_rms"] > 1.10 or abs(
+        np.sqrt(np.mean(np.asarray(table["dsigma"])[np.asarray(table["flag"]) == 0] ** 2))
+        / s0["dsigma_rms"] - 1) > 0.10
+
+
+def test_neighbour_masks_hold_the_neighbours_light():
+    """GalSim renders a star and a neighbour (Moffat profiles of beta 3.5, the neighbour 3x
+    brighter and 1.5x larger, 16 pixels away): no unmasked pixel of the star's stamp holds
+    neighbour light above 0.3% of the star's peak (the masks assume beta = 3 wings), and none
+    of the star's core is masked; a neighbour 4 pixels away makes the star crowded."""
+    galsim = pytest.importorskip("galsim")
+    s, x0, y0 = 33, 60.3, 50.6
+    xn, yn = x0 + 16.0, y0 + 2.0
+    image = galsim.ImageD(120, 100, scale=1.0)  # pixel i holds x = i - 1 + 1 (0-based below)
+    star = galsim.Moffat(beta=3.5, fwhm=3.0).withFlux(1000.0)
+    neighbour = galsim.Moffat(beta=3.5, fwhm=4.5).withFlux(3000.0)
+    only_s, only_n = image.copy(), image.copy()
+    star.drawImage(only_s, center=galsim.PositionD(x0 + 1, y0 + 1))
+    neighbour.drawImage(only_n, center=galsim.PositionD(xn + 1, yn + 1))
+    hlr = [star.calculateHLR(), neighbour.calculateHLR()]
+    cat = Table({"x": [x0, xn], "y": [y0, yn], "flux_radius": hlr, "flux": [1000.0, 3000.0]})
+    mask = neighbour_masks(cat, [0], s)[0]
+    cx, cy = int(np.floor(x0 + 0.5)), int(np.floor(y0 + 0.5))
+    cut = only_n.array[cy - s // 2: cy - s // 2 + s, cx - s // 2: cx - s // 2 + s]
+    peak = only_s.array.max()
+    assert cut[~mask].max() < 3e-3 * peak
+    assert cut[mask].sum() > 0.9 * cut.sum()
+    yy, xx = np.mgrid[:s, :s] - s // 2
+    core = np.hypot(xx + cx - x0, yy + cy - y0) < 3.0   # within a FWHM of the star
+    assert not mask[core].any()
+    # the selection rejects the star only when the neighbour reaches its core
+    keep, counts = select_stars(cat, min_snr=0, stamp_size=s)
+    assert keep[0] and counts["crowded"] == 0
+    cat["x"][1] = x0 + 4.0
+    keep, counts = select_stars(cat, min_snr=0, stamp_size=s, min_stars=0)
+    assert not keep[0] and counts["crowded"] >= 1
+
+
+def test_fit_exposure_is_the_command_s_fit(tmp_path, capsys):
+    """fit_exposure gives the model and verdict that ``sklearn-psf fit`` saves."""
+    from sklearn_psf.cli import main
+    from sklearn_psf.io import load_model, read_model_validation, write_ldac
+
+    X, stamps, _ = _field(seed=5, n_stars=80)
+    side = int(np.sqrt(stamps.shape[1]))
+    cat = Table({"X_IMAGE": X[:, 0] + 1, "Y_IMAGE": X[:, 1] + 1,
+                 "VIGNET": stamps.reshape(-1, side, side).astype(np.float32)})
+    path = tmp_path / "stars.ldac"
+    write_ldac(path, cat)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = fit_exposure(catalog=path, select=False, interpolator="polynomial")
+        assert main(["fit", "--stars", str(path), "--no-select", "--no-plots", "--interpolator",
+                     "polynomial", "-o", str(tmp_path / "m.fits")]) == 0
+    out = capsys.readouterr().out
+    for line in fit.report():
+        assert line in out
+    saved = load_model(tmp_path / "m.fits")
+    np.testing.assert_allclose(saved.predict(X[:5]), fit.model.predict(X[:5]), atol=1e-12)
+    assert read_model_validation(tmp_path / "m.fits")[1]["e_rms"] == pytest.approx(
+        fit.summary["e_rms"])
+    with pytest.raises(StarSelectionError, match="min_snr"):
+        fit_exposure(catalog=Table({"x": X[:, 0], "y": X[:, 1], "snr": np.full(len(X), 5.0),
+                                    "VIGNET": stamps.reshape(-1, side, side)}))
