@@ -288,7 +288,7 @@ def test_locus_selects_point_sources_whatever_class_star_says(sextractor_ldac):
         assert keep[kind == "galaxy"].mean() <= 0.03      # measured 0-0.017
         assert not keep[(kind == "saturated") | (kind == "blend")].any()
         assert counts["not_applied"] == {"class_star": 1.0} and counts["extended"] == 0
-        assert counts["locus_size"] in ("flux_radius", "adaptive_sigma")
+        assert counts["locus_size"] in ("flux_radius", "adaptive_sigma", "adaptive_sigma_masked")
     # with a size, the locus decides even where CLASS_STAR agrees with it (CLASS_STAR moves
     # with SExtractor's detection threshold); without one, CLASS_STAR is applied
     cat["class_star"] = np.where(kind == "galaxy", 0.05, 0.95)

@@ -38,6 +38,10 @@ def _accepted(model, fit_params):
     return {k: v for k, v in fit_params.items() if k in accepted}
 
 
+#: More reserved stars than this fraction failing the outlier test is a PSFQualityWarning.
+_MOST_OUTLIERS = 0.1
+
+
 def _reserved_outliers(table, stamps, weights, model):
     """The reserved stars that the model's outlier test would reject: their pixels against
     the model's PSF at their position (flux, background and centroid fitted), in their noise
@@ -291,6 +295,12 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
         summary.update(model_verdict(model, X, y, None if weights is None else w,
                                      reserved[~outlier], table[~outlier],
                                      random_state=rng.randint(0, 2**31 - 1)))
+        n_out, n_meas = int(outlier.sum()), int(np.sum(np.asarray(table["flag"]) == 0))
+        if n_out >= 2 and n_out > _MOST_OUTLIERS * n_meas:
+            summary["warnings"].append(
+                f"{n_out} of the {n_meas} measured reserved stars fail the model's outlier test "
+                f"(more than {_MOST_OUTLIERS:.0%}; left out of the statistics): the stars "
+                "include many galaxies, blends or defects, or the model does not describe them")
         for message in summary["warnings"]:
             warnings.warn(message, PSFQualityWarning, stacklevel=2)
     return model, table, summary
