@@ -169,8 +169,17 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
         star = np.zeros_like(d)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # uncentrable stars show up as flagged rows
-            if usable.any():
-                star[usable] = StampNormalizer().fit_transform(d[usable], weights=w[usable])
+            try:
+                if usable.any():
+                    star[usable] = StampNormalizer().fit_transform(d[usable],
+                                                                   weights=w[usable])
+            except ValueError:  # one at a time: a star that cannot be normalised is flagged
+                for i in np.flatnonzero(usable):
+                    try:
+                        star[i] = StampNormalizer().fit_transform(d[i:i + 1],
+                                                                  weights=w[i:i + 1])[0]
+                    except ValueError:
+                        usable[i] = False
         ms, mm = adaptive_moments(star), adaptive_moments(pred)
         flag = ((np.asarray(ms["flag"]) != 0) | ~usable).astype(np.int64) \
             | 2 * (np.asarray(mm["flag"]) != 0)
