@@ -73,7 +73,7 @@ def test_neighbour_masks_hold_the_neighbours_light():
     cx, cy = int(np.floor(x0 + 0.5)), int(np.floor(y0 + 0.5))
     cut = only_n.array[cy - s // 2: cy - s // 2 + s, cx - s // 2: cx - s // 2 + s]
     peak = only_s.array.max()
-    assert cut[~mask].max() < 1e-2 * peak   # measured 0.42%
+    assert cut[~mask].max() < 1e-2 * peak   # measured 0.76%
     assert cut[mask].sum() > 0.9 * cut.sum()
     yy, xx = np.mgrid[:s, :s] - s // 2
     core = np.hypot(xx + cx - x0, yy + cy - y0) < 3.0   # within a FWHM of the star
