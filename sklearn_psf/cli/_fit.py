@@ -14,7 +14,10 @@ import tempfile
 from typing import NamedTuple
 
 
-class CLIInputError(ValueError):
+from .._files import InputError, is_input_error
+
+
+class CLIInputError(InputError):
     """A problem with the input of ``fit`` or ``predict``, reported in one line."""
 
 
@@ -247,7 +250,8 @@ def _about(path):
     try:
         yield
     except ValueError as exc:
-        if isinstance(exc, CLIInputError) or str(path) in str(exc):
+        if isinstance(exc, CLIInputError) or str(path) in str(exc) \
+                or not is_input_error(exc):
             raise
         raise CLIInputError(f"{path}: {exc}") from None
 

@@ -10,6 +10,7 @@ import numpy as np
 from astropy.io import fits
 from astropy.utils.exceptions import AstropyUserWarning
 
+from .._files import InputError
 from .._files import one_line as _one_line
 
 __all__ = ["read_image", "FITSHeaderWarning"]
@@ -24,10 +25,12 @@ class FITSHeaderWarning(UserWarning):
 
 @contextlib.contextmanager
 def _tolerant_fits(path):
-    """Read FITS under this: a truncated file raises, a non-standard header only warns once.
+    """Read FITS under this: a truncated or corrupt file raises (an HDU cut short, or whose
+    ``CHECKSUM``/``DATASUM`` keywords do not match it: open with ``checksum=True``), a
+    non-standard header only warns once.
 
-    astropy reports both as warnings; header problems never stop the reading (real
-    instruments write non-standard keywords), truncation does.
+    astropy reports all of these as warnings; header problems never stop the reading (real
+    instruments write non-standard keywords), truncation and corruption do.
     """
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -36,9 +39,12 @@ def _tolerant_fits(path):
     for w in caught:
         text = _one_line(w.message)
         if issubclass(w.category, AstropyUserWarning):
-            if "truncated" in text:
-                raise _FileError(f"Could not read {path!r} as FITS: {text}; the file is "
-                                 "incomplete.")
+            if "truncated" in text or "file is corrupted" in text:
+                raise _FileError(f"{path!r} is a truncated or corrupt FITS file ({text[:160]})"
+                                 "; the file is incomplete.")
+            if "sum verification failed" in text:  # CHECKSUM / DATASUM of an HDU
+                raise _FileError(f"{path!r} is a corrupt FITS file: {text} (its CHECKSUM/"
+                                 "DATASUM keywords do not match its content).")
             if "zero-based indexing" not in text and "Verification reported" not in text:
                 header_notes.append(text)
         else:
@@ -49,7 +55,7 @@ def _tolerant_fits(path):
                       FITSHeaderWarning, stacklevel=3)
 
 
-class _FileError(ValueError):
+class _FileError(InputError):
     """A clear message about the file's content (re-raised as it is)."""
 
 
@@ -113,9 +119,10 @@ def read_image(path, hdu=None, weight_hdu=None):
 
     Raises
     ------
-    ValueError
-        For a missing, corrupt or truncated file, an unknown HDU, an HDU that is not a 2-D
-        image, or a weight map of another shape.
+    InputError
+        For a missing, corrupt or truncated file (also one whose ``CHECKSUM``/``DATASUM``
+        keywords do not match its content), an unknown HDU, an HDU that is not a 2-D image, or
+        a weight map of another shape.
 
     Warns
     -----
@@ -139,12 +146,12 @@ def read_image(path, hdu=None, weight_hdu=None):
     """
     path = os.fspath(path)
     if not os.path.exists(path):
-        raise ValueError(f"FITS file {path!r} does not exist.")
+        raise _FileError(f"FITS file {path!r} does not exist.")
     key, wkey = _hdu_key(hdu), _hdu_key(weight_hdu)
     try:
         with _tolerant_fits(path):
             # every header is read: a truncated file fails here, whichever HDU is asked for
-            with fits.open(path, memmap=False, lazy_load_hdus=False) as hdul:
+            with fits.open(path, memmap=False, lazy_load_hdus=False, checksum=True) as hdul:
                 chosen = _select(hdul, key, path, "image")
                 image = np.array(chosen.data, dtype=np.float64)
                 header = chosen.header.copy()
@@ -160,12 +167,12 @@ def read_image(path, hdu=None, weight_hdu=None):
     except _FileError:
         raise
     except _READ_ERRORS as exc:
-        raise ValueError(
+        raise _FileError(
             f"Could not read {path!r} as a FITS image ({type(exc).__name__}: {_one_line(exc)}); "
-            "check that the file is a complete, valid FITS file."
+            "it is not FITS, or a truncated or corrupt FITS file."
         ) from None
     if weight is not None and weight.shape != image.shape:
-        raise ValueError(
+        raise _FileError(
             f"The weight map (HDU {weight_hdu!r}) has shape {weight.shape}, the image "
             f"{image.shape}: give the weight HDU that belongs to the image."
         )
