@@ -7,7 +7,7 @@ import linecache
 import os
 import tempfile
 
-__all__ = ["InputError", "one_line", "write_fits_atomic"]
+__all__ = ["InputError", "check_memory", "one_line", "write_fits_atomic"]
 
 
 class InputError(ValueError):
@@ -45,6 +45,32 @@ def is_input_error(exc) -> bool:
     filename = os.path.abspath(tb.tb_frame.f_code.co_filename)
     return (filename.startswith(os.path.dirname(os.path.abspath(__file__)) + os.sep)
             and linecache.getline(filename, tb.tb_lineno).lstrip().startswith("raise"))
+
+
+def _available_memory():
+    """Bytes of memory free for new arrays (``MemAvailable`` of Linux, else the free
+    physical pages), or None where unknown."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_memory(nbytes, what) -> None:
+    """Refuse, before allocating them, arrays of ``nbytes`` that the free memory cannot hold:
+    an :class:`InputError` naming ``what`` (e.g. ``"80 stamps of 10001 x 10001 pixels
+    (--stamp-size)"``) and the size needed."""
+    free = _available_memory()
+    if free is not None and nbytes > free:
+        raise InputError(f"{what} would need {nbytes / 2**30:.3g} GiB of memory, more than "
+                         f"the {free / 2**30:.3g} GiB free: choose a smaller size.")
 
 
 def one_line(exc) -> str:

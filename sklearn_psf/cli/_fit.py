@@ -79,8 +79,22 @@ def _bits(text):
             f"expected an integer (e.g. 254 or 0xfe), got {text!r}") from None
 
 
+def _non_negative(text):
+    value = _number(text)
+    if not value >= 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return value
+
+
+def _positive(text):
+    value = _non_negative(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+    return value
+
+
 def _width(text):
-    return text if text == "auto" else _number(text)
+    return text if text == "auto" else _positive(text)
 
 
 #: ``sklearn-psf fit`` options relaxing each selection cut (the parameters of select_stars).
@@ -160,17 +174,17 @@ def _add_fit_parsers(sub):
                      help="use every catalogue row as a star (no star/galaxy selection)")
     sel.add_argument("--flag-mask", type=_bits,
                      help="bits of FLAGS that reject a source [every bit; PSFEx: 0xfe]")
-    sel.add_argument("--min-snr", type=float, default=20.0,
+    sel.add_argument("--min-snr", type=_non_negative, default=20.0,
                      help="smallest S/N of a selected star [20]")
-    sel.add_argument("--saturation", type=float,
+    sel.add_argument("--saturation", type=_positive,
                      help="saturation level [header SATURATE keyword, else none]")
-    sel.add_argument("--isolation", type=float,
+    sel.add_argument("--isolation", type=_non_negative,
                      help="smallest distance in pixels (along x and y) to another source "
                      "[half the stamp + 3; 0: no crowding cut]")
     sel.add_argument("--locus-width", type=_width, default="auto",
                      help="relative half-width of the size-magnitude locus, or 'auto': 3 times "
                      "its scatter at each star's S/N [auto]")
-    sel.add_argument("--max-spread-model", type=float, default=0.003,
+    sel.add_argument("--max-spread-model", type=_non_negative, default=0.003,
                      help="largest |SPREAD_MODEL| (+ 2 SPREADERR_MODEL) of a point source, "
                      "unless it would reject most of the locus [0.003]")
     sel.add_argument("--min-class-star", type=float, default=0.8,
@@ -219,16 +233,31 @@ def _check_input(path, what):
         raise CLIInputError(f"the {what} {path!r} does not exist")
     if os.path.isdir(path):
         raise CLIInputError(f"the {what} {path!r} is a folder: give a file")
+    if not os.access(path, os.R_OK):
+        raise CLIInputError(f"the {what} {path!r} cannot be read: permission denied")
 
 
-def _check_output_file(path, overwrite=False, also=()):
-    """Fail before any work when ``path`` cannot be written, or when it (or one of ``also``,
-    files written with it) exists and ``overwrite`` is not set."""
+def _check_not_input(outputs, inputs):
+    """No command writes over a file it reads, with or without --overwrite."""
+    for out in outputs:
+        for path in inputs:
+            if path is not None and os.path.exists(out) and os.path.exists(path) \
+                    and os.path.samefile(out, path):
+                raise CLIInputError(f"the output {out!r} is the input {path!r} of this "
+                                    "command: an input is never written over, even with "
+                                    "--overwrite; give another output name")
+
+
+def _check_output_file(path, overwrite=False, also=(), inputs=()):
+    """Fail before any work when ``path`` cannot be written, when it (or one of ``also``,
+    files written with it) is one of the command's ``inputs``, or exists and ``overwrite``
+    is not set."""
     folder = os.path.dirname(os.path.abspath(path)) or "."
     if not os.path.isdir(folder):
         raise CLIInputError(f"the folder of the output file {path!r} does not exist")
     if os.path.isdir(path):
         raise CLIInputError(f"the output {path!r} is a folder: give a file name")
+    _check_not_input((path, *also), inputs)
     existing = [p for p in (path, *also) if os.path.exists(p)]
     if existing and not overwrite:
         more = f" (and {len(existing) - 1} more output files)" if len(existing) > 1 else ""
@@ -344,9 +373,10 @@ def _fit_jobs(args):
 
 def _fit(args):
     jobs = _fit_jobs(args)
+    inputs = [*args.image, *(args.stars or ())]
     for job in jobs:
         path, figures = _outputs(args, job.output)
-        _check_output_file(path, args.overwrite, figures)
+        _check_output_file(path, args.overwrite, figures, inputs)
     if len(jobs) > 1 or args.scheduler is not None:
         return _fit_many(jobs, args)
     outcome = _fit_one(jobs[0])
@@ -632,10 +662,13 @@ def _fit_steps(args, lines, fit_warnings, quiet=False):
         vignettes = image is None and catalog is not None and "VIGNET" in [
             c.upper() for c in catalog.colnames]
         stamp_size = args.stamp_size
+        side = (int(np.shape(catalog[[c for c in catalog.colnames if c.upper() == "VIGNET"][0]])
+                    [1]) if vignettes else None if image is None else min(image.shape))
         if stamp_size is None:
-            stamp_size = (int(np.shape(catalog[[c for c in catalog.colnames
-                                                if c.upper() == "VIGNET"][0]])[1])
-                          if vignettes else 25)
+            stamp_size = side if vignettes else 25
+        elif side is not None and stamp_size > side:
+            raise CLIInputError(f"--stamp-size {stamp_size} is larger than the "
+                                f"{'VIGNETs' if vignettes else 'image'} ({side} pixels)")
         bar.update()
         bar.set_description("selecting stars")
         if catalog is not None:
@@ -781,7 +814,7 @@ def _fit_figures(residuals, summary, output, model, shape):
 def _predict(args):
     _check_input(args.model, "model file")
     _check_input(args.positions, "catalogue")
-    _check_output_file(args.output, args.overwrite)
+    _check_output_file(args.output, args.overwrite, inputs=(args.model, args.positions))
     import numpy as np
     from astropy.io import fits
     from astropy.table import Table
@@ -789,7 +822,7 @@ def _predict(args):
 
     from ..io import (celestial_wcs, draw_psf, extrapolation_flags, load_model, pixel_to_sky,
                      read_catalog, read_model_validation, sky_to_pixel)
-    from .._files import write_fits_atomic
+    from .._files import check_memory, write_fits_atomic
     from ..measure import adaptive_moments
 
     if (args.x_col is None) != (args.y_col is None):
@@ -814,6 +847,8 @@ def _predict(args):
     elif wcs is not None:
         radec = pixel_to_sky(wcs, X)
     size = model.stamp_size_ * args.oversampling
+    check_memory(3 * 8 * len(X) * size**2, f"{len(X)} PSF stamps of {size} x {size} samples "
+                 f"(--oversampling {args.oversampling})")
     stamps = np.empty((len(X), size, size))
     chunk = 5000
     with tqdm(total=len(X), desc="predicting", unit="PSF") as bar:

@@ -101,8 +101,8 @@ def write_ldac(path, objects: Table, header=None, overwrite: bool = False) -> No
     """Write a SExtractor FITS_LDAC catalogue (what PSFEx reads).
 
     HDU 1 ``LDAC_IMHEAD`` holds the image header as SExtractor writes it: one cell of the
-    column ``Field Header Card`` with ``TDIM = (80, N)``, the N 80-character cards; HDU 2
-    ``LDAC_OBJECTS`` the objects.
+    column ``Field Header Card`` with ``TDIM = (80, N)``, the N 80-character cards padded with
+    blanks; HDU 2 ``LDAC_OBJECTS`` the objects. PSFEx reads the file.
 
     Parameters
     ----------
@@ -111,7 +111,8 @@ def write_ldac(path, objects: Table, header=None, overwrite: bool = False) -> No
         SExtractor columns, e.g. ``X_IMAGE``, ``Y_IMAGE`` (1-based), ``FLUX_RADIUS``,
         ``VIGNET`` (n, v, v).
     header : astropy.io.fits.Header, optional
-        Image header (``SATURATE``, WCS...); empty by default.
+        Image header (``SATURATE``, WCS, ``NAXIS1``/``NAXIS2``...), written after the
+        ``SIMPLE``, ``BITPIX``, ``NAXIS`` cards an image header begins with.
     overwrite : bool, default=False
 
     Examples
@@ -129,15 +130,31 @@ def write_ldac(path, objects: Table, header=None, overwrite: bool = False) -> No
     >>> cat["x"][0], cat.meta["image_header"]["SATURATE"]
     (np.float64(10.0), 50000.0)
     """
-    text = (header or fits.Header()).tostring(endcard=True, padding=False)
-    cards = np.array([[text[i:i + 80] for i in range(0, len(text), 80)]])
+    header = fits.Header() if header is None else header
+    shape = [header.get(k) for k in ("NAXIS1", "NAXIS2")]
+    shape = shape if all(isinstance(v, (int, np.integer)) for v in shape) else []
+    # an image header begins as SExtractor's does (PSFEx refuses one without SIMPLE)
+    full = fits.Header([("SIMPLE", True), ("BITPIX", header.get("BITPIX", -32)),
+                        ("NAXIS", len(shape))]
+                       + [(f"NAXIS{i + 1}", v) for i, v in enumerate(shape)])
+    full.extend(c for c in header.cards if c.keyword not in full and c.keyword != "END")
+    text = full.tostring(endcard=True, padding=False)
+    # one string of N x 80 characters, blank-padded as SExtractor writes it (PSFEx 3.21
+    # crashes on cards padded with NUL bytes, which a column of N shorter strings gets)
     head = fits.BinTableHDU.from_columns(
-        [fits.Column(name="Field Header Card", format=f"{cards.size * 80}A",
-                     dim=f"(80, {cards.size})", array=cards)],
-        name="LDAC_IMHEAD")
+        [fits.Column(name="Field Header Card", format=f"{len(text)}A",
+                     array=np.array([text.encode("ascii")]))], name="LDAC_IMHEAD")
+    head.header.set("TDIM1", f"(80, {len(text) // 80})", after="TFORM1")
     objs = fits.table_to_hdu(Table(objects))
     objs.name = "LDAC_OBJECTS"
-    fits.HDUList([fits.PrimaryHDU(), head, objs]).writeto(os.fspath(path), overwrite=overwrite)
+    path = os.fspath(path)
+    fits.HDUList([fits.PrimaryHDU(), head, objs]).writeto(path, overwrite=overwrite)
+    # astropy ends the cell with NUL bytes in place of the last card's blanks: blanks back
+    with fits.open(path) as hdul:
+        start = hdul.fileinfo(1)["datLoc"]
+    with open(path, "r+b") as f:
+        f.seek(start)
+        f.write(text.encode("ascii"))
 
 
 def _read_table(path, hdu):

@@ -22,8 +22,8 @@ __all__ = ["select_stars", "SELECTION_REASONS", "SELECTION_OPTIONS"]
 
 #: Why a source is not selected as a star, in the order the cuts are applied (a source is
 #: counted under the first cut it fails); ``bad_stamp`` is applied when stamps are cut.
-SELECTION_REASONS = ("flags", "low_snr", "saturated", "near_edge", "crowded", "off_locus",
-                     "extended", "bad_stamp")
+SELECTION_REASONS = ("bad_position", "flags", "low_snr", "saturated", "near_edge", "crowded",
+                     "off_locus", "extended", "bad_stamp")
 
 #: The parameter of :func:`select_stars` that relaxes each cut.
 SELECTION_OPTIONS = {
@@ -89,6 +89,21 @@ def _size(table):
                            guess_sigma=max(1.0, vig.shape[1] / 10))
     sigma = np.where(np.asarray(mom["flag"]) == 0, np.asarray(mom["sigma"], float), np.nan)
     return sigma, "adaptive_sigma"
+
+
+def _on_field(x, y, image_shape, header):
+    """Finite positions whose pixel lies on the image (``image_shape``, else the extent
+    ``NAXIS1`` x ``NAXIS2`` of the catalogue's image header, e.g. SExtractor's
+    ``LDAC_IMHEAD``; only finiteness without either)."""
+    ok = np.isfinite(x) & np.isfinite(y)
+    if image_shape is None and header is not None and "NAXIS1" in header \
+            and "NAXIS2" in header:
+        image_shape = (int(header["NAXIS2"]), int(header["NAXIS1"]))
+    if image_shape is not None:
+        ny, nx = image_shape
+        with np.errstate(invalid="ignore"):
+            ok &= (x >= -0.5) & (x < nx - 0.5) & (y >= -0.5) & (y < ny - 0.5)
+    return ok
 
 
 def _densest(values, half_width):
@@ -189,6 +204,9 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
     Cuts, in this order (a source is counted under the first it fails; a cut whose columns
     are absent is skipped):
 
+    - ``bad_position``: ``x`` or ``y`` NaN or infinite, or off the image (``image_shape``, else
+      the ``NAXIS1`` x ``NAXIS2`` of ``catalog.meta["image_header"]``, SExtractor's
+      ``LDAC_IMHEAD``);
     - ``flags``: ``flags & flag_mask`` non-zero (SExtractor ``FLAGS``: neighbours, blended,
       saturated, truncated...);
     - ``low_snr``: ``snr`` below ``min_snr``;
@@ -284,7 +302,7 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
     counts = dict.fromkeys(SELECTION_REASONS, 0)
     counts.update({"locus_size": None, "locus_radius": np.nan, "locus_width": np.nan,
                    "not_applied": {}})
-    keep = np.isfinite(x) & np.isfinite(y)
+    keep = np.ones(n, dtype=bool)
 
     def cut(name, ok):
         nonlocal keep
@@ -292,7 +310,7 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
         counts[name] += int(np.count_nonzero(keep & ~ok))
         keep &= ok
 
-    counts["flags"] = int(np.count_nonzero(~keep))  # NaN positions
+    cut("bad_position", _on_field(x, y, image_shape, catalog.meta.get("image_header")))
     flags = _column(catalog, "flags")
     if flags is not None:
         bits = np.nan_to_num(flags, nan=1.0).astype(np.int64)
