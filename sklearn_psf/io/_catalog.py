@@ -11,7 +11,7 @@ from astropy.io import fits
 from astropy.table import Table
 
 from .._files import InputError
-from ._image import _FileError, _one_line, _tolerant_fits
+from ._image import _FileError, _is_fits, _one_line, _tolerant_fits
 
 __all__ = ["read_catalog", "write_ldac", "CatalogColumnWarning"]
 
@@ -164,9 +164,7 @@ def _read_table(path, hdu):
     lower = path.lower()
     try:
         with _tolerant_fits(path):
-            with open(path, "rb") as f:
-                is_fits = f.read(9) == b"SIMPLE  ="
-            if not is_fits and (lower.endswith(_TEXT_SUFFIXES) or _is_sextractor_ascii(path)):
+            if not _is_fits(path) and (lower.endswith(_TEXT_SUFFIXES) or _is_sextractor_ascii(path)):
                 if _is_sextractor_ascii(path):
                     return _ascii_vectors(Table.read(path, format="ascii.sextractor"))
                 fmt = ("ascii.ecsv" if lower.endswith(".ecsv")

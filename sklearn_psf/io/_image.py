@@ -59,6 +59,19 @@ class _FileError(InputError):
     """A clear message about the file's content (re-raised as it is)."""
 
 
+def _is_fits(path) -> bool:
+    """Whether ``path`` is an uncompressed FITS file; one whose size is not a whole number of
+    2880-byte FITS blocks is cut short (or corrupt), and refused."""
+    with open(path, "rb") as f:
+        if f.read(9) != b"SIMPLE  =":
+            return False
+    size = os.path.getsize(path)
+    if size % 2880:
+        raise _FileError(f"{path!r} is a truncated or corrupt FITS file: its {size} bytes "
+                         "are not a whole number of 2880-byte FITS blocks.")
+    return True
+
+
 def _hdu_key(hdu):
     """An HDU index (int, or a string of digits) or an EXTNAME (str)."""
     if hdu is None or isinstance(hdu, (int, np.integer)):
@@ -148,6 +161,7 @@ def read_image(path, hdu=None, weight_hdu=None):
     if not os.path.exists(path):
         raise _FileError(f"FITS file {path!r} does not exist.")
     key, wkey = _hdu_key(hdu), _hdu_key(weight_hdu)
+    _is_fits(path)
     try:
         with _tolerant_fits(path):
             # every header is read: a truncated file fails here, whichever HDU is asked for
