@@ -96,9 +96,10 @@ def _on_field(x, y, image_shape, header):
     ``NAXIS1`` x ``NAXIS2`` of the catalogue's image header, e.g. SExtractor's
     ``LDAC_IMHEAD``; only finiteness without either)."""
     ok = np.isfinite(x) & np.isfinite(y)
-    if image_shape is None and header is not None and "NAXIS1" in header \
-            and "NAXIS2" in header:
-        image_shape = (int(header["NAXIS2"]), int(header["NAXIS1"]))
+    if image_shape is None and header is not None:
+        shape = [header.get(k) for k in ("NAXIS2", "NAXIS1")]
+        if all(isinstance(v, (int, np.integer)) and v > 0 for v in shape):
+            image_shape = shape
     if image_shape is not None:
         ny, nx = image_shape
         with np.errstate(invalid="ignore"):
