@@ -83,7 +83,8 @@ def _mutate(table, ops, rng_seed=0):
         elif kind == "rename" and arg not in t.colnames:
             t.rename_column(col, arg)
         elif kind == "cast":
-            t[col] = np.asarray(t[col]).astype(arg)
+            with np.errstate(invalid="ignore"):
+                t[col] = np.asarray(t[col]).astype(arg)
         elif kind == "value" and n:
             value, seed = arg
             rows = np.random.default_rng(seed).random(n) < 0.3
