@@ -24,7 +24,7 @@ class InputError(ValueError):
     >>> try:
     ...     read_catalog(Table({"a": [1.0]}))
     ... except InputError as exc:
-    ...     print(str(exc)[:38])
+    ...     print(str(exc)[:37])
     The catalogue has no position columns
     """
 
