@@ -177,8 +177,8 @@ def _read_table(path, hdu):
                         hdu = "LDAC_OBJECTS"
                     elif "LDAC_IMHEAD" in names:
                         raise _FileError(
-                            f"{path!r} is a truncated or corrupt FITS_LDAC file: it has an "
-                            "LDAC_IMHEAD but no LDAC_OBJECTS table (HDUs: "
+                            f"Could not read {path!r}: a truncated or corrupt FITS_LDAC file (an "
+                            "LDAC_IMHEAD but no LDAC_OBJECTS table; HDUs: "
                             f"{', '.join(n or '-' for n in names)}).")
                     else:
                         tables = [i for i, h in enumerate(hdul)

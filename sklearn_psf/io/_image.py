@@ -40,11 +40,11 @@ def _tolerant_fits(path):
         text = _one_line(w.message)
         if issubclass(w.category, AstropyUserWarning):
             if "truncated" in text or "file is corrupted" in text:
-                raise _FileError(f"{path!r} is a truncated or corrupt FITS file ({text[:160]})"
-                                 "; the file is incomplete.")
+                raise _FileError(f"Could not read {path!r}: a truncated or corrupt FITS file "
+                                 f"({text[:160]}).")
             if "sum verification failed" in text:  # CHECKSUM / DATASUM of an HDU
-                raise _FileError(f"{path!r} is a corrupt FITS file: {text} (its CHECKSUM/"
-                                 "DATASUM keywords do not match its content).")
+                raise _FileError(f"Could not read {path!r}: a corrupt FITS file ({text} its "
+                                 "CHECKSUM/DATASUM keywords do not match its content).")
             if "zero-based indexing" not in text and "Verification reported" not in text:
                 header_notes.append(text)
         else:
@@ -67,8 +67,8 @@ def _is_fits(path) -> bool:
             return False
     size = os.path.getsize(path)
     if size % 2880:
-        raise _FileError(f"{path!r} is a truncated or corrupt FITS file: its {size} bytes "
-                         "are not a whole number of 2880-byte FITS blocks.")
+        raise _FileError(f"Could not read {path!r}: a truncated or corrupt FITS file (its "
+                         f"{size} bytes are not a whole number of 2880-byte FITS blocks).")
     return True
 
 
