@@ -250,3 +250,32 @@ def test_internal_errors_are_reported_as_bugs(monkeypatch, capsys, model, exposu
     with pytest.raises(ValueError, match="cannot reshape"):
         main(argv)
     assert not os.path.exists(tmp_path / "p.fits")
+
+
+def test_validate_leaves_out_unusable_stars():
+    """A crowded star of non-positive flux and a fully masked one are left out and counted;
+    the other stars are compared as without them."""
+    from sklearn_psf.validation import validate_models
+
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[0:15, 0:15] - 7.0
+    psf = np.exp(-0.5 * (xx**2 + yy**2) / 2.0**2).ravel()
+    psf /= psf.sum()
+
+    class Constant:
+        def predict(self, X):
+            return np.tile(psf, (len(X), 1))
+
+    X = rng.uniform(0, 500, (30, 2))
+    stars = 1e4 * psf + rng.normal(0.0, 1.0, (30, 225))
+    weights = np.ones_like(stars)
+    clean, _ = validate_models(X[2:], stars[2:], {"m": Constant()}, weights=weights[2:])
+    stars[0] = -np.abs(stars[0])
+    weights[1] = 0.0
+    table, _ = validate_models(X, stars, {"m": Constant()}, weights=weights)
+    assert table.meta["left_out"] == {"no_pixels": 1, "non_finite": 0,
+                                      "non_positive_flux": 1}
+    assert table["n_measured"][0] == clean["n_measured"][0] == 28
+    assert table["e_rms"][0] == clean["e_rms"][0]
+    with pytest.raises(InputError, match="None of the 2 stars.*non_positive_flux 1"):
+        validate_models(X[:2], stars[:2], {"m": Constant()}, weights=weights[:2])
