@@ -43,8 +43,9 @@ def _tolerant_fits(path):
                 raise _FileError(f"Could not read {path!r}: a truncated or corrupt FITS file "
                                  f"({text[:160]}).")
             if "sum verification failed" in text:  # CHECKSUM / DATASUM of an HDU
-                raise _FileError(f"Could not read {path!r}: a corrupt FITS file ({text} its "
-                                 "CHECKSUM/DATASUM keywords do not match its content).")
+                raise _FileError(f"Could not read {path!r}: a corrupt FITS file "
+                                 f"({text.rstrip('.')}: its CHECKSUM/DATASUM keywords do not "
+                                 "match its content).")
             if "zero-based indexing" not in text and "Verification reported" not in text:
                 header_notes.append(text)
         else:
