@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import re
 import warnings
 
 import numpy as np
@@ -164,7 +163,8 @@ def _read_table(path, hdu):
     lower = path.lower()
     try:
         with _tolerant_fits(path):
-            if not _is_fits(path) and (lower.endswith(_TEXT_SUFFIXES) or _is_sextractor_ascii(path)):
+            if not _is_fits(path) and (lower.endswith(_TEXT_SUFFIXES)
+                                       or _is_sextractor_ascii(path)):
                 if _is_sextractor_ascii(path):
                     return _ascii_vectors(Table.read(path, format="ascii.sextractor"))
                 fmt = ("ascii.ecsv" if lower.endswith(".ecsv")

@@ -37,9 +37,9 @@ def extract_vignettes(catalog: Table, stamp_size: int | None = None, *,
     Each vignette is cropped to its central ``stamp_size`` pixels (see the module's centre
     convention). A star is skipped, under the first reason that applies, when its position is
     NaN or off the image of ``catalog.meta["image_header"]`` (its ``NAXIS1`` x ``NAXIS2``:
-    SExtractor's ``LDAC_IMHEAD``) (``bad_position``), its ``flags`` are non-zero (``catalog_flag``), a masked pixel lies
-    in the central ``core_size`` box (``masked``) or a pixel reaches ``saturation``
-    (``saturated``).
+    SExtractor's ``LDAC_IMHEAD``) (``bad_position``), its ``flags`` are non-zero
+    (``catalog_flag``), a masked pixel lies in the central ``core_size`` box (``masked``) or a
+    pixel reaches ``saturation`` (``saturated``).
 
     Weights are the inverse variance of each pixel: the background variance of the star's
     vignette (from its border, see :func:`~sklearn_psf.preprocessing.estimate_pixel_weights`:
