@@ -279,3 +279,10 @@ def test_validate_leaves_out_unusable_stars():
     assert table["e_rms"][0] == clean["e_rms"][0]
     with pytest.raises(InputError, match="None of the 2 stars.*non_positive_flux 1"):
         validate_models(X[:2], stars[:2], {"m": Constant()}, weights=weights[:2])
+
+
+def test_predict_refuses_stamps_beyond_memory(model, exposure, tmp_path, capsys):
+    msg = _error(capsys, ["predict", model, "--positions", exposure["galaxies"], "-o",
+                          str(tmp_path / "p.fits"), "--oversampling", "200000"])
+    assert "--oversampling 200000" in msg and "GiB" in msg
+    assert not os.path.exists(tmp_path / "p.fits")
