@@ -10,7 +10,7 @@ from astropy.io import fits
 from astropy.table import Table
 
 from .._files import InputError
-from ._image import _FileError, _is_fits, _one_line, _tolerant_fits
+from ._image import _checked_header, _FileError, _is_fits, _one_line, _tolerant_fits
 
 __all__ = ["read_catalog", "write_ldac", "CatalogColumnWarning"]
 
@@ -192,7 +192,7 @@ def _read_table(path, hdu):
                 table = Table.read(hdul[hdu])
                 header = _ldac_header(hdul)
                 if header is not None:
-                    table.meta["image_header"] = header
+                    table.meta["image_header"] = _checked_header(header, path)
                 return table
     except _FileError:
         raise

@@ -60,6 +60,33 @@ class _FileError(InputError):
     """A clear message about the file's content (re-raised as it is)."""
 
 
+def _level(value, name):
+    """A saturation level (or gain) as a float, None for None; an :class:`InputError` for
+    anything else than a positive number."""
+    if value is None:
+        return None
+    try:
+        level = float(value)
+    except (TypeError, ValueError):
+        level = np.nan
+    if not level > 0:
+        raise InputError(f"{name} must be a positive number, got {value!r}.")
+    return level
+
+
+def _checked_header(header, path):
+    """``header`` without a ``SATURATE`` that is not a positive number (warned): the image is
+    read, with no saturation level from its header."""
+    value = header.get("SATURATE")
+    if value is not None and not (isinstance(value, (int, float)) and not isinstance(value, bool)
+                                  and value > 0):
+        warnings.warn(f"{path!r}: the header's SATURATE = {value!r} is not a positive number: "
+                      "ignored (give the level with saturation=, --saturation)",
+                      FITSHeaderWarning, stacklevel=3)
+        del header["SATURATE"]
+    return header
+
+
 def _is_fits(path) -> bool:
     """Whether ``path`` is an uncompressed FITS file; one whose size is not a whole number of
     2880-byte FITS blocks is cut short (or corrupt), and refused."""
@@ -186,6 +213,7 @@ def read_image(path, hdu=None, weight_hdu=None):
             f"Could not read {path!r} as a FITS image ({type(exc).__name__}: {_one_line(exc)}); "
             "it is not FITS, or a truncated or corrupt FITS file."
         ) from None
+    header = _checked_header(header, path)
     if weight is not None and weight.shape != image.shape:
         raise _FileError(
             f"The weight map (HDU {weight_hdu!r}) has shape {weight.shape}, the image "

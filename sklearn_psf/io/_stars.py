@@ -12,6 +12,7 @@ from astropy.table import Table
 from .._files import InputError, check_memory
 from ..preprocessing import cut_stamps
 from ..preprocessing._stamps import CUT_BAD_POSITION, CUT_NAN, CUT_OFF_EDGE
+from ._image import _level
 from ._select import SELECTION_REASONS, select_stars
 
 __all__ = ["find_stars", "extract_star_stamps", "StarStamps", "REJECTION_REASONS"]
@@ -380,12 +381,16 @@ def extract_star_stamps(image, catalog, stamp_size: int = 25, *, weight=None,
     c = max(1, min(int(core_size), s)) // 2
     core = (slice(None), slice(h - c, h + c + 1), slice(h - c, h + c + 1))
     masked = bad_cube[core].any(axis=(1, 2))
+    # a NaN (or infinite) pixel of the image not masked by the weight map: the background
+    # subtraction filled it, the raw stamp still holds it
+    nan = ~np.isfinite(np.where(bad_cube, 0.0, raws)).all(axis=(1, 2)) \
+        | ~np.isfinite(stamps).all(axis=(1, 2))
     stamps[bad_cube] = 0.0
     raws[bad_cube] = np.nan
-    nan = ~np.isfinite(stamps).all(axis=(1, 2))
     if weight is None:
         # without a weight map, NaN pixels in the core are "nan" too (nothing says "masked")
         masked[:] = False
+    saturation = _level(saturation, "saturation")
     sat_flag = np.zeros(n, dtype=bool)
     if saturation is not None:
         with np.errstate(invalid="ignore"):

@@ -20,6 +20,7 @@ from astropy.table import Table
 
 from .._files import InputError
 from ..preprocessing import estimate_pixel_weights
+from ._image import _level
 from ._select import _on_field
 from ._stars import REJECTION_REASONS, StarStamps
 
@@ -102,6 +103,7 @@ def extract_vignettes(catalog: Table, stamp_size: int | None = None, *,
     if cube.ndim != 3 or cube.shape[1] != cube.shape[2] or cube.shape[1] < 3:
         raise InputError(f"{column} must hold square vignettes of side 3 or more, got shape "
                          f"{cube.shape[1:]}.")
+    saturation, gain = _level(saturation, "saturation"), _level(gain, "gain")
     v = cube.shape[1]
     s = v if stamp_size is None else int(stamp_size)
     if s < 3 or s > v:
