@@ -286,3 +286,17 @@ def test_predict_refuses_stamps_beyond_memory(model, exposure, tmp_path, capsys)
                           str(tmp_path / "p.fits"), "--oversampling", "200000"])
     assert "--oversampling 200000" in msg and "GiB" in msg
     assert not os.path.exists(tmp_path / "p.fits")
+
+
+def test_non_numeric_saturate_is_ignored_with_a_warning(ldac, tmp_path):
+    from sklearn_psf.io import FITSHeaderWarning
+
+    def text(header):
+        header["SATURATE"] = "abc"
+
+    path = _rewrite(ldac, tmp_path / "sat.ldac", lambda t: t, header_edit=text)
+    with pytest.warns(FITSHeaderWarning, match="SATURATE = 'abc' is not a positive number"):
+        cat = read_catalog(path)
+    assert "SATURATE" not in cat.meta["image_header"]
+    with pytest.raises(InputError, match="saturation must be a positive number, got 'abc'"):
+        extract_vignettes(cat, saturation="abc")
