@@ -84,6 +84,15 @@ from ._catalog import CatalogColumnWarning, read_catalog, write_ldac
 from ._draw import draw_psf, extrapolation_flags
 from ._image import FITSHeaderWarning, read_image
 from ._psf_stamps import read_psf_stamps, write_psf_stamps
+from ._sextractor import (
+    DEFAULT_SEXTRACTOR_CONFIG,
+    DEFAULT_SEXTRACTOR_PARAMS,
+    ProgramError,
+    ProgramNotFoundError,
+    find_program,
+    run_psfex,
+    run_sextractor,
+)
 from ._select import SELECTION_OPTIONS, SELECTION_REASONS, select_stars
 from ._stars import REJECTION_REASONS, StarStamps, extract_star_stamps, find_stars
 from ._vignettes import VIGNET_MASKED, extract_vignettes
@@ -100,10 +109,14 @@ from ..model import (  # noqa: E402
 
 __all__ = [
     "CatalogColumnWarning",
+    "DEFAULT_SEXTRACTOR_CONFIG",
+    "DEFAULT_SEXTRACTOR_PARAMS",
     "FITSHeaderWarning",
     "InputError",
     "MODEL_FORMAT",
     "MODEL_FORMAT_VERSION",
+    "ProgramError",
+    "ProgramNotFoundError",
     "REJECTION_REASONS",
     "SELECTION_OPTIONS",
     "SELECTION_REASONS",
@@ -114,6 +127,7 @@ __all__ = [
     "extract_star_stamps",
     "extract_vignettes",
     "extrapolation_flags",
+    "find_program",
     "find_stars",
     "load_model",
     "pixel_to_sky",
@@ -121,6 +135,8 @@ __all__ = [
     "read_image",
     "read_model_validation",
     "read_psf_stamps",
+    "run_psfex",
+    "run_sextractor",
     "save_model",
     "select_stars",
     "sky_to_pixel",
