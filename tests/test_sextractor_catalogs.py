@@ -10,8 +10,6 @@ source-extractor psfex``) or without ``../shared/realdata``.
 """
 
 import os
-import shutil
-import subprocess
 
 import numpy as np
 import pytest
@@ -19,11 +17,12 @@ from astropy.io import fits
 from astropy.table import Table
 
 from sklearn_psf.cli import main
-from sklearn_psf.io import extract_vignettes, read_catalog, select_stars, write_ldac
+from sklearn_psf.io import (extract_vignettes, find_program, read_catalog, run_psfex,
+                            run_sextractor, select_stars, write_ldac)
 
 galsim = pytest.importorskip("galsim")
-SEX = shutil.which("source-extractor") or shutil.which("sex")
-PSFEX = shutil.which("psfex")
+SEX = find_program("source-extractor")
+PSFEX = find_program("psfex")
 needs_sex = pytest.mark.skipif(SEX is None, reason="Source Extractor (source-extractor) is "
                                "not installed")
 needs_psfex = pytest.mark.skipif(SEX is None or PSFEX is None,
@@ -33,7 +32,7 @@ DECAM = os.path.join(REALDATA, "DECam_00241238_01_psfcat.ldac.fits")
 
 #: The true PSF (pixel scale 1): a sheared Moffat.
 PSF = galsim.Moffat(beta=3.0, fwhm=3.0).shear(e1=0.03, e2=-0.02)
-APERTURES = {1: "5", 12: "5,3,4,6,7,8,10,12,14,16,18,20"}  # PSFEx's aperture first
+APERTURES = {1: "5", 12: "5,3,4,6,7,8,10,12,14,16,18,20"}  # PSFEx's FLUX_APER(1) first
 FRACTIONS = {1: "0.5", 3: "0.5,0.3,0.8"}
 PARAMS = ("NUMBER", "X_IMAGE", "Y_IMAGE", "XWIN_IMAGE", "YWIN_IMAGE", "FLUX_APER({k})",
           "FLUXERR_APER({k})", "MAG_APER({k})", "FLUX_RADIUS({f})", "FLUX_MAX", "SNR_WIN",
@@ -55,18 +54,14 @@ def image(tmp_path_factory):
     return path
 
 
-def _sextractor(image, kind, k=1, f=1, v=15, name=None):
-    folder = image.parent
-    stem = name or f"{kind.replace('.', '')}_{k}_{f}_{v}"
-    params = folder / f"{stem}.param"
-    params.write_text("\n".join(p.format(k=k, f=f, v=v) for p in PARAMS) + "\n")
-    out = folder / f"{stem}.cat"
-    subprocess.run([SEX, str(image), "-c", "/dev/null", "-PARAMETERS_NAME", str(params),
-                    "-CATALOG_TYPE", kind, "-CATALOG_NAME", str(out), "-PHOT_APERTURES",
-                    APERTURES[k], "-PHOT_FLUXFRAC", FRACTIONS[f], "-FILTER", "N",
-                    "-SATUR_LEVEL", "60000", "-VERBOSE_TYPE", "QUIET", "-CHECKIMAGE_TYPE",
-                    "NONE"], check=True, cwd=folder, capture_output=True, timeout=60)
-    return out
+def _sextractor(image, kind, k=1, f=1, v=15):
+    """Source Extractor's catalogue of ``image``: k apertures, f flux fractions, VIGNET(v, v)."""
+    out = image.parent / f"{kind.replace('.', '')}_{k}_{f}_{v}.cat"
+    return run_sextractor(image, out, params=[p.format(k=k, f=f, v=v) for p in PARAMS],
+                          config={"PHOT_APERTURES": APERTURES[k],
+                                  "PHOT_FLUXFRAC": FRACTIONS[f], "SATUR_LEVEL": 60000.0,
+                                  "VERBOSE_TYPE": "QUIET"},
+                          catalog_type=kind, overwrite=True)
 
 
 def _selected(cat):
@@ -149,12 +144,8 @@ def test_psfex_reads_write_ldac_and_degree_zero_models(image, tmp_path):
     ours = tmp_path / "ours.cat"
     write_ldac(ours, Table.read(source, hdu="LDAC_OBJECTS"),
                header=read_catalog(source).meta["image_header"])
-    run = subprocess.run([PSFEX, str(ours), "-CHECKPLOT_TYPE", "NONE", "-CHECKIMAGE_TYPE",
-                          "NONE", "-WRITE_XML", "N", "-PSFVAR_DEGREES", "0", "-PSF_SIZE",
-                          "15,15", "-VERBOSE_TYPE", "QUIET"], cwd=tmp_path,
-                         capture_output=True, timeout=120)
-    assert run.returncode == 0, run.stderr[-300:]
-    psf_file = tmp_path / "ours.psf"
+    psf_file = run_psfex(ours, tmp_path, config={"PSFVAR_DEGREES": 0, "PSF_SIZE": "15,15",
+                                                 "NTHREADS": 1})  # ProgramError if it fails
     header = fits.getheader(psf_file, 1)
     assert header["POLNAXIS"] == 0 and header["ACCEPTED"] >= 20
     model = load_psf_model(psf_file)
