@@ -217,8 +217,8 @@ def find_stars(image, *, weight=None, stamp_size: int = 25, detect_thresh: float
     >>> field = make_psf_field(n_stars=40, n_galaxies=0, image_shape=(600, 800),
     ...                        snr=300.0, random_state=0)
     >>> stars = find_stars(field.image)
-    >>> len(stars) >= 35, sorted(stars.meta["rejected"])[:2]
-    (True, ['bad_stamp', 'crowded'])
+    >>> len(stars) >= 35, sorted(stars.meta["rejected"])[:3]
+    (True, ['bad_position', 'bad_stamp', 'crowded'])
     """
     data = np.asarray(image)
     if data.ndim != 2:
