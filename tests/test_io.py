@@ -245,7 +245,7 @@ def test_read_image_compressed_weight_and_errors(tmp_path):
     plain = tmp_path / "plain.fits"
     fits.PrimaryHDU(img).writeto(plain)
     (tmp_path / "trunc.fits").write_bytes(plain.read_bytes()[:9000])
-    with pytest.raises(ValueError, match="complete, valid FITS"):
+    with pytest.raises(ValueError, match="truncated or corrupt FITS"):
         read_image(tmp_path / "trunc.fits")
 
 

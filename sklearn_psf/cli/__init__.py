@@ -5,7 +5,8 @@ positions; ``sklearn-psf validate`` compares PSF models
 (this package's, PSFEx, PIFF) on the same reserved stars.
 
 Run ``sklearn-psf <command> --help`` for the options. Errors in the arguments or the data end with
-a one-line message and exit status 2 (set ``SKLEARN_PSF_DEBUG=1`` for the traceback); the
+a one-line message and exit status 2; any other failure is a bug of the package: it says so,
+with exit status 3 (``--debug``, or ``SKLEARN_PSF_DEBUG=1``, shows the traceback of either); the
 library itself never prints. The parsers import nothing heavy: each command imports the
 library when it runs, so ``sklearn-psf --help`` answers at once.
 """
@@ -16,7 +17,7 @@ import argparse
 import os
 import sys
 
-from ._common import CLIInputError
+from .._files import is_input_error
 from ._fit import _add_fit_parsers, _fit, _predict
 from ._compare import PRESETS, STUDIES, STUDY_SCHEMES, add_compare_parser, run_compare
 from ._validate import add_validate_parser, run_validate
@@ -30,6 +31,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="sklearn-psf", description="PSF modelling and interpolation (Berge et al. 2012)."
     )
+    parser.add_argument("--debug", action="store_true",
+                        help="show the traceback of an error (also: SKLEARN_PSF_DEBUG=1)")
     sub = parser.add_subparsers(dest="command", required=True)
     add_compare_parser(sub)
     _add_fit_parsers(sub)
@@ -38,21 +41,33 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    """Entry point of the ``sklearn-psf`` command."""
+    """Entry point of the ``sklearn-psf`` command.
+
+    Returns the exit status: 0, 2 for an error in the arguments or the data (one line on
+    stderr), 3 for an internal error (a bug; ``--debug`` or ``SKLEARN_PSF_DEBUG=1`` shows
+    its traceback), 130 when interrupted.
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
     runners = {"compare": run_compare, "fit": _fit, "predict": _predict,
                "validate": run_validate}
+    debug = args.debug or os.environ.get("SKLEARN_PSF_DEBUG", "") not in ("", "0")
     try:
         return runners[args.command](args)
-    except (CLIInputError, ValueError, OSError) as exc:
-        if os.environ.get("SKLEARN_PSF_DEBUG"):
-            raise
-        print(f"sklearn-psf: error: {exc}", file=sys.stderr)
-        return 2
     except KeyboardInterrupt:
         print("sklearn-psf: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:
+        if debug:
+            raise
+        if is_input_error(exc):
+            print(f"sklearn-psf: error: {exc}", file=sys.stderr)
+            return 2
+        print(f"sklearn-psf: internal error ({type(exc).__name__}: "
+              f"{' '.join(str(exc).split())}): this is a bug of sklearn-psf, not a problem "
+              "with your input; run the command again with --debug (or SKLEARN_PSF_DEBUG=1) "
+              "for the traceback and report it with the command line", file=sys.stderr)
+        return 3
 
 
 def _console_script() -> int:

@@ -11,8 +11,10 @@ import contextlib
 import os
 import tempfile
 
+from .._files import InputError, is_input_error
 
-class CLIInputError(ValueError):
+
+class CLIInputError(InputError):
     """A problem with the input of ``fit`` or ``predict``, reported in one line."""
 
 
@@ -69,8 +71,22 @@ def _bits(text):
             f"expected an integer (e.g. 254 or 0xfe), got {text!r}") from None
 
 
+def _non_negative(text):
+    value = _number(text)
+    if not value >= 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return value
+
+
+def _positive(text):
+    value = _non_negative(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+    return value
+
+
 def _width(text):
-    return text if text == "auto" else _number(text)
+    return text if text == "auto" else _positive(text)
 
 
 def _check_input(path, what):
@@ -79,16 +95,31 @@ def _check_input(path, what):
         raise CLIInputError(f"the {what} {path!r} does not exist")
     if os.path.isdir(path):
         raise CLIInputError(f"the {what} {path!r} is a folder: give a file")
+    if not os.access(path, os.R_OK):
+        raise CLIInputError(f"the {what} {path!r} cannot be read: permission denied")
 
 
-def _check_output_file(path, overwrite=False, also=()):
-    """Fail before any work when ``path`` cannot be written, or when it (or one of ``also``,
-    files written with it) exists and ``overwrite`` is not set."""
+def _check_not_input(outputs, inputs):
+    """No command writes over a file it reads, with or without --overwrite."""
+    for out in outputs:
+        for path in inputs:
+            if path is not None and os.path.exists(out) and os.path.exists(path) \
+                    and os.path.samefile(out, path):
+                raise CLIInputError(f"the output {out!r} is the input {path!r} of this "
+                                    "command: an input is never written over, even with "
+                                    "--overwrite; give another output name")
+
+
+def _check_output_file(path, overwrite=False, also=(), inputs=()):
+    """Fail before any work when ``path`` cannot be written, when it (or one of ``also``,
+    files written with it) is one of the command's ``inputs``, or exists and ``overwrite``
+    is not set."""
     folder = os.path.dirname(os.path.abspath(path)) or "."
     if not os.path.isdir(folder):
         raise CLIInputError(f"the folder of the output file {path!r} does not exist")
     if os.path.isdir(path):
         raise CLIInputError(f"the output {path!r} is a folder: give a file name")
+    _check_not_input((path, *also), inputs)
     existing = [p for p in (path, *also) if os.path.exists(p)]
     if existing and not overwrite:
         more = f" (and {len(existing) - 1} more output files)" if len(existing) > 1 else ""
@@ -110,7 +141,8 @@ def _about(path):
     try:
         yield
     except ValueError as exc:
-        if isinstance(exc, CLIInputError) or str(path) in str(exc):
+        if isinstance(exc, CLIInputError) or str(path) in str(exc) \
+                or not is_input_error(exc):
             raise
         raise CLIInputError(f"{path}: {exc}") from None
 

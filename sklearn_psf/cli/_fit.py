@@ -12,7 +12,8 @@ import sys
 from typing import NamedTuple
 
 from ._common import (CLIInputError, _about, _bits, _check_input, _check_output_file,
-                      _fraction, _n_jobs, _positive_int, _stamp_size, _width)
+                      _fraction, _n_jobs, _non_negative, _positive, _positive_int,
+                      _stamp_size, _width)
 
 
 #: The schemes ``fit --interpolator`` takes (sklearn_psf.model.INTERPOLATORS, listed here so
@@ -98,11 +99,11 @@ def _add_fit_parsers(sub):
     sel.add_argument("--flag-mask", type=_bits, default=0xFE,
                      help="bits of FLAGS that reject a source [0xfe, PSFEx's: sources flagged "
                      "1, with neighbours, are kept and their neighbours masked]")
-    sel.add_argument("--min-snr", type=float, default=20.0,
+    sel.add_argument("--min-snr", type=_non_negative, default=20.0,
                      help="smallest S/N of a selected star [20]")
-    sel.add_argument("--saturation", type=float,
+    sel.add_argument("--saturation", type=_positive,
                      help="saturation level [header SATURATE keyword, else none]")
-    sel.add_argument("--isolation", type=float,
+    sel.add_argument("--isolation", type=_non_negative,
                      help="smallest distance in pixels (along x and y) to another source, "
                      "instead of the default: a star is rejected only when a neighbour's "
                      "light reaches its core, and the pixels of the other neighbours in its "
@@ -110,7 +111,7 @@ def _add_fit_parsers(sub):
     sel.add_argument("--locus-width", type=_width, default="auto",
                      help="relative half-width of the size-magnitude locus, or 'auto': 3 times "
                      "its scatter at each star's S/N [auto]")
-    sel.add_argument("--max-spread-model", type=float, default=0.003,
+    sel.add_argument("--max-spread-model", type=_non_negative, default=0.003,
                      help="largest |SPREAD_MODEL| (+ 2 SPREADERR_MODEL) of a point source, "
                      "unless it would reject most of the locus [0.003]")
     sel.add_argument("--min-class-star", type=float, default=0.8,
@@ -241,9 +242,10 @@ def _fit_jobs(args):
 
 def _fit(args):
     jobs = _fit_jobs(args)
+    inputs = [*args.image, *(args.stars or ())]
     for job in jobs:
         path, figures = _outputs(args, job.output)
-        _check_output_file(path, args.overwrite, figures)
+        _check_output_file(path, args.overwrite, figures, inputs)
     if len(jobs) > 1 or args.scheduler is not None:
         return _fit_many(jobs, args)
     outcome = _fit_one(jobs[0])
@@ -436,7 +438,7 @@ def _save_figures(figures, paths):
 def _predict(args):
     _check_input(args.model, "model file")
     _check_input(args.positions, "catalogue")
-    _check_output_file(args.output, args.overwrite)
+    _check_output_file(args.output, args.overwrite, inputs=(args.model, args.positions))
     import numpy as np
     from astropy.io import fits
     from astropy.table import Table
@@ -444,7 +446,7 @@ def _predict(args):
 
     from ..io import (celestial_wcs, draw_psf, extrapolation_flags, load_model, pixel_to_sky,
                      read_catalog, read_model_validation, sky_to_pixel)
-    from .._files import write_fits_atomic
+    from .._files import check_memory, write_fits_atomic
     from ..measure import adaptive_moments
 
     if (args.x_col is None) != (args.y_col is None):
@@ -469,6 +471,8 @@ def _predict(args):
     elif wcs is not None:
         radec = pixel_to_sky(wcs, X)
     size = model.stamp_size_ * args.oversampling
+    check_memory(3 * 8 * len(X) * size**2, f"{len(X)} PSF stamps of {size} x {size} samples "
+                 f"(--oversampling {args.oversampling})")
     stamps = np.empty((len(X), size, size))
     chunk = 5000
     with tqdm(total=len(X), desc="predicting", unit="PSF") as bar:

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import os
 
-from ._common import CLIInputError, _about, _stamp_size
+from ._common import (CLIInputError, _about, _check_not_input, _non_negative, _positive,
+                      _stamp_size)
 
 #: Files ``validate`` writes in its output folder (figures only without --no-plots).
 OUTPUTS = {"table": "validation.csv", "rho": "validation_rho.png",
@@ -52,11 +53,11 @@ def add_validate_parser(sub):
                    "columns are always read as 1-based")
     p.add_argument("--select", action="store_true",
                    help="apply the star selection of 'fit' to the catalogue [use every row]")
-    p.add_argument("--min-snr", type=float, default=20.0,
+    p.add_argument("--min-snr", type=_non_negative, default=20.0,
                    help="smallest S/N of a selected star, with --select [20]")
     p.add_argument("--stamp-size", type=_stamp_size,
                    help="stamp side, odd or even [25; a catalogue's VIGNET side]")
-    p.add_argument("--saturation", type=float,
+    p.add_argument("--saturation", type=_positive,
                    help="saturation level [header SATURATE keyword, else none]")
     p.add_argument("--model-origin", type=int, choices=(0, 1), default=1,
                    help="pixel convention of PSFEx and PIFF models: 1 = FITS (X_IMAGE), as "
@@ -120,6 +121,8 @@ def run_validate(args) -> int:
     if os.path.exists(out) and not os.path.isdir(out):
         raise CLIInputError(f"the output {out!r} is a file: give a folder")
     names = [v for k, v in OUTPUTS.items() if k == "table" or not args.no_plots]
+    _check_not_input([os.path.join(out, n) for n in names],
+                     [*args.model, args.stars, args.image])
     existing = [n for n in names if os.path.exists(os.path.join(out, n))]
     if existing and not args.overwrite:
         raise CLIInputError(f"{out!r} already holds {', '.join(existing)} (an earlier run): "
@@ -157,6 +160,9 @@ def run_validate(args) -> int:
             plt.close(fig)
             written.append(path)
     units = table.meta.get("rho_theta_units", "pixel")
+    left_out = ", ".join(f"{k} {v}" for k, v in table.meta["left_out"].items() if v)
+    if left_out:
+        print(f"stars left out of the comparison: {left_out}")
     print(f"star - model on the same stars (rank 1: lowest chi2/dof; e and size from adaptive "
           f"moments, size in pixels; |rho| mean over separations in {units}):")
     _print_table(table)

@@ -84,7 +84,8 @@ or step by step::
   convex hull, or farther from any star than 3 times their median spacing).
 """
 
-from ._catalog import read_catalog, write_ldac
+from .._files import InputError
+from ._catalog import CatalogColumnWarning, read_catalog, write_ldac
 from ._draw import draw_psf, extrapolation_flags
 from ._image import FITSHeaderWarning, read_image
 from ._psf_stamps import read_psf_stamps, write_psf_stamps
@@ -113,9 +114,11 @@ from ..model import (  # noqa: E402
 )
 
 __all__ = [
+    "CatalogColumnWarning",
     "DEFAULT_SEXTRACTOR_CONFIG",
     "DEFAULT_SEXTRACTOR_PARAMS",
     "FITSHeaderWarning",
+    "InputError",
     "MODEL_FORMAT",
     "MODEL_FORMAT_VERSION",
     "PSFEX_FLAG_MASK",

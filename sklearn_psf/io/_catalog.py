@@ -3,14 +3,21 @@
 from __future__ import annotations
 
 import os
+import warnings
 
 import numpy as np
 from astropy.io import fits
 from astropy.table import Table
 
-from ._image import _FileError, _one_line, _tolerant_fits
+from .._files import InputError
+from ._image import _checked_header, _FileError, _is_fits, _one_line, _tolerant_fits
 
-__all__ = ["read_catalog", "write_ldac"]
+__all__ = ["read_catalog", "write_ldac", "CatalogColumnWarning"]
+
+
+class CatalogColumnWarning(UserWarning):
+    """A catalogue column cannot be used (e.g. ``FLUX_RADIUS`` 0 in every row) and is left
+    out; the catalogue is read without it."""
 
 # (x, y) column pairs tried in this order; True: the convention is 1-based (FITS/SExtractor).
 _POSITION_COLUMNS = (
@@ -30,6 +37,33 @@ _MEASURED_COLUMNS = (("peak", ("peak", "flux_max")), ("flux_radius", ("flux_radi
                      ("class_star", ("class_star",)), ("spread_model", ("spread_model",)),
                      ("background", ("background",)))
 _TEXT_SUFFIXES = (".csv", ".txt", ".dat", ".ecsv", ".tsv", ".cat")
+#: SExtractor's vector columns read as one number, as PSFEx reads them (``PHOTFLUX_KEY
+#: FLUX_APER(1)``): the element of the ``aperture`` (``PHOT_APERTURES``) or of the
+#: ``flux_fraction`` (``PHOT_FLUXFRAC``) chosen, 1-based.
+_APERTURE_COLUMNS = ("flux_aper", "fluxerr_aper", "mag_aper", "magerr_aper")
+_FRACTION_COLUMNS = ("flux_radius",)
+
+
+def _ascii_vectors(table):
+    """SExtractor ASCII_HEAD catalogues give a vector column ``NAME(k)`` as k columns
+    ``NAME``, ``NAME_1`` ... ``NAME_{k-1}`` (astropy's reader): stacked back into one column,
+    ``VIGNET(v, v)`` into shape (n, v, v)."""
+    names = table.colnames
+    out, i = Table(meta=table.meta), 0
+    while i < len(names):
+        name, k = names[i], 1
+        while i + k < len(names) and names[i + k] == f"{name}_{k}":
+            k += 1
+        if k == 1:
+            out[name] = table[name]
+        else:
+            cube = np.column_stack([np.asarray(table[c]) for c in names[i:i + k]])
+            side = int(round(np.sqrt(k)))
+            if name.upper() == "VIGNET" and side * side == k:
+                cube = cube.reshape(len(table), side, side)
+            out[name] = cube
+        i += k
+    return out
 
 
 def _is_sextractor_ascii(path):
@@ -66,8 +100,8 @@ def write_ldac(path, objects: Table, header=None, overwrite: bool = False) -> No
     """Write a SExtractor FITS_LDAC catalogue (what PSFEx reads).
 
     HDU 1 ``LDAC_IMHEAD`` holds the image header as SExtractor writes it: one cell of the
-    column ``Field Header Card`` with ``TDIM = (80, N)``, the N 80-character cards; HDU 2
-    ``LDAC_OBJECTS`` the objects.
+    column ``Field Header Card`` with ``TDIM = (80, N)``, the N 80-character cards padded with
+    blanks; HDU 2 ``LDAC_OBJECTS`` the objects. PSFEx reads the file.
 
     Parameters
     ----------
@@ -76,7 +110,8 @@ def write_ldac(path, objects: Table, header=None, overwrite: bool = False) -> No
         SExtractor columns, e.g. ``X_IMAGE``, ``Y_IMAGE`` (1-based), ``FLUX_RADIUS``,
         ``VIGNET`` (n, v, v).
     header : astropy.io.fits.Header, optional
-        Image header (``SATURATE``, WCS...); empty by default.
+        Image header (``SATURATE``, WCS, ``NAXIS1``/``NAXIS2``...), written after the
+        ``SIMPLE``, ``BITPIX``, ``NAXIS`` cards an image header begins with.
     overwrite : bool, default=False
 
     Examples
@@ -94,36 +129,57 @@ def write_ldac(path, objects: Table, header=None, overwrite: bool = False) -> No
     >>> cat["x"][0], cat.meta["image_header"]["SATURATE"]
     (np.float64(10.0), 50000.0)
     """
-    text = (header or fits.Header()).tostring(endcard=True, padding=False)
-    cards = np.array([[text[i:i + 80] for i in range(0, len(text), 80)]])
+    header = fits.Header() if header is None else header
+    shape = [header.get(k) for k in ("NAXIS1", "NAXIS2")]
+    shape = shape if all(isinstance(v, (int, np.integer)) for v in shape) else []
+    # an image header begins as SExtractor's does (PSFEx refuses one without SIMPLE)
+    full = fits.Header([("SIMPLE", True), ("BITPIX", header.get("BITPIX", -32)),
+                        ("NAXIS", len(shape))]
+                       + [(f"NAXIS{i + 1}", v) for i, v in enumerate(shape)])
+    full.extend(c for c in header.cards if c.keyword not in full and c.keyword != "END")
+    text = full.tostring(endcard=True, padding=False)
+    # one string of N x 80 characters, blank-padded as SExtractor writes it (PSFEx 3.21
+    # crashes on cards padded with NUL bytes, which a column of N shorter strings gets)
     head = fits.BinTableHDU.from_columns(
-        [fits.Column(name="Field Header Card", format=f"{cards.size * 80}A",
-                     dim=f"(80, {cards.size})", array=cards)],
-        name="LDAC_IMHEAD")
+        [fits.Column(name="Field Header Card", format=f"{len(text)}A",
+                     array=np.array([text.encode("ascii")]))], name="LDAC_IMHEAD")
+    head.header.set("TDIM1", f"(80, {len(text) // 80})", after="TFORM1")
     objs = fits.table_to_hdu(Table(objects))
     objs.name = "LDAC_OBJECTS"
-    fits.HDUList([fits.PrimaryHDU(), head, objs]).writeto(os.fspath(path), overwrite=overwrite)
+    path = os.fspath(path)
+    fits.HDUList([fits.PrimaryHDU(), head, objs]).writeto(path, overwrite=overwrite)
+    # astropy ends the cell with NUL bytes in place of the last card's blanks: blanks back
+    with fits.open(path) as hdul:
+        start = hdul.fileinfo(1)["datLoc"]
+    with open(path, "r+b") as f:
+        f.seek(start)
+        f.write(text.encode("ascii"))
 
 
 def _read_table(path, hdu):
     path = os.fspath(path)
     if not os.path.exists(path):
-        raise ValueError(f"Catalogue file {path!r} does not exist.")
+        raise _FileError(f"Catalogue file {path!r} does not exist.")
     lower = path.lower()
     try:
         with _tolerant_fits(path):
-            if lower.endswith(_TEXT_SUFFIXES) or _is_sextractor_ascii(path):
+            if not _is_fits(path) and (lower.endswith(_TEXT_SUFFIXES)
+                                       or _is_sextractor_ascii(path)):
                 if _is_sextractor_ascii(path):
-                    fmt = "ascii.sextractor"
-                else:
-                    fmt = ("ascii.ecsv" if lower.endswith(".ecsv")
-                           else "ascii.csv" if lower.endswith(".csv") else "ascii")
+                    return _ascii_vectors(Table.read(path, format="ascii.sextractor"))
+                fmt = ("ascii.ecsv" if lower.endswith(".ecsv")
+                       else "ascii.csv" if lower.endswith(".csv") else "ascii")
                 return Table.read(path, format=fmt)
-            with fits.open(path, memmap=False) as hdul:
+            with fits.open(path, memmap=False, lazy_load_hdus=False, checksum=True) as hdul:
                 if hdu is None:
                     names = [h.name for h in hdul]
                     if "LDAC_OBJECTS" in names:  # SExtractor FITS_LDAC
                         hdu = "LDAC_OBJECTS"
+                    elif "LDAC_IMHEAD" in names:
+                        raise _FileError(
+                            f"Could not read {path!r}: a truncated or corrupt FITS_LDAC file (an "
+                            "LDAC_IMHEAD but no LDAC_OBJECTS table; HDUs: "
+                            f"{', '.join(n or '-' for n in names)}).")
                     else:
                         tables = [i for i, h in enumerate(hdul)
                                   if isinstance(h, (fits.BinTableHDU, fits.TableHDU))]
@@ -136,21 +192,22 @@ def _read_table(path, hdu):
                 table = Table.read(hdul[hdu])
                 header = _ldac_header(hdul)
                 if header is not None:
-                    table.meta["image_header"] = header
+                    table.meta["image_header"] = _checked_header(header, path)
                 return table
     except _FileError:
         raise
     except (ValueError, OSError, TypeError, KeyError, IndexError, EOFError,
-            fits.VerifyError) as exc:
-        raise ValueError(
+            UnicodeDecodeError, fits.VerifyError) as exc:
+        raise _FileError(
             f"Could not read the catalogue {path!r} ({type(exc).__name__}: "
-            f"{_one_line(exc)}); pass a complete FITS table, a SExtractor catalogue or a CSV "
-            "file with x, y columns."
+            f"{_one_line(exc)[:200]}); pass a complete FITS table (not a truncated or corrupt "
+            "FITS file), a SExtractor catalogue or a CSV file with x, y columns."
         ) from None
 
 
 def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = None,
-                 y_col: str | None = None, hdu=None, sky: bool = False) -> Table:
+                 y_col: str | None = None, hdu=None, sky: bool = False, aperture: int = 1,
+                 flux_fraction: int = 1) -> Table:
     """Read a catalogue of positions into a table with 0-based ``x``, ``y`` columns.
 
     Column names are matched without regard to case. Positions come from, in this order:
@@ -164,8 +221,16 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
     ``FLUX_PSF``, ``FLUX_APER``), ``snr`` (``SNR``, ``SNR_WIN``, else ``FLUX_AUTO /
     FLUXERR_AUTO``), ``flags`` (``FLAGS``, ``FLAG``; non-zero skips the star when stamps
     are cut), ``peak`` (``FLUX_MAX``), ``flux_radius``, ``class_star``, ``spread_model``,
-    ``background`` (read by :func:`select_stars`). Other columns, e.g. ``VIGNET``, are kept
-    as they are.
+    ``background`` (read by :func:`select_stars`); without ``SNR``/``SNR_WIN``, the S/N is
+    ``FLUX_AUTO / FLUXERR_AUTO``, else ``FLUX_APER / FLUXERR_APER``. Other columns, e.g.
+    ``VIGNET``, are kept as they are. A ``FLUX_RADIUS`` that is 0 (or NaN) in every row is left
+    out with a :class:`CatalogColumnWarning`.
+
+    SExtractor's vector columns are read as PSFEx reads them (its ``PHOTFLUX_KEY`` is
+    ``FLUX_APER(1)``): ``FLUX_APER``, ``FLUXERR_APER``, ``MAG_APER``, ``MAGERR_APER`` with
+    several ``PHOT_APERTURES`` become the one column of aperture ``aperture`` (1: the first),
+    ``FLUX_RADIUS`` with several ``PHOT_FLUXFRAC`` the one of fraction ``flux_fraction``;
+    ``meta["vector_elements"]`` says which element each reduced column holds.
 
     Files: FITS tables (a FITS_LDAC catalogue's ``LDAC_OBJECTS``, its image header from
     ``LDAC_IMHEAD`` in ``meta["image_header"]``), SExtractor ASCII catalogues (``#   1
@@ -187,17 +252,32 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
         Read (RA, Dec) in degrees instead, into ``x``, ``y`` as they are: ``x_col``/``y_col``,
         else ``ALPHAWIN_J2000``/``DELTAWIN_J2000``, ``ALPHA_J2000``/``DELTA_J2000`` or
         ``RA``/``DEC``.
+    aperture : int, default=1
+        Element (1-based, in the order of SExtractor's ``PHOT_APERTURES``) of the vector
+        aperture columns to read.
+    flux_fraction : int, default=1
+        Element (1-based, in the order of ``PHOT_FLUXFRAC``) of a vector ``FLUX_RADIUS``.
 
     Returns
     -------
     astropy.table.Table
         Columns ``x``, ``y`` (float64, 0-based), then the optional standard columns and the
-        others. ``meta``: ``x_column``, ``y_column``, ``one_based``.
+        others. ``meta``: ``x_column``, ``y_column``, ``one_based``, ``vector_elements``
+        (``{column: element}`` of the vector columns reduced, if any), ``image_header`` (a
+        FITS_LDAC catalogue's).
 
     Raises
     ------
-    ValueError
-        For an unreadable file, or no position columns (the message lists the columns found).
+    InputError
+        For an unreadable, truncated or corrupt file (a FITS file's ``CHECKSUM``/``DATASUM``
+        are verified where present), no rows, no position columns (the message lists the
+        columns found), a column that does not hold one number per row, or an ``aperture`` /
+        ``flux_fraction`` beyond the vector's size.
+
+    Warns
+    -----
+    CatalogColumnWarning
+        When ``FLUX_RADIUS`` holds no positive value (left out).
 
     Examples
     --------
@@ -207,27 +287,36 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
     >>> cat = read_catalog(sex)
     >>> cat["x"].tolist(), cat["y"].tolist(), cat["flags"].tolist()
     ([0.0, 9.5], [0.0, 19.0], [0, 2])
+    >>> aper = Table({"X_IMAGE": [5.0], "Y_IMAGE": [7.0],      # 3 PHOT_APERTURES
+    ...               "FLUX_APER": [[100.0, 150.0, 180.0]], "FLUXERR_APER": [[5.0, 6.0, 9.0]]})
+    >>> cat = read_catalog(aper)
+    >>> float(cat["flux"][0]), float(cat["snr"][0]), cat.meta["vector_elements"]["FLUX_APER"]
+    (100.0, 20.0, 1)
+    >>> float(read_catalog(aper, aperture=3)["flux"][0])
+    180.0
     """
     if isinstance(catalog, Table):
         table = catalog
+        where = "The catalogue"
     else:
         table = _read_table(catalog, hdu)
+        where = f"The catalogue {os.fspath(catalog)!r}"
     lower = {name.lower(): name for name in table.colnames}
     if (x_col is None) != (y_col is None):
-        raise ValueError("Give both x_col and y_col, or neither.")
+        raise InputError("Give both x_col and y_col, or neither.")
     if x_col is not None:
         missing = [c for c in (x_col, y_col) if c.lower() not in lower]
         if missing:
-            raise ValueError(
-                f"The catalogue has no column {missing[0]!r}; columns found: "
+            raise InputError(
+                f"{where} has no column {missing[0]!r}; columns found: "
                 f"{', '.join(table.colnames) or 'none'}."
             )
         xname, yname, convention = lower[x_col.lower()], lower[y_col.lower()], False
     elif sky:
         pairs = [(lower[a], lower[d]) for a, d in _SKY_COLUMNS if a in lower and d in lower]
         if not pairs:
-            raise ValueError(
-                "The catalogue has no (RA, Dec) columns: expected ALPHA_J2000, DELTA_J2000 or "
+            raise InputError(
+                f"{where} has no (RA, Dec) columns: expected ALPHA_J2000, DELTA_J2000 or "
                 f"RA, DEC, or give x_col/y_col; columns found: {', '.join(table.colnames)}.")
         (xname, yname), convention, one_based = pairs[0], False, False
     else:
@@ -236,36 +325,88 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
                 xname, yname, convention = lower[xn], lower[yn], conv
                 break
         else:
-            raise ValueError(
-                "The catalogue has no position columns: expected x, y (0-based) or "
+            raise InputError(
+                f"{where} has no position columns: expected x, y (0-based) or "
                 "X_IMAGE, Y_IMAGE / XWIN_IMAGE, YWIN_IMAGE (SExtractor, 1-based), or give "
                 "x_col/y_col (--x-col/--y-col); columns found: "
                 f"{', '.join(table.colnames) or 'none'}."
             )
+    if len(table) == 0:
+        raise InputError(f"{where} has no rows (columns: {', '.join(table.colnames[:8])}"
+                         f"{', ...' if len(table.colnames) > 8 else ''}).")
     base = convention if one_based is None else bool(one_based)
-    try:
-        x = np.asarray(table[xname], dtype=np.float64)
-        y = np.asarray(table[yname], dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"Columns {xname!r}, {yname!r} do not hold numbers.") from None
-    if x.ndim != 1:
-        raise ValueError(f"Column {xname!r} must hold one number per row.")
+    x, y = (_numbers(table[name], name, where) for name in (xname, yname))
+    columns, elements = _scalar_columns(table, lower, aperture, flux_fraction, where)
     out = Table({"x": x - 1.0 if base else x, "y": y - 1.0 if base else y})
     for std, names in (("flux", _FLUX_COLUMNS), ("snr", _SNR_COLUMNS), ("flags", _FLAG_COLUMNS),
                        *_MEASURED_COLUMNS):
         for name in names:
-            if name in lower:
-                out[std] = np.asarray(table[lower[name]])
+            if name in columns:
+                out[std] = _numbers(columns[name], lower[name], where,
+                                    integer=std == "flags")
                 break
-    if "snr" not in out.colnames and "flux_auto" in lower and "fluxerr_auto" in lower:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            out["snr"] = (np.asarray(table[lower["flux_auto"]], dtype=np.float64)
-                          / np.asarray(table[lower["fluxerr_auto"]], dtype=np.float64))
+    if "snr" not in out.colnames:  # as PSFEx: PHOTFLUX_KEY / PHOTFLUXERR_KEY
+        for flux, err in (("flux_auto", "fluxerr_auto"), ("flux_aper", "fluxerr_aper")):
+            if flux in columns and err in columns:
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    out["snr"] = (_numbers(columns[flux], lower[flux], where)
+                                  / _numbers(columns[err], lower[err], where))
+                break
+    dropped = set()
+    if "flux_radius" in out.colnames and not (np.asarray(out["flux_radius"]) > 0).any():
+        warnings.warn(
+            f"{where}: {lower['flux_radius']} is 0, negative or NaN in all {len(out)} rows: "
+            "left out, the star selection measures the sizes on the VIGNETs (adaptive "
+            "moments) if there are any, else applies no size-magnitude cut.",
+            CatalogColumnWarning, stacklevel=2)
+        del out["flux_radius"]
+        dropped.add(lower["flux_radius"])
     for name in table.colnames:
-        if name not in (xname, yname) and name.lower() not in out.colnames \
-                and name not in out.colnames:
-            out[name] = table[name]
+        if name not in (xname, yname) and name not in dropped \
+                and name.lower() not in out.colnames and name not in out.colnames:
+            out[name] = columns.get(name.lower(), table[name])
     out.meta.update({"x_column": xname, "y_column": yname, "one_based": base})
+    if elements:
+        out.meta["vector_elements"] = elements
     if "image_header" in table.meta:
         out.meta["image_header"] = table.meta["image_header"]
     return out
+
+
+def _numbers(column, name, where, integer=False):
+    """A catalogue column as float64 (int64 for ``integer``), one number per row; masked
+    entries (ASCII catalogues) become NaN (-1, every flag bit, for ``integer``)."""
+    col = np.ma.asarray(column)
+    if col.ndim != 1:
+        raise InputError(f"{where}: column {name!r} must hold one number per row, got "
+                         f"shape {col.shape[1:]} per row.")
+    try:
+        values = col.astype(np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: column {name!r} does not hold numbers "
+                         f"(type {col.dtype}).") from None
+    if integer:
+        finite = np.ma.filled(values, np.nan)
+        ok = np.isfinite(finite)
+        return np.where(ok, np.nan_to_num(finite), -1).astype(np.int64)
+    return np.ma.filled(values, np.nan)
+
+
+def _scalar_columns(table, lower, aperture, flux_fraction, where):
+    """``{lower-case name: column}`` with SExtractor's vector photometry reduced to one
+    element (see ``_APERTURE_COLUMNS``), and ``{name: element}`` of the reduced ones."""
+    columns, elements = {}, {}
+    for key, name in lower.items():
+        col = table[name]
+        choice = (("aperture", aperture) if key in _APERTURE_COLUMNS
+                  else ("flux_fraction", flux_fraction) if key in _FRACTION_COLUMNS else None)
+        if choice is not None and np.ndim(col) == 2:
+            option, k = choice
+            size = np.shape(col)[1]
+            if not (isinstance(k, (int, np.integer)) and 1 <= k <= size):
+                raise InputError(f"{where}: {option}={k!r} chooses element {k!r} of {name}, "
+                                 f"which has {size} (1 to {size}).")
+            col = np.asarray(col)[:, k - 1]
+            elements[name] = int(k)
+        columns[key] = col
+    return columns, elements

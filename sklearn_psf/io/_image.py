@@ -10,6 +10,7 @@ import numpy as np
 from astropy.io import fits
 from astropy.utils.exceptions import AstropyUserWarning
 
+from .._files import InputError
 from .._files import one_line as _one_line
 
 __all__ = ["read_image", "FITSHeaderWarning"]
@@ -24,10 +25,12 @@ class FITSHeaderWarning(UserWarning):
 
 @contextlib.contextmanager
 def _tolerant_fits(path):
-    """Read FITS under this: a truncated file raises, a non-standard header only warns once.
+    """Read FITS under this: a truncated or corrupt file raises (an HDU cut short, or whose
+    ``CHECKSUM``/``DATASUM`` keywords do not match it: open with ``checksum=True``), a
+    non-standard header only warns once.
 
-    astropy reports both as warnings; header problems never stop the reading (real
-    instruments write non-standard keywords), truncation does.
+    astropy reports all of these as warnings; header problems never stop the reading (real
+    instruments write non-standard keywords), truncation and corruption do.
     """
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -36,9 +39,13 @@ def _tolerant_fits(path):
     for w in caught:
         text = _one_line(w.message)
         if issubclass(w.category, AstropyUserWarning):
-            if "truncated" in text:
-                raise _FileError(f"Could not read {path!r} as FITS: {text}; the file is "
-                                 "incomplete.")
+            if "truncated" in text or "file is corrupted" in text:
+                raise _FileError(f"Could not read {path!r}: a truncated or corrupt FITS file "
+                                 f"({text[:160]}).")
+            if "sum verification failed" in text:  # CHECKSUM / DATASUM of an HDU
+                raise _FileError(f"Could not read {path!r}: a corrupt FITS file "
+                                 f"({text.rstrip('.')}: its CHECKSUM/DATASUM keywords do not "
+                                 "match its content).")
             if "zero-based indexing" not in text and "Verification reported" not in text:
                 header_notes.append(text)
         else:
@@ -49,8 +56,48 @@ def _tolerant_fits(path):
                       FITSHeaderWarning, stacklevel=3)
 
 
-class _FileError(ValueError):
+class _FileError(InputError):
     """A clear message about the file's content (re-raised as it is)."""
+
+
+def _level(value, name):
+    """A saturation level (or gain) as a float, None for None; an :class:`InputError` for
+    anything else than a positive number."""
+    if value is None:
+        return None
+    try:
+        level = float(value)
+    except (TypeError, ValueError):
+        level = np.nan
+    if not level > 0:
+        raise InputError(f"{name} must be a positive number, got {value!r}.")
+    return level
+
+
+def _checked_header(header, path):
+    """``header`` without a ``SATURATE`` that is not a positive number (warned): the image is
+    read, with no saturation level from its header."""
+    value = header.get("SATURATE")
+    if value is not None and not (isinstance(value, (int, float)) and not isinstance(value, bool)
+                                  and value > 0):
+        warnings.warn(f"{path!r}: the header's SATURATE = {value!r} is not a positive number: "
+                      "ignored (give the level with saturation=, --saturation)",
+                      FITSHeaderWarning, stacklevel=3)
+        del header["SATURATE"]
+    return header
+
+
+def _is_fits(path) -> bool:
+    """Whether ``path`` is an uncompressed FITS file; one whose size is not a whole number of
+    2880-byte FITS blocks is cut short (or corrupt), and refused."""
+    with open(path, "rb") as f:
+        if f.read(9) != b"SIMPLE  =":
+            return False
+    size = os.path.getsize(path)
+    if size % 2880:
+        raise _FileError(f"Could not read {path!r}: a truncated or corrupt FITS file (its "
+                         f"{size} bytes are not a whole number of 2880-byte FITS blocks).")
+    return True
 
 
 def _hdu_key(hdu):
@@ -113,9 +160,10 @@ def read_image(path, hdu=None, weight_hdu=None):
 
     Raises
     ------
-    ValueError
-        For a missing, corrupt or truncated file, an unknown HDU, an HDU that is not a 2-D
-        image, or a weight map of another shape.
+    InputError
+        For a missing, corrupt or truncated file (also one whose ``CHECKSUM``/``DATASUM``
+        keywords do not match its content), an unknown HDU, an HDU that is not a 2-D image, or
+        a weight map of another shape.
 
     Warns
     -----
@@ -139,12 +187,13 @@ def read_image(path, hdu=None, weight_hdu=None):
     """
     path = os.fspath(path)
     if not os.path.exists(path):
-        raise ValueError(f"FITS file {path!r} does not exist.")
+        raise _FileError(f"FITS file {path!r} does not exist.")
     key, wkey = _hdu_key(hdu), _hdu_key(weight_hdu)
+    _is_fits(path)
     try:
         with _tolerant_fits(path):
             # every header is read: a truncated file fails here, whichever HDU is asked for
-            with fits.open(path, memmap=False, lazy_load_hdus=False) as hdul:
+            with fits.open(path, memmap=False, lazy_load_hdus=False, checksum=True) as hdul:
                 chosen = _select(hdul, key, path, "image")
                 image = np.array(chosen.data, dtype=np.float64)
                 header = chosen.header.copy()
@@ -160,12 +209,13 @@ def read_image(path, hdu=None, weight_hdu=None):
     except _FileError:
         raise
     except _READ_ERRORS as exc:
-        raise ValueError(
+        raise _FileError(
             f"Could not read {path!r} as a FITS image ({type(exc).__name__}: {_one_line(exc)}); "
-            "check that the file is a complete, valid FITS file."
+            "it is not FITS, or a truncated or corrupt FITS file."
         ) from None
+    header = _checked_header(header, path)
     if weight is not None and weight.shape != image.shape:
-        raise ValueError(
+        raise _FileError(
             f"The weight map (HDU {weight_hdu!r}) has shape {weight.shape}, the image "
             f"{image.shape}: give the weight HDU that belongs to the image."
         )

@@ -23,8 +23,8 @@ __all__ = ["select_stars", "neighbour_masks", "PSFEX_FLAG_MASK", "SELECTION_REAS
 
 #: Why a source is not selected as a star, in the order the cuts are applied (a source is
 #: counted under the first cut it fails); ``bad_stamp`` is applied when stamps are cut.
-SELECTION_REASONS = ("flags", "low_snr", "saturated", "near_edge", "crowded", "off_locus",
-                     "extended", "bad_stamp")
+SELECTION_REASONS = ("bad_position", "flags", "low_snr", "saturated", "near_edge", "crowded",
+                     "off_locus", "extended", "bad_stamp")
 
 #: The parameter of :func:`select_stars` that relaxes each cut.
 SELECTION_OPTIONS = {
@@ -204,17 +204,21 @@ def _size(table, rows=None):
     elsewhere); else ``flux_radius``; else the adaptive-moment sigma of the ``VIGNET``."""
     vig = _vignettes(table)
     radius = _column(table, "flux_radius")
-    if vig is not None and len(vig) and rows is not None:
+    if vig is not None and len(vig) and rows is not None and vig.shape[1] == vig.shape[2]:
         from ..measure import adaptive_moments
 
         sub = vig[rows]
         valid = (np.isfinite(sub) & (sub > -1e29)
                  & ~neighbour_masks(table, rows, vig.shape[1]))
-        mom = adaptive_moments(np.where(valid, sub, 0.0), weights=valid.astype(np.float64),
-                               guess_sigma=max(1.0, vig.shape[1] / 10))
+        data = np.where(valid, sub, 0.0)
+        # measurable: enough unmasked pixels and a positive flux
+        ok = (valid.sum(axis=(1, 2)) >= 9) & (data.sum(axis=(1, 2)) > 0)
         sigma = np.full(len(table), np.nan)
-        sigma[rows] = np.where(np.asarray(mom["flag"]) == 0, np.asarray(mom["sigma"], float),
-                               np.nan)
+        if ok.any():
+            mom = adaptive_moments(data[ok], weights=valid[ok].astype(np.float64),
+                                   guess_sigma=max(1.0, vig.shape[1] / 10))
+            sigma[np.asarray(rows)[ok]] = np.where(np.asarray(mom["flag"]) == 0,
+                                                   np.asarray(mom["sigma"], float), np.nan)
         return sigma, "adaptive_sigma_masked"
     if radius is not None:
         return radius, "flux_radius"
@@ -227,6 +231,22 @@ def _size(table, rows=None):
                            guess_sigma=max(1.0, vig.shape[1] / 10))
     sigma = np.where(np.asarray(mom["flag"]) == 0, np.asarray(mom["sigma"], float), np.nan)
     return sigma, "adaptive_sigma"
+
+
+def _on_field(x, y, image_shape, header):
+    """Finite positions whose pixel lies on the image (``image_shape``, else the extent
+    ``NAXIS1`` x ``NAXIS2`` of the catalogue's image header, e.g. SExtractor's
+    ``LDAC_IMHEAD``; only finiteness without either)."""
+    ok = np.isfinite(x) & np.isfinite(y)
+    if image_shape is None and header is not None:
+        shape = [header.get(k) for k in ("NAXIS2", "NAXIS1")]
+        if all(isinstance(v, (int, np.integer)) and v > 0 for v in shape):
+            image_shape = shape
+    if image_shape is not None:
+        ny, nx = image_shape
+        with np.errstate(invalid="ignore"):
+            ok &= (x >= -0.5) & (x < nx - 0.5) & (y >= -0.5) & (y < ny - 0.5)
+    return ok
 
 
 def _densest(values, half_width):
@@ -327,6 +347,9 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
     Cuts, in this order (a source is counted under the first it fails; a cut whose columns
     are absent is skipped):
 
+    - ``bad_position``: ``x`` or ``y`` NaN or infinite, or off the image (``image_shape``, else
+      the ``NAXIS1`` x ``NAXIS2`` of ``catalog.meta["image_header"]``, SExtractor's
+      ``LDAC_IMHEAD``);
     - ``flags``: ``flags & flag_mask`` non-zero (SExtractor ``FLAGS``: neighbours, blended,
       saturated, truncated...);
     - ``low_snr``: ``snr`` below ``min_snr``;
@@ -435,7 +458,7 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
     counts = dict.fromkeys(SELECTION_REASONS, 0)
     counts.update({"locus_size": None, "locus_radius": np.nan, "locus_width": np.nan,
                    "not_applied": {}})
-    keep = np.isfinite(x) & np.isfinite(y)
+    keep = np.ones(n, dtype=bool)
 
     def cut(name, ok):
         nonlocal keep
@@ -443,7 +466,7 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
         counts[name] += int(np.count_nonzero(keep & ~ok))
         keep &= ok
 
-    counts["flags"] = int(np.count_nonzero(~keep))  # NaN positions
+    cut("bad_position", _on_field(x, y, image_shape, catalog.meta.get("image_header")))
     flags = _column(catalog, "flags")
     if flags is not None:
         bits = np.nan_to_num(flags, nan=1.0).astype(np.int64)

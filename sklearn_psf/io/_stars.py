@@ -9,8 +9,10 @@ from __future__ import annotations
 import numpy as np
 from astropy.table import Table
 
+from .._files import InputError, check_memory
 from ..preprocessing import cut_stamps
 from ..preprocessing._stamps import CUT_BAD_POSITION, CUT_NAN, CUT_OFF_EDGE
+from ._image import _level
 from ._select import SELECTION_REASONS, select_stars
 
 __all__ = ["find_stars", "extract_star_stamps", "StarStamps", "REJECTION_REASONS"]
@@ -26,7 +28,7 @@ def _bad_pixel_mask(data, weight):
     if weight is not None:
         w = np.asarray(weight)
         if w.shape != data.shape:
-            raise ValueError(f"weight must have the image's shape {data.shape}, got {w.shape}.")
+            raise InputError(f"weight must have the image's shape {data.shape}, got {w.shape}.")
         bad |= ~np.isfinite(w) | (w <= 0)
     return bad if bad.any() else None
 
@@ -72,17 +74,17 @@ def _find_stars(data, *, weight=None, stamp_size=25, detect_thresh=5.0, min_snr=
 
     s = int(stamp_size)
     if s != stamp_size or s < 3:
-        raise ValueError(f"stamp_size must be an integer >= 3, got {stamp_size!r}.")
+        raise InputError(f"stamp_size must be an integer >= 3, got {stamp_size!r}.")
     ny, nx = data.shape
     if s + 4 > min(ny, nx):
-        raise ValueError(
+        raise InputError(
             f"stamp_size {s} is too large for an image of shape {data.shape}: the image "
             "must be at least stamp_size + 4 pixels on each side."
         )
     mask = _bad_pixel_mask(data, weight)
     if mask is not None:
         if mask.all():
-            raise ValueError("Every pixel of the image is NaN or has zero weight: no stars.")
+            raise InputError("Every pixel of the image is NaN or has zero weight: no stars.")
         data = np.where(mask, 0.0, data)
     data = np.ascontiguousarray(data, dtype=np.float64)
     bkg = _background(data, mask)
@@ -92,13 +94,13 @@ def _find_stars(data, *, weight=None, stamp_size=25, detect_thresh=5.0, min_snr=
         sub[mask] = 0.0
     rms = float(bkg.globalrms)
     if not rms > 0:
-        raise ValueError("The image has a constant background (zero rms): no stars found.")
+        raise InputError("The image has a constant background (zero rms): no stars found.")
     old_stack = sep.get_extract_pixstack()
     sep.set_extract_pixstack(max(old_stack, 2_000_000))
     try:
         objs = sep.extract(sub, detect_thresh, err=rms, minarea=5, mask=mask)
     except Exception as exc:  # sep raises plain Exception for internal limits
-        raise ValueError(f"Source extraction failed: {exc}") from None
+        raise InputError(f"Source extraction failed: {exc}") from None
     finally:
         sep.set_extract_pixstack(old_stack)
     n_det = len(objs)
@@ -216,12 +218,12 @@ def find_stars(image, *, weight=None, stamp_size: int = 25, detect_thresh: float
     >>> field = make_psf_field(n_stars=40, n_galaxies=0, image_shape=(600, 800),
     ...                        snr=300.0, random_state=0)
     >>> stars = find_stars(field.image)
-    >>> len(stars) >= 35, sorted(stars.meta["rejected"])[:2]
-    (True, ['bad_stamp', 'crowded'])
+    >>> len(stars) >= 35, sorted(stars.meta["rejected"])[:3]
+    (True, ['bad_position', 'bad_stamp', 'crowded'])
     """
     data = np.asarray(image)
     if data.ndim != 2:
-        raise ValueError(f"image must be 2-D, got {data.ndim} dimensions.")
+        raise InputError(f"image must be 2-D, got {data.ndim} dimensions.")
     data = np.array(data, dtype=np.float64, copy=True)
     table, _ = _find_stars(data, weight=weight, stamp_size=stamp_size,
                            detect_thresh=detect_thresh, min_snr=min_snr, saturation=saturation,
@@ -302,9 +304,11 @@ def extract_star_stamps(image, catalog, stamp_size: int = 25, *, weight=None,
 
     Raises
     ------
-    ValueError
+    InputError
         When every position lies outside the image (a wrong catalogue, or 1-based positions
-        read as 0-based), or no star is usable.
+        read as 0-based), no star is usable, ``stamp_size`` exceeds the image, or the stamps
+        would not fit in the free memory (refused before they are allocated, with the size
+        needed).
 
     Examples
     --------
@@ -321,12 +325,12 @@ def extract_star_stamps(image, catalog, stamp_size: int = 25, *, weight=None,
     """
     img = np.asarray(image)
     if img.ndim != 2:
-        raise ValueError(f"image must be 2-D, got {img.ndim} dimensions.")
+        raise InputError(f"image must be 2-D, got {img.ndim} dimensions.")
     ny, nx = img.shape
     if isinstance(catalog, Table):
         missing = [c for c in ("x", "y") if c not in catalog.colnames]
         if missing:
-            raise ValueError(
+            raise InputError(
                 f"The catalogue has no {' and '.join(missing)} column (columns: "
                 f"{', '.join(catalog.colnames) or 'none'}): read it with read_catalog."
             )
@@ -334,14 +338,20 @@ def extract_star_stamps(image, catalog, stamp_size: int = 25, *, weight=None,
     else:
         pos = np.asarray(catalog, dtype=np.float64)
         if pos.ndim != 2 or pos.shape[1] != 2:
-            raise ValueError(f"positions must have shape (n, 2), got {pos.shape}.")
+            raise InputError(f"positions must have shape (n, 2), got {pos.shape}.")
         cat = Table({"x": pos[:, 0], "y": pos[:, 1]})
     n = len(cat)
     if n == 0:
-        raise ValueError("The star catalogue is empty.")
+        raise InputError("The star catalogue is empty.")
     s = int(stamp_size)
     if s != stamp_size or s < 3:
-        raise ValueError(f"stamp_size must be an integer >= 3, got {stamp_size!r}.")
+        raise InputError(f"stamp_size must be an integer >= 3, got {stamp_size!r}.")
+    if s > min(ny, nx):
+        raise InputError(f"stamp_size {s} is larger than the image (ny, nx = {ny}, {nx}): "
+                         "no star's stamp fits in it.")
+    # the stamps, the raw stamps, their weights and masks (float64), as many again at once
+    check_memory(6 * 8 * n * (s + 1) ** 2,
+                 f"{n} stamps of {s} x {s} pixels (stamp_size)")
     pos = np.column_stack([np.asarray(cat["x"], dtype=np.float64),
                            np.asarray(cat["y"], dtype=np.float64)])
     raw = np.array(img, dtype=np.float64, copy=True)
@@ -372,12 +382,16 @@ def extract_star_stamps(image, catalog, stamp_size: int = 25, *, weight=None,
     c = max(1, min(int(core_size), s)) // 2
     core = (slice(None), slice(h - c, h + c + 1), slice(h - c, h + c + 1))
     masked = bad_cube[core].any(axis=(1, 2))
+    # a NaN (or infinite) pixel of the image not masked by the weight map: the background
+    # subtraction filled it, the raw stamp still holds it
+    nan = ~np.isfinite(np.where(bad_cube, 0.0, raws)).all(axis=(1, 2)) \
+        | ~np.isfinite(stamps).all(axis=(1, 2))
     stamps[bad_cube] = 0.0
     raws[bad_cube] = np.nan
-    nan = ~np.isfinite(stamps).all(axis=(1, 2))
     if weight is None:
         # without a weight map, NaN pixels in the core are "nan" too (nothing says "masked")
         masked[:] = False
+    saturation = _level(saturation, "saturation")
     sat_flag = np.zeros(n, dtype=bool)
     if saturation is not None:
         with np.errstate(invalid="ignore"):
@@ -402,7 +416,7 @@ def extract_star_stamps(image, catalog, stamp_size: int = 25, *, weight=None,
     counts = {"input": n, "used": int(used.sum())}
     counts.update({name: int(np.count_nonzero(reason == name)) for name in REJECTION_REASONS})
     if counts["off_image"] + counts["bad_position"] == n:
-        raise ValueError(
+        raise InputError(
             f"All {n} catalogue positions fall outside the image (shape ny, nx = {ny}, {nx}); "
             "check that the catalogue belongs to this image/HDU and whether its positions are "
             "1-based (SExtractor X_IMAGE: use one_based=True / --one-based)."
@@ -410,7 +424,7 @@ def extract_star_stamps(image, catalog, stamp_size: int = 25, *, weight=None,
     if not used.any():
         skipped = ", ".join(f"{k}: {v}" for k, v in counts.items()
                             if k not in ("input", "used") and v)
-        raise ValueError(f"None of the {n} catalogue stars is usable ({skipped}).")
+        raise InputError(f"None of the {n} catalogue stars is usable ({skipped}).")
     cat["used"] = used
     cat["reason"] = np.asarray(reason, dtype=str)
     return StarStamps(pos[used], stamps[used].reshape(-1, s * s), cat, counts,

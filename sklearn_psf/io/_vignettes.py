@@ -18,7 +18,10 @@ from __future__ import annotations
 import numpy as np
 from astropy.table import Table
 
+from .._files import InputError
 from ..preprocessing import estimate_pixel_weights
+from ._image import _level
+from ._select import _on_field
 from ._stars import REJECTION_REASONS, StarStamps
 
 __all__ = ["extract_vignettes", "VIGNET_MASKED"]
@@ -34,9 +37,10 @@ def extract_vignettes(catalog: Table, stamp_size: int | None = None, *,
 
     Each vignette is cropped to its central ``stamp_size`` pixels (see the module's centre
     convention). A star is skipped, under the first reason that applies, when its position is
-    NaN (``bad_position``), its ``flags`` are non-zero (``catalog_flag``), a masked pixel lies
-    in the central ``core_size`` box (``masked``) or a pixel reaches ``saturation``
-    (``saturated``).
+    NaN or off the image of ``catalog.meta["image_header"]`` (its ``NAXIS1`` x ``NAXIS2``:
+    SExtractor's ``LDAC_IMHEAD``) (``bad_position``), its ``flags`` are non-zero
+    (``catalog_flag``), a masked pixel lies in the central ``core_size`` box (``masked``) or a
+    pixel reaches ``saturation`` (``saturated``).
 
     Weights are the inverse variance of each pixel: the background variance of the star's
     vignette (from its border, see :func:`~sklearn_psf.preprocessing.estimate_pixel_weights`:
@@ -65,7 +69,7 @@ def extract_vignettes(catalog: Table, stamp_size: int | None = None, *,
 
     Raises
     ------
-    ValueError
+    InputError
         Without a vignette column, with a too small or too large ``stamp_size``, or when no
         star is usable.
 
@@ -86,17 +90,24 @@ def extract_vignettes(catalog: Table, stamp_size: int | None = None, *,
         names = catalog.colnames
         shown = ", ".join(names[:8]) + (f", ... ({len(names)} columns)" if len(names) > 8
                                         else "")
-        raise ValueError(f"The catalogue has no {column} column ({shown}): give the image to "
+        raise InputError(f"The catalogue has no {column} column ({shown}): give the image to "
                          f"cut the stamps, or have SExtractor write {column}(v,v).")
-    cube = np.array(catalog[lower[column.lower()]], dtype=np.float64)
     n = len(catalog)
+    if n == 0:
+        raise InputError("The star catalogue is empty.")
+    try:
+        cube = np.array(catalog[lower[column.lower()]], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{column} does not hold numbers (type "
+                         f"{catalog[lower[column.lower()]].dtype}).") from None
     if cube.ndim != 3 or cube.shape[1] != cube.shape[2] or cube.shape[1] < 3:
-        raise ValueError(f"{column} must hold square vignettes of side 3 or more, got shape "
+        raise InputError(f"{column} must hold square vignettes of side 3 or more, got shape "
                          f"{cube.shape[1:]}.")
+    saturation, gain = _level(saturation, "saturation"), _level(gain, "gain")
     v = cube.shape[1]
     s = v if stamp_size is None else int(stamp_size)
     if s < 3 or s > v:
-        raise ValueError(f"stamp_size must be >= 3 and at most the vignette side {v}, "
+        raise InputError(f"stamp_size must be >= 3 and at most the vignette side {v}, "
                          f"got {stamp_size!r}.")
     lo = v // 2 - s // 2  # the star's pixel stays at index s // 2
     cube = cube[:, lo:lo + s, lo:lo + s]
@@ -112,7 +123,8 @@ def extract_vignettes(catalog: Table, stamp_size: int | None = None, *,
     h, c = s // 2, max(1, min(int(core_size), s)) // 2
     flags = np.asarray(catalog["flags"]) if "flags" in catalog.colnames else np.zeros(n)
     tests = {
-        "bad_position": ~np.isfinite(pos).all(axis=1),
+        "bad_position": ~_on_field(pos[:, 0], pos[:, 1], None,
+                                   catalog.meta.get("image_header")),
         "catalog_flag": flags != 0,
         "masked": ~valid[:, h - c:h + c + 1, h - c:h + c + 1].all(axis=(1, 2)),
         "saturated": (np.where(valid, cube, -np.inf).max(axis=(1, 2)) >= float(saturation)
@@ -128,7 +140,7 @@ def extract_vignettes(catalog: Table, stamp_size: int | None = None, *,
     if not used.any():
         skipped = ", ".join(f"{k}: {v}" for k, v in counts.items()
                             if k not in ("input", "used") and v)
-        raise ValueError(f"None of the {n} catalogue vignettes is usable ({skipped}).")
+        raise InputError(f"None of the {n} catalogue vignettes is usable ({skipped}).")
     out = Table(catalog, copy=False)
     out = out[[name for name in out.colnames if name != lower[column.lower()]]]
     out["used"] = used

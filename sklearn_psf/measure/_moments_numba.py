@@ -144,9 +144,9 @@ def _moments_loop(cube, todo, x0, y0, mxx, mxy, myy, amp, n_iter, flag, max_rho2
                     cyy += ra * dy * dy
             half_trace = 0.5 * (axx + ayy)
             semi_b2 = half_trace - math.sqrt((0.5 * (axx - ayy)) ** 2 + axy * axy)
-            no_flux = (not (a > 0.0)) and not bad
             bad = bad or not (semi_b2 > 0.0)
             shiftscale = math.sqrt(semi_b2) if semi_b2 > 0.0 else math.nan
+            no_flux = (not (a * shiftscale > 0.0)) and not bad  # also a flux that underflows
             if bad or no_flux:
                 conv = math.nan
                 nx0 = ny0 = nxx = nxy = nyy = math.nan
@@ -210,6 +210,9 @@ def _masked_fraction_loop(masked, idx, x0, y0, mxx, mxy, myy, max_rho2, out):  #
     for t in range(idx.shape[0]):
         n = idx[t]
         det = mxx[n] * myy[n] - mxy[n] * mxy[n]
+        if not det > 0.0:
+            out[t] = math.nan
+            continue
         ixx, ixy, iyy = myy[n] / det, -mxy[n] / det, mxx[n] / det
         half_h = 0.5 * math.sqrt(max_rho2 * myy[n])  # 4 rho^2 < max_rho2
         half_w = 0.5 * math.sqrt(max_rho2 * mxx[n])

@@ -7,12 +7,13 @@ import os
 import numpy as np
 from astropy.table import Table
 
+from .._files import InputError
 from .._validation import as_stamps
 from ..metrics import RHO_NAMES
 from ._external import PiffModel, PSFExModel, load_psf_model, model_kind
 from ._residuals import measure_residuals, rho_bins
 
-__all__ = ["validate_models", "COMPARISON_COLUMNS"]
+__all__ = ["validate_models", "COMPARISON_COLUMNS", "UNUSABLE_STAR_REASONS"]
 
 #: Columns of the comparison table, after ``model`` and ``kind`` (see :func:`validate_models`).
 COMPARISON_COLUMNS = ("rank", "n_measured", "chi2_dof", "chi2_dof_median", "e_rms", "de1_mean",
@@ -37,6 +38,30 @@ def _fit_size(stamps, s):
         cube = np.pad(cube, ((0, 0), (k, k), (k, k)))
     cube = cube / cube.sum(axis=(1, 2), keepdims=True)
     return cube.reshape(len(cube), -1)
+
+
+#: Why :func:`validate_models` leaves a star out (counted in ``table.meta["left_out"]``).
+UNUSABLE_STAR_REASONS = ("no_pixels", "non_finite", "non_positive_flux")
+
+
+def _usable_stars(cube, weights):
+    """Which stars can be compared, and the count left out for each of
+    :data:`UNUSABLE_STAR_REASONS`: every pixel masked (NaN or zero weight), an infinite pixel,
+    a total flux over the unmasked pixels that is not positive (a crowded or empty stamp)."""
+    flat = cube.reshape(len(cube), -1)
+    masked = np.isnan(flat)
+    if weights is not None:
+        w = np.asarray(weights, dtype=np.float64).reshape(flat.shape)
+        masked |= ~(w > 0)
+    tests = {"no_pixels": masked.all(axis=1),
+             "non_finite": np.isinf(flat).any(axis=1),
+             "non_positive_flux": ~(np.where(masked, 0.0, np.nan_to_num(flat)).sum(axis=1) > 0)}
+    keep = np.ones(len(flat), dtype=bool)
+    counts = {}
+    for name in UNUSABLE_STAR_REASONS:
+        counts[name] = int(np.count_nonzero(keep & tests[name]))
+        keep &= ~tests[name]
+    return keep, counts
 
 
 def _named_models(models, stamp_size, origin, chipnum):
@@ -79,7 +104,9 @@ def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6
     stars' and the models' adaptive-moment e1, e2 and size, the pixel chi^2 of each raw star
     against the model in the star's noise, and rho1 to rho5 in the same separation bins.
     Give stars that none of the models was fitted on (reserved stars), otherwise the models
-    that saw them are favoured.
+    that saw them are favoured. Stars that cannot be compared (every pixel masked, an
+    infinite pixel, or no positive flux: a crowded or empty stamp) are left out and counted
+    by reason (:data:`UNUSABLE_STAR_REASONS`) in ``table.meta["left_out"]``.
 
     How to read the table: a model as good as the noise allows has ``chi2_dof`` near 1
     (with correct weights); ``e_rms`` and ``dsigma_rms`` include the stars' own measurement
@@ -151,7 +178,18 @@ def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6
         raise ValueError(f"X must hold the (x, y) of the {n} stars, shape ({n}, 2); got "
                          f"{X.shape}.")
     if n < 1:
-        raise ValueError("No stars to validate on.")
+        raise InputError("No stars to validate on.")
+    if weights is not None and np.shape(weights) not in (cube.shape, (n, s * s)):
+        raise InputError(f"weights must have the stamps' shape {cube.shape}, got "
+                         f"{np.shape(weights)}.")
+    keep, left_out = _usable_stars(cube, weights)
+    if not keep.any():
+        raise InputError(f"None of the {n} stars can be compared (left out: "
+                         + ", ".join(f"{k} {v}" for k, v in left_out.items() if v) + ").")
+    if not keep.all():
+        X, cube = X[keep], cube[keep]
+        weights = None if weights is None else \
+            np.asarray(weights, dtype=np.float64).reshape(n, -1)[keep]
     named = _named_models(models, s, origin, chipnum)
     min_sep, max_sep = rho_bins(X, s)
     results, rows = {}, []
@@ -181,6 +219,7 @@ def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6
     for name in COMPARISON_COLUMNS[2:]:  # printed compactly; the values keep full precision
         table[name].info.format = ".2e" if name.startswith("rho") or name == "resid_rms" \
             else ".4f"
+    table.meta["left_out"] = left_out
     table.meta["rho_theta_units"] = next(
         (sm.get("rho_theta_units") for _, sm in results.values() if sm.get("rho_theta_units")),
         "pixel")

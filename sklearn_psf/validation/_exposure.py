@@ -10,11 +10,13 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._files import InputError
+
 __all__ = ["ExposureInputs", "ExposureFit", "StarSelectionError", "fit_exposure",
            "read_exposure"]
 
 
-class StarSelectionError(ValueError):
+class StarSelectionError(InputError):
     """Too few stars pass the selection for a PSF model.
 
     The message counts the sources each cut dropped and names the parameter that relaxes it;
@@ -149,7 +151,7 @@ def _naming(path):
     except ValueError as exc:
         if path is None or str(path) in str(exc):
             raise
-        raise ValueError(f"{path}: {exc}") from None
+        raise InputError(f"{path}: {exc}") from None
 
 
 def read_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
@@ -189,7 +191,7 @@ def read_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     from ..io import read_catalog, read_image
 
     if image is None and catalog is None:
-        raise ValueError("Give an image, or a catalogue with VIGNET stamps.")
+        raise InputError("Give an image, or a catalogue with VIGNET stamps.")
     header, data, weight, table = {}, None, None, None
     if image is not None:
         data, weight, header = read_image(image, hdu=hdu, weight_hdu=weight_hdu)
@@ -382,8 +384,13 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
         lines.append(f"image: {data.shape[1]} x {data.shape[0]} pixels; NaN pixels: {n_nan}"
                      + ("" if weight is None else f"; zero-weight pixels: {n_zero}")
                      + " (masked: a star with one in its core is skipped)")
+    side = inputs.default_stamp_size if inputs.has_vignettes else \
+        None if data is None else min(data.shape)
     if stamp_size is None:
         stamp_size = inputs.default_stamp_size
+    elif side is not None and stamp_size > side:
+        raise InputError(f"stamp_size {stamp_size} (--stamp-size) is larger than the "
+                         f"{'VIGNETs' if inputs.has_vignettes else 'image'} ({side} pixels)")
     step("selecting stars")
     if table is not None:
         lines.append(f"sources in the catalogue: {len(table)}"
@@ -393,7 +400,7 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
             x, y = np.asarray(table["x"]), np.asarray(table["y"])
             ny, nx = data.shape
             if not ((x > -0.5) & (x < nx - 0.5) & (y > -0.5) & (y < ny - 0.5)).any():
-                raise ValueError(
+                raise InputError(
                     f"All {len(table)} catalogue positions fall outside the image "
                     f"{inputs.image_path} (ny, nx = {ny}, {nx}): check the HDU, or whether "
                     "the positions are 1-based (one_based=True, --one-based)")

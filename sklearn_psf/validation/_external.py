@@ -9,6 +9,7 @@ import warnings
 import numpy as np
 from astropy.io import fits
 
+from .._files import InputError
 from ..preprocessing import StampNormalizer
 
 __all__ = ["PSFExModel", "PiffModel", "load_psf_model", "model_kind"]
@@ -109,9 +110,18 @@ class PSFExModel:
         self.path = os.fspath(path)
         self.origin = int(origin)
         try:
-            self._psfex = galsim.des.DES_PSFEx(self.path)
-        except (OSError, KeyError) as exc:
-            raise ValueError(f"{self.path!r} is not a PSFEx .psf file GalSim can read: "
+            with fits.open(self.path, memmap=False) as hdul:
+                hdu = hdul[1].copy()
+            if hdu.header.get("POLNAXIS") == 0:
+                # PSFVAR_DEGREES 0 (a constant PSF): PSFEx writes no POL* axes, which GalSim
+                # wants; a polynomial of degree 0 in (X_IMAGE, Y_IMAGE) is the same PSF
+                hdu.header.update({"POLNAXIS": 2, "POLNGRP": 1, "POLNAME1": "X_IMAGE",
+                                   "POLNAME2": "Y_IMAGE", "POLZERO1": 0.0, "POLZERO2": 0.0,
+                                   "POLSCAL1": 1.0, "POLSCAL2": 1.0, "POLGRP1": 1,
+                                   "POLGRP2": 1, "POLDEG1": 0})
+            self._psfex = galsim.des.DES_PSFEx(hdu)
+        except (OSError, KeyError, IndexError) as exc:
+            raise InputError(f"{self.path!r} is not a PSFEx .psf file GalSim can read: "
                              f"{exc}") from None
         self.degree_ = int(self._psfex.fit_order)
         self.sampling_ = float(self._psfex.sample_scale)

@@ -7,6 +7,19 @@ import numpy as np
 from ...metrics import survey_table
 
 
+def _regimes(scores):
+    """(variance ratio, dither) -> rows of that regime (one regime, NaN, without the columns)."""
+    if "variance_ratio" not in scores.colnames:
+        return {(float("nan"), float("nan")): scores}
+    out = {}
+    for key in dict.fromkeys(zip(np.asarray(scores["variance_ratio"], float),
+                                 np.asarray(scores["dither"], float))):
+        sel = (np.asarray(scores["variance_ratio"], float) == key[0]) & (
+            np.asarray(scores["dither"], float) == key[1])
+        out[key] = scores[sel]
+    return out
+
+
 def _median_band(scores, scheme, n_stars):
     sel = (np.asarray(scores["scheme"]).astype(str) == scheme) & (
         np.asarray(scores["n_stars"]) == n_stars)
@@ -49,8 +62,6 @@ def plot_sigma_sys_vs_exposures(result, surveys=None):
     1
     """
     import matplotlib.pyplot as plt
-
-    from ._report import _regimes
 
     regimes = _regimes(result.scores)
     ratios = list(dict.fromkeys(v for v, _ in regimes))

@@ -10,6 +10,7 @@ from astropy.table import Table
 
 from ...metrics import ELL_RANGE, survey_table
 from .._names import ORACLE
+from ._plot import _regimes, plot_sigma_sys_vs_exposures
 
 STAGE_IV = float(survey_table()["sigma_sys2"][2])
 
@@ -39,19 +40,6 @@ def _regime_key(row):
     cols = row.colnames
     return (float(row["variance_ratio"]) if "variance_ratio" in cols else float("nan"),
             float(row["dither"]) if "dither" in cols else float("nan"))
-
-
-def _regimes(scores):
-    """(variance ratio, dither) -> rows of that regime (one regime, NaN, without the columns)."""
-    if "variance_ratio" not in scores.colnames:
-        return {(float("nan"), float("nan")): scores}
-    out = {}
-    for key in dict.fromkeys(zip(np.asarray(scores["variance_ratio"], float),
-                                 np.asarray(scores["dither"], float))):
-        sel = (np.asarray(scores["variance_ratio"], float) == key[0]) & (
-            np.asarray(scores["dither"], float) == key[1])
-        out[key] = scores[sel]
-    return out
 
 
 def _medians(scores) -> Table:
@@ -380,7 +368,6 @@ def write_exposure_report(result, directory) -> Path:
     """
     import matplotlib.pyplot as plt
 
-    from ._plot import plot_sigma_sys_vs_exposures
 
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
