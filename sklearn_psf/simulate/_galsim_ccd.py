@@ -66,9 +66,9 @@ class _GroundPSF:
         self.center = ((nx - 1) / 2.0, (ny - 1) / 2.0)
         self.half = (nx / 2.0, ny / 2.0)
         # aberrations (waves) = c0 + c1 u + c2 v + c3 (u^2 + v^2), u, v in [-1, 1]
-        base = {"defocus": (0.5, 0.0, 0.0, 0.25), "astig1": (0.1, 0.25, 0.0, 0.0),
-                "astig2": (-0.05, 0.0, 0.25, 0.0), "coma1": (0.0, 0.15, 0.0, 0.0),
-                "coma2": (0.0, 0.0, 0.15, 0.0)}
+        base = {"defocus": (0.5, 0.0, 0.0, 0.25), "astig1": (0.05, 0.12, 0.0, 0.0),
+                "astig2": (-0.03, 0.0, 0.12, 0.0), "coma1": (0.0, 0.08, 0.0, 0.0),
+                "coma2": (0.0, 0.0, 0.08, 0.0)}
         # random amplitudes (x0.6-1.4) and signs (but defocus stays positive)
         self.aberrations = {}
         for k, v in base.items():
@@ -236,7 +236,7 @@ def _flux_for_snr(snr, profile_sq_sum, sigma):
 def render_galsim_ccd(*, shape=(2048, 2048), pixel_scale: float = 0.263, n_stars: int = 600,
                       n_galaxies: int = 1000, psf=None, snr_range=(20.0, 1000.0),
                       n_saturated: int = 5, sky_level: float = 400.0, gain: float = 4.0,
-                      saturation: float = 30000.0, fwhm: float = 0.9, shear_rms: float = 0.02,
+                      saturation: float = 30000.0, fwhm: float = 0.9, shear_rms: float = 0.01,
                       galaxy_snr_range=(10.0, 80.0), n_bad_columns: int = 2,
                       margin: int = 8, random_state=None) -> GalSimCCD:
     """Render a DECam-like CCD with GalSim: stars, galaxies, sky noise, saturation, dead columns.
@@ -277,7 +277,7 @@ def render_galsim_ccd(*, shape=(2048, 2048), pixel_scale: float = 0.263, n_stars
         that keyword (Source Extractor flags only pixels strictly above ``SATURATE``).
     fwhm : float, default=0.9
         Seeing FWHM (arcsec) of the default PSF.
-    shear_rms : float, default=0.02
+    shear_rms : float, default=0.01
         Rms of each shear component of the default PSF's atmosphere.
     galaxy_snr_range : (float, float), default=(10, 80)
     n_bad_columns : int, default=2
