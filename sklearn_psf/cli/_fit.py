@@ -141,6 +141,12 @@ def _add_fit_parsers(sub):
                      "index side // 2 (SExtractor's VIGNET convention, even sides too)")
     fit.add_argument("--seed", type=int, default=0, help="seed of the reserved-star draw [0]")
     fit.add_argument("--no-plots", action="store_true", help="do not write figures")
+    fit.add_argument("--psfex", metavar="PATH.psf",
+                     help="also write the model as a PSFEx .psf file (for Source Extractor's "
+                     "PSF_NAME, GalSim's DES_PSFEx): its variation as a polynomial of "
+                     "XWIN_IMAGE, YWIN_IMAGE of the degree, up to 8, that follows the model "
+                     "best on a grid; the degree and the approximation error are printed. "
+                     "One model only")
     fit.add_argument("--overwrite", action="store_true",
                      help="replace an existing model file and its figures")
     fit.add_argument("--n-jobs", type=_n_jobs, default=1,
@@ -343,6 +349,10 @@ def _fit(args):
     for job in jobs:
         path, figures = _outputs(args, job.output)
         _check_output_file(path, args.overwrite, figures)
+    if args.psfex is not None:
+        if len(jobs) > 1:
+            raise CLIInputError("--psfex writes one .psf file: give one input (one model)")
+        _check_output_file(args.psfex, args.overwrite)
     if len(jobs) > 1 or args.scheduler is not None:
         return _fit_many(jobs, args)
     outcome = _fit_one(jobs[0])
@@ -687,6 +697,8 @@ def _fit_steps(args, lines, fit_warnings, quiet=False):
             raise CLIInputError(f"cannot write {args.output!r}: {exc.strerror or exc}") from None
         bar.update()
         written = [args.output]
+        if getattr(args, "psfex", None):
+            written.append(_write_psfex(args, model, summary, image, header, lines))
         if not args.no_plots and len(residuals):
             bar.set_description("figures")
             if image is not None:
@@ -699,6 +711,25 @@ def _fit_steps(args, lines, fit_warnings, quiet=False):
         bar.update()
     lines += _report(summary, wcs is not None)
     return written
+
+
+def _write_psfex(args, model, summary, image, header, lines):
+    """The model as a PSFEx .psf over the image (else the catalogue's image header, else the
+    stars' extent); its polynomial's degree and error go to the report."""
+    import numpy as np
+
+    from ..validation import to_psfex
+
+    shape = image.shape if image is not None else (
+        (int(header["NAXIS2"]), int(header["NAXIS1"])) if "NAXIS1" in header
+        and "NAXIS2" in header else None)
+    chi2 = summary.get("chi2_dof")
+    out = to_psfex(model, args.psfex, image_shape=shape, overwrite=args.overwrite,
+                   chi2=chi2 if chi2 is not None and np.isfinite(chi2) else None)
+    lines.append(f"PSFEx file: polynomial of degree {out.degree} (cross-validated on a grid, "
+                 f"up to 8); its error against the model: pixel rms {out.pixel_rms:.2e} of the "
+                 f"peak, e rms {out.e_rms:.4f}, size rms {out.size_rms:.4f} pixels")
+    return args.psfex
 
 
 def _report(summary, sky):
