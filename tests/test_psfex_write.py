@@ -193,3 +193,9 @@ def test_cli_fit_writes_psfex(tmp_path, capsys):
                                   "--no-plots", "--psfex", psf]])
     assert code == 2 and "already exists" in capsys.readouterr().err
     assert not (tmp_path / "n.fits").exists()
+    other = tmp_path / "other.ldac"
+    other.write_bytes(open(files["catalog"], "rb").read())
+    code = main([str(a) for a in ["fit", "--stars", files["catalog"], other, "-o",
+                                  tmp_path / "two.fits", "--no-plots", "--psfex",
+                                  tmp_path / "two.psf"]])
+    assert code == 2 and "one .psf file" in capsys.readouterr().err
