@@ -178,7 +178,7 @@ def test_cli_fit_writes_psfex(tmp_path, capsys):
     from sklearn_psf.cli import main
     from sklearn_psf.simulate import write_example_ldac
 
-    files = write_example_ldac(tmp_path, n_stars=150, n_galaxies=50, image_shape=(1500, 1500))
+    files = write_example_ldac(tmp_path, n_stars=100, n_galaxies=30, image_shape=(1000, 1000))
     psf = tmp_path / "ccd.psf"
     args = ["fit", "--stars", files["catalog"], "-o", tmp_path / "m.fits", "--no-plots",
             "--psfex", psf]

@@ -214,6 +214,7 @@ def to_psfex(model, path, *, image_shape=None, extent=None, max_degree: int = 8,
         The image (CCD) the model describes: the polynomial covers it all.
     extent : (xmin, xmax, ymin, ymax), optional
         0-based region instead of ``image_shape``; default the fitted stars' bounding box.
+        Outside it the polynomial extrapolates (as PSFEx's does): give the image's shape.
     max_degree : int, default=8
         Largest polynomial degree tried.
     grid_size : int, default=32
