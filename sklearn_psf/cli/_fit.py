@@ -82,6 +82,12 @@ def _add_fit_parsers(sub):
                      "index side // 2 (SExtractor's VIGNET convention, even sides too)")
     fit.add_argument("--seed", type=int, default=0, help="seed of the reserved-star draw [0]")
     fit.add_argument("--no-plots", action="store_true", help="do not write figures")
+    fit.add_argument("--psfex", metavar="PATH.psf",
+                     help="also write the model as a PSFEx .psf file (for Source Extractor's "
+                     "PSF_NAME, GalSim's DES_PSFEx): its variation as a polynomial of "
+                     "XWIN_IMAGE, YWIN_IMAGE of the degree, up to 8, that follows the model "
+                     "best on a grid; the degree and the approximation error are printed. "
+                     "One model only")
     fit.add_argument("--overwrite", action="store_true",
                      help="replace an existing model file and its figures")
     fit.add_argument("--n-jobs", type=_n_jobs, default=1,
@@ -246,6 +252,10 @@ def _fit(args):
     for job in jobs:
         path, figures = _outputs(args, job.output)
         _check_output_file(path, args.overwrite, figures, inputs)
+    if args.psfex is not None:
+        if len(jobs) > 1:
+            raise CLIInputError("--psfex writes one .psf file: give one input (one model)")
+        _check_output_file(args.psfex, args.overwrite, inputs=inputs)
     if len(jobs) > 1 or args.scheduler is not None:
         return _fit_many(jobs, args)
     outcome = _fit_one(jobs[0])
@@ -415,11 +425,29 @@ def _fit_steps(args, lines, fit_warnings, quiet=False):
         except OSError as exc:
             raise CLIInputError(f"cannot write {args.output!r}: {exc.strerror or exc}") from None
         written = [args.output]
+        if getattr(args, "psfex", None):
+            written.append(_write_psfex(args, fit, lines))
         if not args.no_plots:
             bar.set_description("figures")
             written += _save_figures(fit.figures(), _figure_paths(args.output))
         bar.update()
     return written
+
+
+def _write_psfex(args, fit, lines):
+    """The model as a PSFEx .psf over the field; its polynomial's degree and error go to the
+    report."""
+    import numpy as np
+
+    from ..validation import to_psfex
+
+    chi2 = fit.summary.get("chi2_dof")
+    out = to_psfex(fit.model, args.psfex, image_shape=fit.image_shape, overwrite=args.overwrite,
+                   chi2=chi2 if chi2 is not None and np.isfinite(chi2) else None)
+    lines.append(f"PSFEx file: polynomial of degree {out.degree} (cross-validated on a grid, "
+                 f"up to 8); its error against the model: pixel rms {out.pixel_rms:.2e} of the "
+                 f"peak, e rms {out.e_rms:.4f}, size rms {out.size_rms:.4f} pixels")
+    return args.psfex
 
 
 def _save_figures(figures, paths):
