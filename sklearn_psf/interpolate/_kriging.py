@@ -110,6 +110,19 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     anisotropy_angle : float or "auto", default=0.0
         Counter-clockwise angle in degrees of that rotation; ``"auto"``: maximum
         likelihood.
+    extra_scaling : float, array-like or "auto", default=1.0
+        Factor on each feature beyond the first two (the model's extra dimensions: a colour,
+        a magnitude) before distances are computed, so that the correlation length along
+        extra feature ``j`` is ``range / extra_scaling[j]`` (one number: the same factor on
+        each). ``"auto"``: one factor per extra feature by maximum likelihood (automatic
+        relevance determination: a feature the values do not depend on gets a length 1000
+        times the range, and no weight), with the exact likelihood on at most
+        ``(2e8 / factorisations per step)^(1/3)`` stars as for a fitted anisotropy. Ignored
+        with two features.
+    extra_drift : {None, "linear"}, default=None
+        ``"linear"``: the drift also holds a linear term in each feature beyond the first
+        two (a trend along a colour or a magnitude, which predictions beyond the stars'
+        range extrapolate instead of returning to the mean).
     likelihood : "auto", "exact" or int, default="auto"
         Likelihood maximised when a hyperparameter is ``"auto"``. ``"exact"``: the
         Gaussian likelihood of all the stars (one ``n x n`` Cholesky factorisation per step,
@@ -147,6 +160,8 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         Factor applied to ``noise_var`` (1 without noise).
     anisotropy_scaling_, anisotropy_angle_ : float
         Anisotropy used (fitted when ``"auto"``; the angle in degrees).
+    extra_scaling_ : ndarray of shape (n_features - 2,)
+        Factors on the extra features (fitted when ``"auto"``; empty with two features).
     log_likelihood_ : float or None
         Maximum of the summed log-likelihood (Vecchia's approximation of it with
         ``likelihood_ == "vecchia"``; on the ``max_ml_samples`` subset beyond that size),
@@ -282,7 +297,8 @@ class KrigingRegressor(_NoiseAwareInterpolator):
 
     def __init__(self, variogram="exponential", range=0.5, nugget=0.0, n_neighbors=None, *,
                  noise_scale=1.0, drift=None, anisotropy_scaling=1.0, anisotropy_angle=0.0,
-                 likelihood="auto", max_ml_samples=20000, random_state=0):
+                 extra_scaling=1.0, extra_drift=None, likelihood="auto",
+                 max_ml_samples=20000, random_state=0):
         self.variogram = variogram
         self.range = range
         self.nugget = nugget
@@ -291,6 +307,8 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         self.drift = drift
         self.anisotropy_scaling = anisotropy_scaling
         self.anisotropy_angle = anisotropy_angle
+        self.extra_scaling = extra_scaling
+        self.extra_drift = extra_drift
         self.likelihood = likelihood
         self.max_ml_samples = max_ml_samples
         self.random_state = random_state
@@ -305,14 +323,29 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         return c
 
     def _transform(self, X):
-        """Positions in the anisotropy frame (PyKrige's: rotate by -angle, stretch y)."""
-        if self._aniso is None:
-            return X
-        return X @ self._aniso.T
+        """Positions in the anisotropy frame (PyKrige's: rotate by -angle, stretch y), the
+        extra features multiplied by their factors."""
+        if self._aniso is not None:
+            return X @ self._aniso.T
+        if getattr(self, "_extra", None) is not None:
+            X = X.copy()
+            X[:, 2:] *= self._extra
+        return X
+
+    def _drift_powers_for(self, d):
+        """Drift exponents: ``drift``'s polynomial in all features, plus with
+        ``extra_drift="linear"`` the linear terms of the features beyond the first two."""
+        powers = _exponents(d, _DRIFT_DEGREE[self.drift])
+        if self.extra_drift == "linear" and d > 2:
+            units = np.eye(d, dtype=int)[2:]
+            new = [u for u in units if not (powers == u).all(axis=1).any()]
+            powers = np.vstack([powers] + new) if new else powers
+        return powers
 
     def _drift_design(self, X):
         U = (X - self._drift_center) / self._drift_half_width
-        return _design(U, self._drift_powers, _DRIFT_DEGREE[self.drift], "monomial")
+        return _design(U, self._drift_powers, max(1, int(self._drift_powers.max(initial=0))),
+                       "monomial")
 
     def _check_params(self, n_features):
         if self.variogram not in variogram_models:
@@ -329,6 +362,10 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             raise ValueError(
                 f"{_NAME}: drift must be None, 'linear' or 'quadratic', got {self.drift!r}."
             )
+        if self.extra_drift not in (None, "linear"):
+            raise ValueError(f"{_NAME}: extra_drift must be None or 'linear', got "
+                             f"{self.extra_drift!r}.")
+        self._extra_factors(n_features)
         if isinstance(self.max_ml_samples, bool) or not isinstance(
             self.max_ml_samples, numbers.Integral
         ) or self.max_ml_samples < _MIN_ML_STARS:
@@ -349,8 +386,28 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         if aniso != (1.0, 0.0) and n_features != 2:
             raise ValueError(f"{_NAME}: anisotropy needs 2 features (x, y), got {n_features}.")
 
-    def _set_anisotropy(self, scaling, angle):
+    def _extra_factors(self, n_features):
+        """The fixed factors on the extra features (n_features - 2,), or "auto"."""
+        value, n_extra = self.extra_scaling, max(n_features - 2, 0)
+        if isinstance(value, str) and value == "auto":
+            return value
+        try:
+            factors = np.broadcast_to(np.asarray(value, dtype=np.float64), (n_extra,))
+        except (TypeError, ValueError):
+            factors = None
+        if factors is None or isinstance(value, (bool, str)) or not (
+                np.all(np.isfinite(factors)) and np.all(factors > 0)):
+            raise ValueError(f"{_NAME}: extra_scaling must be 'auto', a positive number or "
+                             f"{n_extra} positive numbers (one per feature beyond the first "
+                             f"two), got {value!r}.")
+        return factors.copy()
+
+    def _set_anisotropy(self, scaling, angle, extra=None):
         self.anisotropy_scaling_, self.anisotropy_angle_ = float(scaling), float(angle)
+        n_extra = max(self.n_features_in_ - 2, 0)
+        self.extra_scaling_ = (np.ones(n_extra) if extra is None
+                               else np.asarray(extra, dtype=np.float64).reshape(n_extra))
+        self._extra = self.extra_scaling_ if (self.extra_scaling_ != 1.0).any() else None
         self._aniso = None
         if scaling != 1.0 or angle % 360.0 != 0.0:
             t = np.deg2rad(angle)
@@ -374,7 +431,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             )
             noise_cov = cov[0] if cov else None
         n, d = X.shape
-        self._drift_powers = _exponents(d, _DRIFT_DEGREE[self.drift])
+        self._drift_powers = self._drift_powers_for(d)
         n_drift = self._drift_powers.shape[0]
         _check_n_samples(_NAME, n, max(2, n_drift + 1), "(distinct positions)")
         if n < _FEW_STARS:
@@ -435,13 +492,16 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     def _fit_hyperparameters(self, X, Y, F, noise):
         params = {"range_": self.range, "nugget": self.nugget, "noise_scale": self.noise_scale,
                   "scaling": self.anisotropy_scaling, "angle": self.anisotropy_angle}
-        auto = [k for k, v in params.items() if isinstance(v, str)]
+        extra = self._extra_factors(X.shape[1])
+        extra_free = isinstance(extra, str) and X.shape[1] > 2
+        auto = [k for k, v in params.items() if isinstance(v, str)] + ["extra"] * extra_free
         if noise is None and "noise_scale" in auto:
             auto.remove("noise_scale")
+        fixed_extra = None if isinstance(extra, str) else extra
         self.log_likelihood_ = self.likelihood_ = self.range_floor_ = None
         self.range_at_floor_ = False
         if not auto:
-            self._set_anisotropy(self.anisotropy_scaling, self.anisotropy_angle)
+            self._set_anisotropy(self.anisotropy_scaling, self.anisotropy_angle, fixed_extra)
             self.range_, self.nugget_ = float(self.range), float(self.nugget)
             self.sill_ = Y.var(axis=0)
             self.noise_scale_ = 1.0 if self.noise_scale == "auto" else float(self.noise_scale)
@@ -449,7 +509,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         n = X.shape[0]
         _check_n_samples(_NAME, n, _MIN_ML_STARS, "to fit hyperparameters by maximum "
                          "likelihood (distinct positions)")
-        geometry_free = "scaling" in auto or "angle" in auto
+        geometry_free = "scaling" in auto or "angle" in auto or extra_free
         neighbors, size = self._ml_plan(n, 1 if noise is None else Y.shape[1],
                                         geometry_free)
         rng = np.random.default_rng(check_random_state(self.random_state).randint(2**31))
@@ -457,11 +517,13 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         if n > size:
             sub = np.sort(position_order(X, int(rng.integers(2**63)))[:size])
         if not geometry_free:
-            self._set_anisotropy(self.anisotropy_scaling, self.anisotropy_angle)
+            self._set_anisotropy(self.anisotropy_scaling, self.anisotropy_angle, fixed_extra)
         P = X[sub] if geometry_free else self._transform(X[sub])
         noise_sub = None if noise is None else noise[sub]
-        if "range_" in auto:
-            self.range_floor_ = _spacing(X if geometry_free else self._transform(X))
+        if "range_" in auto:  # (with the extra factors fitted: the positions' spacing)
+            self.range_floor_ = _spacing(X[:, :2] if extra_free else
+                                         X if geometry_free else self._transform(X))
+        params["extra"] = "auto" if extra_free else None
         fit = fit_hyperparameters(P, Y[sub], F[sub], noise_sub, self.variogram,
                                   neighbors=neighbors, rng=rng,
                                   range_floor=self.range_floor_, **params)
@@ -486,7 +548,8 @@ class KrigingRegressor(_NoiseAwareInterpolator):
                 "to its mean. More stars, or a constant model, may serve as well.",
                 ShortRangeWarning, stacklevel=4)
         self.likelihood_ = "exact" if neighbors is None else "vecchia"
-        self._set_anisotropy(fit["scaling"], fit["angle"])
+        self._set_anisotropy(fit["scaling"], fit["angle"],
+                             fit["extra"] if extra_free else fixed_extra)
         self.range_, self.nugget_, self.sill_ = fit["range"], fit["nugget"], fit["sill"]
         self.noise_scale_, self.log_likelihood_ = fit["noise_scale"], fit["log_likelihood"]
 
