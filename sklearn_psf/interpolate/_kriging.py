@@ -35,6 +35,11 @@ _MIN_ML_STARS = 10
 #: likelihood="auto": the exact likelihood when (factorisations per step) x n^3 is at most
 #: this (~0.01 s per step on one core; 580 stars with one noise pattern, 320 with six)
 _EXACT_ML_COST = 2e8
+#: extra_scaling="auto": the factors by the exact likelihood of at most
+#: (this / factorisations per step)^(1/3) stars (290 with one noise pattern, 170 with five)
+_EXTRA_ML_COST = 2.5e7
+#: and to a gradient of this per star (the factors to ~1e-3 in log, far below their error)
+_EXTRA_GTOL = 1e-5
 #: likelihood="auto" beyond that: Vecchia's approximation with this many neighbours
 _VECCHIA_NEIGHBORS = 10
 #: n_neighbors="auto": exact Kriging up to this many stars, local Kriging beyond with
@@ -116,9 +121,11 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         extra feature ``j`` is ``range / extra_scaling[j]`` (one number: the same factor on
         each). ``"auto"``: one factor per extra feature by maximum likelihood (automatic
         relevance determination: a feature the values do not depend on gets a length 1000
-        times the range, and no weight), with the exact likelihood on at most
-        ``(2e8 / factorisations per step)^(1/3)`` stars as for a fitted anisotropy. Ignored
-        with two features.
+        times the range, and no weight), by the exact likelihood of at most
+        ``(2.5e7 / factorisations per step)^(1/3)`` stars (290 with one noise pattern, 170
+        with five: a subset drawn with ``random_state``), with the other ``"auto"``
+        hyperparameters fitted along with them; those are then fitted again on all the
+        stars (as set by ``likelihood``) with the factors held. Ignored with two features.
     extra_drift : {None, "linear"}, default=None
         ``"linear"``: the drift also holds a linear term in each feature beyond the first
         two (a trend along a colour or a magnitude, which predictions beyond the stars'
@@ -500,6 +507,12 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         fixed_extra = None if isinstance(extra, str) else extra
         self.log_likelihood_ = self.likelihood_ = self.range_floor_ = None
         self.range_at_floor_ = False
+        if extra_free:  # the extra factors first, then the rest as with fixed factors
+            _check_n_samples(_NAME, X.shape[0], _MIN_ML_STARS, "to fit hyperparameters by "
+                             "maximum likelihood (distinct positions)")
+            fixed_extra = self._fit_extra_factors(X, Y, F, noise, params, auto)
+            extra_free = False
+            auto.remove("extra")
         if not auto:
             self._set_anisotropy(self.anisotropy_scaling, self.anisotropy_angle, fixed_extra)
             self.range_, self.nugget_ = float(self.range), float(self.nugget)
@@ -552,6 +565,23 @@ class KrigingRegressor(_NoiseAwareInterpolator):
                              fit["extra"] if extra_free else fixed_extra)
         self.range_, self.nugget_, self.sill_ = fit["range"], fit["nugget"], fit["sill"]
         self.noise_scale_, self.log_likelihood_ = fit["noise_scale"], fit["log_likelihood"]
+
+    def _fit_extra_factors(self, X, Y, F, noise, params, auto):
+        """The factors on the extra features by the exact likelihood of a subset of the stars
+        (the other "auto" hyperparameters fitted along with them, then refitted on all the
+        stars with the factors held)."""
+        n, n_factors = X.shape[0], 1 if noise is None else Y.shape[1]
+        size = min(n, max(_MIN_ML_STARS, int((_EXTRA_ML_COST / n_factors) ** (1 / 3))))
+        seed = check_random_state(self.random_state).randint(2**31)
+        sub = np.arange(n)
+        if n > size:
+            rng = np.random.default_rng([seed, 1])
+            sub = np.sort(position_order(X, int(rng.integers(2**63)))[:size])
+        floor = _spacing(X[sub, :2]) if "range_" in auto else None
+        fit = fit_hyperparameters(X[sub], Y[sub], F[sub], None if noise is None else noise[sub],
+                                  self.variogram, range_floor=floor, gtol=_EXTRA_GTOL,
+                                  **{**params, "extra": "auto"})
+        return np.asarray(fit["extra"])
 
     def _ml_plan(self, n, n_factors, geometry_free):
         """Vecchia neighbours (None: exact likelihood) and the number of stars to use."""

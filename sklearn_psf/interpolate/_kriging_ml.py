@@ -294,7 +294,7 @@ def _fisher_quasi_newton(fun, starts, box, tol=1e-4, decrement=1e-2, max_iter=10
 
 def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scale,
                         scaling=1.0, angle=0.0, extra=None, neighbors=None, rng=None,
-                        start=None, range_floor=None):
+                        start=None, range_floor=None, gtol=_GTOL):
     """Maximum-likelihood range, nugget, sills, noise scale and anisotropy.
 
     Parameters
@@ -326,6 +326,8 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
         best point of a grid.
     range_floor : float, optional
         Lower bound of the range (default ``1e-3`` times the span of the positions).
+    gtol : float, optional
+        The exact likelihood's convergence: largest gradient component per star.
 
     Returns
     -------
@@ -389,7 +391,7 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
         "angle": [0.0, np.pi / 3, 2 * np.pi / 3],
         "nu": [np.log(0.1)],
         "kappa": [0.0],
-        **{name: [base + np.log(0.1), base] for name, base in extra_base.items()},
+        **{name: [base + np.log(0.3)] for name, base in extra_base.items()},
     }
     names = [name for name in fun.order if name in free]
     box = [bounds[name] for name in names] + [tuple(np.log(_P_BOUNDS))] * T
@@ -416,7 +418,7 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
             x0 = min(starts, key=lambda s: fun(s)[0]) if len(starts) > 1 else starts[0]
             res = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=box,
                            options={"maxiter": 500, "maxfun": 1000, "ftol": 1e-15,
-                                    "gtol": _GTOL * n})
+                                    "gtol": gtol * n})
             x, value, n_iter, n_eval = res.x, res.fun, res.nit, res.nfev
         else:  # quasi-Newton from the expected information (cheap for the approximation)
             x, value, n_iter, n_eval = _fisher_quasi_newton(fun, starts, box)
