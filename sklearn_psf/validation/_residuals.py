@@ -90,8 +90,9 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
 
     Parameters
     ----------
-    X : array-like of shape (n, 2)
-        Star positions (x, y), 0-based pixels.
+    X : array-like of shape (n, 2) or (n, 2 + m)
+        Star positions (x, y), 0-based pixels, then optionally the model's extra dimensions
+        (a colour, a magnitude: passed to the model, not used as positions).
     stamps : array-like of shape (n, s*s) or (n, s, s)
         Raw, background-subtracted star stamps (NaN = masked pixel). Not modified.
     predicted : array-like of the stamps' shape
@@ -150,7 +151,7 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
     n, s = cube.shape[0], cube.shape[1]
     pred = as_stamps(predicted, name="predicted").reshape(-1, s * s) if n else \
         np.zeros((0, s * s))
-    if X.shape != (n, 2) or pred.shape != (n, s * s):
+    if X.ndim != 2 or X.shape[0] != n or X.shape[1] < 2 or pred.shape != (n, s * s):
         raise ValueError(f"X {X.shape}, stamps {cube.shape} and predicted {np.shape(predicted)} "
                          "must describe the same n stars with stamps of the same size.")
     y = cube.reshape(n, s * s)
@@ -218,7 +219,7 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
     summary.update(dict.fromkeys(RHO_NAMES[1:]))
     if ok.sum() >= 10:
         t = table[ok]
-        where, sky = X[ok], {}
+        where, sky = X[ok][:, :2], {}
         if wcs is not None:  # xi+ ignores the uniform rotation of e from pixels to sky
             arcmin = 60.0 * float(np.sqrt(np.abs(np.linalg.det(wcs.pixel_scale_matrix))))
             where = pixel_to_sky(wcs, where)
