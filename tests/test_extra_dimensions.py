@@ -21,7 +21,12 @@ from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
-from sklearn_psf.interpolate import IsotropicScaler, KrigingRegressor, PolynomialRegressor
+from sklearn_psf.interpolate import (
+    ChebyshevRegressor,
+    IsotropicScaler,
+    KrigingRegressor,
+    PolynomialRegressor,
+)
 from sklearn_psf.measure import adaptive_moments
 from sklearn_psf.model import PSFModel, make_default_interpolator
 from sklearn_psf.simulate import make_psf_field
@@ -123,6 +128,9 @@ def test_polynomial_groups_as_psfex():
     assert A.shape[1] == reg.powers_.shape[0] == 20
     np.testing.assert_allclose(reg.predict(X), A @ np.linalg.lstsq(A, y, rcond=None)[0],
                                atol=1e-10)
+    # the Chebyshev basis spans the same space: the same predictions
+    np.testing.assert_allclose(ChebyshevRegressor(degree=(3, 1)).fit(X, y).predict(X),
+                               reg.predict(X), atol=1e-9)
     with pytest.raises(ValueError, match="2 values for 3 features"):
         PolynomialRegressor(degree=(3, 1, 1)).fit(X, y)
 
