@@ -36,10 +36,10 @@ _MIN_ML_STARS = 10
 #: this (~0.01 s per step on one core; 580 stars with one noise pattern, 320 with six)
 _EXACT_ML_COST = 2e8
 #: extra_scaling="auto": the factors by the exact likelihood of at most
-#: (this / factorisations per step)^(1/3) stars (290 with one noise pattern, 170 with five)
-_EXTRA_ML_COST = 2.5e7
-#: and to a gradient of this per star (the factors to ~1e-3 in log, far below their error)
-_EXTRA_GTOL = 1e-5
+#: (this / factorisations per step)^(1/3) stars (200 with one noise pattern, 117 with five)
+_EXTRA_ML_COST = 8e6
+#: and to a gradient of this per star (far below the factors' statistical error)
+_EXTRA_GTOL = 1e-4
 #: likelihood="auto" beyond that: Vecchia's approximation with this many neighbours
 _VECCHIA_NEIGHBORS = 10
 #: n_neighbors="auto": exact Kriging up to this many stars, local Kriging beyond with
@@ -122,7 +122,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         each). ``"auto"``: one factor per extra feature by maximum likelihood (automatic
         relevance determination: a feature the values do not depend on gets a length 1000
         times the range, and no weight), by the exact likelihood of at most
-        ``(2.5e7 / factorisations per step)^(1/3)`` stars (290 with one noise pattern, 170
+        ``(8e6 / factorisations per step)^(1/3)`` stars (200 with one noise pattern, 117
         with five: a subset drawn with ``random_state``), with the other ``"auto"``
         hyperparameters fitted along with them; those are then fitted again on all the
         stars (as set by ``likelihood``) with the factors held. Ignored with two features.
