@@ -40,6 +40,9 @@ _EXACT_ML_COST = 2e8
 _EXTRA_ML_COST = 8e6
 #: and to a gradient of this per star (far below the factors' statistical error)
 _EXTRA_GTOL = 1e-4
+#: and keeps a finite correlation length along an extra dimension only when it raises the
+#: log-likelihood by this much over none (a likelihood-ratio test at ~5% for one parameter)
+_EXTRA_LR_MIN = 2.0
 #: likelihood="auto" beyond that: Vecchia's approximation with this many neighbours
 _VECCHIA_NEIGHBORS = 10
 #: n_neighbors="auto": exact Kriging up to this many stars, local Kriging beyond with
@@ -578,10 +581,28 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             rng = np.random.default_rng([seed, 1])
             sub = np.sort(position_order(X, int(rng.integers(2**63)))[:size])
         floor = _spacing(X[sub, :2]) if "range_" in auto else None
-        fit = fit_hyperparameters(X[sub], Y[sub], F[sub], None if noise is None else noise[sub],
-                                  self.variogram, range_floor=floor, gtol=_EXTRA_GTOL,
-                                  **{**params, "extra": "auto"})
-        return np.asarray(fit["extra"])
+        P, Ys, Fs = X[sub], Y[sub], F[sub]
+        Ns = None if noise is None else noise[sub]
+        fit = fit_hyperparameters(P, Ys, Fs, Ns, self.variogram, range_floor=floor,
+                                  gtol=_EXTRA_GTOL, **{**params, "extra": "auto"})
+        factors = np.asarray(fit["extra"])
+        # a dimension whose correlation length the likelihood does not need (less than
+        # _EXTRA_LR_MIN better than with no correlation along it) gets none: on a subset of
+        # the stars, noise alone shortens lengths that would otherwise decorrelate the stars
+        span = np.ptp(P[:, :2], axis=0).max() if len(P) > 1 else 1.0
+        spans = np.ptp(P[:, 2:], axis=0)
+        lowest = 1e-3 * np.where(spans > 0, span / np.where(spans > 0, spans, 1.0), 1.0)
+        for j in np.flatnonzero(factors > lowest * (1 + 1e-3)):
+            trial = factors.copy()
+            trial[j] = lowest[j]
+            U = P.copy()
+            U[:, 2:] *= trial
+            fixed = {**params, "extra": None, "scaling": 1.0, "angle": 0.0}
+            alt = fit_hyperparameters(U, Ys, Fs, Ns, self.variogram, range_floor=floor,
+                                      gtol=_EXTRA_GTOL, start=fit, **fixed)
+            if fit["log_likelihood"] - alt["log_likelihood"] < _EXTRA_LR_MIN:
+                factors = trial
+        return factors
 
     def _ml_plan(self, n, n_factors, geometry_free):
         """Vecchia neighbours (None: exact likelihood) and the number of stars to use."""
