@@ -147,10 +147,10 @@ def main():
           f"{np.sqrt(np.mean(m['colour_rms_col'] ** 2)):.3e}: ratio "
           f"{np.sqrt(np.mean(m['colour_rms_col'] ** 2) / np.mean(m['colour_rms_pos'] ** 2)):.3f}"
           " (target <= 0.5)")
+    pos_rms = np.sqrt(np.mean(m["colour_rms_pos_paired"] ** 2))
+    col_rms = np.sqrt(np.mean(m["colour_rms_col_paired"] ** 2))
     print(f"        paired (rms of the difference from the same model on the control): "
-          f"position-only {np.sqrt(np.mean(m['colour_rms_pos_paired'] ** 2)):.3e}, colour "
-          f"{np.sqrt(np.mean(m['colour_rms_col_paired'] ** 2)):.3e}: ratio "
-          f"{np.sqrt(np.mean(m['colour_rms_col_paired'] ** 2) / np.mean(m['colour_rms_pos_paired'] ** 2)):.3f}")
+          f"position-only {pos_rms:.3e}, colour {col_rms:.3e}: ratio {col_rms / pos_rms:.3f}")
     print(f"brighter-fatter: mean size bias at the (faint) galaxies: position-only "
           f"{m['bf_pos'].mean():+.3e}, flux {m['bf_flux'].mean():+.3e} (target |.| <= 1e-3; "
           f"worst simulation {m['bf_flux'][np.argmax(np.abs(m['bf_flux']))]:+.3e}); paired "

@@ -163,8 +163,10 @@ def make_interpolator(name: str = "kriging"):
         "polynomial": lambda: make_pipeline(MinMaxScaler(), PolynomialRegressor(degree="auto")),
         "chebyshev": lambda: make_pipeline(MinMaxScaler(), ChebyshevRegressor(degree=5)),
         "delaunay": lambda: make_pipeline(IsotropicScaler(n_positions=2), DelaunayRegressor()),
-        "shepard": lambda: make_pipeline(IsotropicScaler(n_positions=2), ShepardRegressor(power=3.0)),
-        "rbf": lambda: make_pipeline(IsotropicScaler(n_positions=2), RBFRegressor(kernel="thin_plate_spline")),
+        "shepard": lambda: make_pipeline(IsotropicScaler(n_positions=2),
+                                         ShepardRegressor(power=3.0)),
+        "rbf": lambda: make_pipeline(IsotropicScaler(n_positions=2),
+                                     RBFRegressor(kernel="thin_plate_spline")),
     }
     if name not in makers:
         raise ValueError(f"Unknown interpolator {name!r}: choose one of {list(INTERPOLATORS)}.")
