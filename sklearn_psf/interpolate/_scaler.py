@@ -114,7 +114,8 @@ class IsotropicScaler(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
         """
         check_is_fitted(self)
         X = validate_data(self, X, dtype=np.float64, reset=False)
-        return (X - self.min_) * self.feature_scale_
+        # (scalers pickled before feature_scale_ existed: one factor for every column)
+        return (X - self.min_) * getattr(self, "feature_scale_", self.scale_)
 
     def inverse_transform(self, X):
         """Positions in the input's units from scaled ones.
@@ -129,4 +130,4 @@ class IsotropicScaler(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
         """
         check_is_fitted(self)
         X = validate_data(self, X, dtype=np.float64, reset=False)
-        return X / self.feature_scale_ + self.min_
+        return X / getattr(self, "feature_scale_", self.scale_) + self.min_
