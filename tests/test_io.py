@@ -441,19 +441,22 @@ def test_example_exposure_files(tmp_path):
     assert out.counts["used"] == 27
 
 
-def test_model_with_extra_position_columns_is_refused_by_the_file_format(tmp_path):
+def test_model_with_extra_columns_round_trips_in_the_file_format(tmp_path):
+    """Columns beyond (x, y) (a colour: the model's extra dimensions) are stored and the
+    loaded model predicts as the saved one."""
     from sklearn.neighbors import KNeighborsRegressor
 
-    from sklearn_psf.model import PSFModel
+    from sklearn_psf.model import PSFModel, load_model
 
     rng = np.random.default_rng(0)
-    X = np.c_[rng.uniform(0, 1000, (30, 2)), np.repeat([0.0, 1.0], 15)]
+    X = np.c_[rng.uniform(0, 1000, (30, 2)), rng.uniform(0, 3, (30, 2))]
     yy, xx = np.mgrid[0:9, 0:9] - 4.0
-    y = np.exp(-0.5 * (xx.ravel() ** 2 + yy.ravel() ** 2) / (1.5 + X[:, :1] / 1e3) ** 2)
+    y = np.exp(-0.5 * (xx.ravel() ** 2 + yy.ravel() ** 2) / (1.5 + X[:, 2:3] / 10) ** 2)
     model = PSFModel(interpolator=KNeighborsRegressor(3), outliers=None).fit(X, y)
-    with pytest.raises(ValueError, match="joblib"):
-        model.save(tmp_path / "m.fits")
-    assert not list(tmp_path.iterdir())
+    model.save(tmp_path / "m.fits")
+    back = load_model(tmp_path / "m.fits")
+    np.testing.assert_array_equal(back.X_fit_, model.X_fit_)
+    np.testing.assert_array_equal(back.predict(X), model.predict(X))
 
 
 @pytest.mark.parametrize("shape", [(4096, 2048), (2048, 4096), (3000, 3000)])

@@ -35,6 +35,14 @@ _MIN_ML_STARS = 10
 #: likelihood="auto": the exact likelihood when (factorisations per step) x n^3 is at most
 #: this (~0.01 s per step on one core; 580 stars with one noise pattern, 320 with six)
 _EXACT_ML_COST = 2e8
+#: extra_scaling="auto": the factors by the exact likelihood of at most
+#: (this / factorisations per step)^(1/3) stars (200 with one noise pattern, 117 with five)
+_EXTRA_ML_COST = 8e6
+#: and to a gradient of this per star (far below the factors' statistical error)
+_EXTRA_GTOL = 1e-4
+#: and keeps a finite correlation length along an extra dimension only when it raises the
+#: log-likelihood by this much over none (a likelihood-ratio test at ~5% for one parameter)
+_EXTRA_LR_MIN = 2.0
 #: likelihood="auto" beyond that: Vecchia's approximation with this many neighbours
 _VECCHIA_NEIGHBORS = 10
 #: n_neighbors="auto": exact Kriging up to this many stars, local Kriging beyond with
@@ -110,6 +118,21 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     anisotropy_angle : float or "auto", default=0.0
         Counter-clockwise angle in degrees of that rotation; ``"auto"``: maximum
         likelihood.
+    extra_scaling : float, array-like or "auto", default=1.0
+        Factor on each feature beyond the first two (the model's extra dimensions: a colour,
+        a magnitude) before distances are computed, so that the correlation length along
+        extra feature ``j`` is ``range / extra_scaling[j]`` (one number: the same factor on
+        each). ``"auto"``: one factor per extra feature by maximum likelihood (automatic
+        relevance determination: a feature the values do not depend on gets a length 1000
+        times the range, and no weight), by the exact likelihood of at most
+        ``(8e6 / factorisations per step)^(1/3)`` stars (200 with one noise pattern, 117
+        with five: a subset drawn with ``random_state``), with the other ``"auto"``
+        hyperparameters fitted along with them; those are then fitted again on all the
+        stars (as set by ``likelihood``) with the factors held. Ignored with two features.
+    extra_drift : {None, "linear"}, default=None
+        ``"linear"``: the drift also holds a linear term in each feature beyond the first
+        two (a trend along a colour or a magnitude, which predictions beyond the stars'
+        range extrapolate instead of returning to the mean).
     likelihood : "auto", "exact" or int, default="auto"
         Likelihood maximised when a hyperparameter is ``"auto"``. ``"exact"``: the
         Gaussian likelihood of all the stars (one ``n x n`` Cholesky factorisation per step,
@@ -147,6 +170,8 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         Factor applied to ``noise_var`` (1 without noise).
     anisotropy_scaling_, anisotropy_angle_ : float
         Anisotropy used (fitted when ``"auto"``; the angle in degrees).
+    extra_scaling_ : ndarray of shape (n_features - 2,)
+        Factors on the extra features (fitted when ``"auto"``; empty with two features).
     log_likelihood_ : float or None
         Maximum of the summed log-likelihood (Vecchia's approximation of it with
         ``likelihood_ == "vecchia"``; on the ``max_ml_samples`` subset beyond that size),
@@ -282,7 +307,8 @@ class KrigingRegressor(_NoiseAwareInterpolator):
 
     def __init__(self, variogram="exponential", range=0.5, nugget=0.0, n_neighbors=None, *,
                  noise_scale=1.0, drift=None, anisotropy_scaling=1.0, anisotropy_angle=0.0,
-                 likelihood="auto", max_ml_samples=20000, random_state=0):
+                 extra_scaling=1.0, extra_drift=None, likelihood="auto",
+                 max_ml_samples=20000, random_state=0):
         self.variogram = variogram
         self.range = range
         self.nugget = nugget
@@ -291,6 +317,8 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         self.drift = drift
         self.anisotropy_scaling = anisotropy_scaling
         self.anisotropy_angle = anisotropy_angle
+        self.extra_scaling = extra_scaling
+        self.extra_drift = extra_drift
         self.likelihood = likelihood
         self.max_ml_samples = max_ml_samples
         self.random_state = random_state
@@ -305,14 +333,29 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         return c
 
     def _transform(self, X):
-        """Positions in the anisotropy frame (PyKrige's: rotate by -angle, stretch y)."""
-        if self._aniso is None:
-            return X
-        return X @ self._aniso.T
+        """Positions in the anisotropy frame (PyKrige's: rotate by -angle, stretch y), the
+        extra features multiplied by their factors."""
+        if self._aniso is not None:
+            return X @ self._aniso.T
+        if getattr(self, "_extra", None) is not None:
+            X = X.copy()
+            X[:, 2:] *= self._extra
+        return X
+
+    def _drift_powers_for(self, d):
+        """Drift exponents: ``drift``'s polynomial in all features, plus with
+        ``extra_drift="linear"`` the linear terms of the features beyond the first two."""
+        powers = _exponents(d, _DRIFT_DEGREE[self.drift])
+        if self.extra_drift == "linear" and d > 2:
+            units = np.eye(d, dtype=int)[2:]
+            new = [u for u in units if not (powers == u).all(axis=1).any()]
+            powers = np.vstack([powers] + new) if new else powers
+        return powers
 
     def _drift_design(self, X):
         U = (X - self._drift_center) / self._drift_half_width
-        return _design(U, self._drift_powers, _DRIFT_DEGREE[self.drift], "monomial")
+        return _design(U, self._drift_powers, max(1, int(self._drift_powers.max(initial=0))),
+                       "monomial")
 
     def _check_params(self, n_features):
         if self.variogram not in variogram_models:
@@ -329,6 +372,10 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             raise ValueError(
                 f"{_NAME}: drift must be None, 'linear' or 'quadratic', got {self.drift!r}."
             )
+        if self.extra_drift not in (None, "linear"):
+            raise ValueError(f"{_NAME}: extra_drift must be None or 'linear', got "
+                             f"{self.extra_drift!r}.")
+        self._extra_factors(n_features)
         if isinstance(self.max_ml_samples, bool) or not isinstance(
             self.max_ml_samples, numbers.Integral
         ) or self.max_ml_samples < _MIN_ML_STARS:
@@ -349,8 +396,28 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         if aniso != (1.0, 0.0) and n_features != 2:
             raise ValueError(f"{_NAME}: anisotropy needs 2 features (x, y), got {n_features}.")
 
-    def _set_anisotropy(self, scaling, angle):
+    def _extra_factors(self, n_features):
+        """The fixed factors on the extra features (n_features - 2,), or "auto"."""
+        value, n_extra = self.extra_scaling, max(n_features - 2, 0)
+        if isinstance(value, str) and value == "auto":
+            return value
+        try:
+            factors = np.broadcast_to(np.asarray(value, dtype=np.float64), (n_extra,))
+        except (TypeError, ValueError):
+            factors = None
+        if factors is None or isinstance(value, (bool, str)) or not (
+                np.all(np.isfinite(factors)) and np.all(factors > 0)):
+            raise ValueError(f"{_NAME}: extra_scaling must be 'auto', a positive number or "
+                             f"{n_extra} positive numbers (one per feature beyond the first "
+                             f"two), got {value!r}.")
+        return factors.copy()
+
+    def _set_anisotropy(self, scaling, angle, extra=None):
         self.anisotropy_scaling_, self.anisotropy_angle_ = float(scaling), float(angle)
+        n_extra = max(self.n_features_in_ - 2, 0)
+        self.extra_scaling_ = (np.ones(n_extra) if extra is None
+                               else np.asarray(extra, dtype=np.float64).reshape(n_extra))
+        self._extra = self.extra_scaling_ if (self.extra_scaling_ != 1.0).any() else None
         self._aniso = None
         if scaling != 1.0 or angle % 360.0 != 0.0:
             t = np.deg2rad(angle)
@@ -374,7 +441,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             )
             noise_cov = cov[0] if cov else None
         n, d = X.shape
-        self._drift_powers = _exponents(d, _DRIFT_DEGREE[self.drift])
+        self._drift_powers = self._drift_powers_for(d)
         n_drift = self._drift_powers.shape[0]
         _check_n_samples(_NAME, n, max(2, n_drift + 1), "(distinct positions)")
         if n < _FEW_STARS:
@@ -435,13 +502,22 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     def _fit_hyperparameters(self, X, Y, F, noise):
         params = {"range_": self.range, "nugget": self.nugget, "noise_scale": self.noise_scale,
                   "scaling": self.anisotropy_scaling, "angle": self.anisotropy_angle}
-        auto = [k for k, v in params.items() if isinstance(v, str)]
+        extra = self._extra_factors(X.shape[1])
+        extra_free = isinstance(extra, str) and X.shape[1] > 2
+        auto = [k for k, v in params.items() if isinstance(v, str)] + ["extra"] * extra_free
         if noise is None and "noise_scale" in auto:
             auto.remove("noise_scale")
+        fixed_extra = None if isinstance(extra, str) else extra
         self.log_likelihood_ = self.likelihood_ = self.range_floor_ = None
         self.range_at_floor_ = False
+        if extra_free:  # the extra factors first, then the rest as with fixed factors
+            _check_n_samples(_NAME, X.shape[0], _MIN_ML_STARS, "to fit hyperparameters by "
+                             "maximum likelihood (distinct positions)")
+            fixed_extra = self._fit_extra_factors(X, Y, F, noise, params, auto)
+            extra_free = False
+            auto.remove("extra")
         if not auto:
-            self._set_anisotropy(self.anisotropy_scaling, self.anisotropy_angle)
+            self._set_anisotropy(self.anisotropy_scaling, self.anisotropy_angle, fixed_extra)
             self.range_, self.nugget_ = float(self.range), float(self.nugget)
             self.sill_ = Y.var(axis=0)
             self.noise_scale_ = 1.0 if self.noise_scale == "auto" else float(self.noise_scale)
@@ -449,7 +525,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         n = X.shape[0]
         _check_n_samples(_NAME, n, _MIN_ML_STARS, "to fit hyperparameters by maximum "
                          "likelihood (distinct positions)")
-        geometry_free = "scaling" in auto or "angle" in auto
+        geometry_free = "scaling" in auto or "angle" in auto or extra_free
         neighbors, size = self._ml_plan(n, 1 if noise is None else Y.shape[1],
                                         geometry_free)
         rng = np.random.default_rng(check_random_state(self.random_state).randint(2**31))
@@ -457,11 +533,13 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         if n > size:
             sub = np.sort(position_order(X, int(rng.integers(2**63)))[:size])
         if not geometry_free:
-            self._set_anisotropy(self.anisotropy_scaling, self.anisotropy_angle)
+            self._set_anisotropy(self.anisotropy_scaling, self.anisotropy_angle, fixed_extra)
         P = X[sub] if geometry_free else self._transform(X[sub])
         noise_sub = None if noise is None else noise[sub]
-        if "range_" in auto:
-            self.range_floor_ = _spacing(X if geometry_free else self._transform(X))
+        if "range_" in auto:  # (with the extra factors fitted: the positions' spacing)
+            self.range_floor_ = _spacing(X[:, :2] if extra_free else
+                                         X if geometry_free else self._transform(X))
+        params["extra"] = "auto" if extra_free else None
         fit = fit_hyperparameters(P, Y[sub], F[sub], noise_sub, self.variogram,
                                   neighbors=neighbors, rng=rng,
                                   range_floor=self.range_floor_, **params)
@@ -486,9 +564,45 @@ class KrigingRegressor(_NoiseAwareInterpolator):
                 "to its mean. More stars, or a constant model, may serve as well.",
                 ShortRangeWarning, stacklevel=4)
         self.likelihood_ = "exact" if neighbors is None else "vecchia"
-        self._set_anisotropy(fit["scaling"], fit["angle"])
+        self._set_anisotropy(fit["scaling"], fit["angle"],
+                             fit["extra"] if extra_free else fixed_extra)
         self.range_, self.nugget_, self.sill_ = fit["range"], fit["nugget"], fit["sill"]
         self.noise_scale_, self.log_likelihood_ = fit["noise_scale"], fit["log_likelihood"]
+
+    def _fit_extra_factors(self, X, Y, F, noise, params, auto):
+        """The factors on the extra features by the exact likelihood of a subset of the stars
+        (the other "auto" hyperparameters fitted along with them, then refitted on all the
+        stars with the factors held)."""
+        n, n_factors = X.shape[0], 1 if noise is None else Y.shape[1]
+        size = min(n, max(_MIN_ML_STARS, int((_EXTRA_ML_COST / n_factors) ** (1 / 3))))
+        seed = check_random_state(self.random_state).randint(2**31)
+        sub = np.arange(n)
+        if n > size:
+            rng = np.random.default_rng([seed, 1])
+            sub = np.sort(position_order(X, int(rng.integers(2**63)))[:size])
+        floor = _spacing(X[sub, :2]) if "range_" in auto else None
+        P, Ys, Fs = X[sub], Y[sub], F[sub]
+        Ns = None if noise is None else noise[sub]
+        fit = fit_hyperparameters(P, Ys, Fs, Ns, self.variogram, range_floor=floor,
+                                  gtol=_EXTRA_GTOL, **{**params, "extra": "auto"})
+        factors = np.asarray(fit["extra"])
+        # a dimension whose correlation length the likelihood does not need (less than
+        # _EXTRA_LR_MIN better than with no correlation along it) gets none: on a subset of
+        # the stars, noise alone shortens lengths that would otherwise decorrelate the stars
+        span = np.ptp(P[:, :2], axis=0).max() if len(P) > 1 else 1.0
+        spans = np.ptp(P[:, 2:], axis=0)
+        lowest = 1e-3 * np.where(spans > 0, span / np.where(spans > 0, spans, 1.0), 1.0)
+        for j in np.flatnonzero(factors > lowest * (1 + 1e-3)):
+            trial = factors.copy()
+            trial[j] = lowest[j]
+            U = P.copy()
+            U[:, 2:] *= trial
+            fixed = {**params, "extra": None, "scaling": 1.0, "angle": 0.0}
+            alt = fit_hyperparameters(U, Ys, Fs, Ns, self.variogram, range_floor=floor,
+                                      gtol=_EXTRA_GTOL, start=fit, **fixed)
+            if fit["log_likelihood"] - alt["log_likelihood"] < _EXTRA_LR_MIN:
+                factors = trial
+        return factors
 
     def _ml_plan(self, n, n_factors, geometry_free):
         """Vecchia neighbours (None: exact likelihood) and the number of stars to use."""

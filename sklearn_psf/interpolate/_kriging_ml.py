@@ -53,24 +53,32 @@ _GEOMETRY = ("range", "scaling", "angle")
 _ORDER = ("range", "scaling", "angle", "nu", "kappa")
 
 
+def _order(n_extra):
+    """Parameter names in ``theta``'s order: ``extra0``, ``extra1``... are the factors on the
+    features beyond the first two (one correlation length per extra dimension)."""
+    return _ORDER[:3] + tuple(f"extra{j}" for j in range(n_extra)) + _ORDER[3:]
+
+
 class _Parameters:
     """Free and fixed parameters; ``theta`` holds the free ones (log-values, the angle in
-    radians) in the order of ``_ORDER``, then the log partial sills."""
+    radians) in the order of :func:`_order`, then the log partial sills."""
 
-    def __init__(self, Y, variogram, free, fixed):
+    def __init__(self, Y, variogram, free, fixed, n_extra=0):
         self.variogram, self.free, self.fixed = variogram, free, fixed
         self.n, self.T = Y.shape
+        self.order = _order(n_extra)
+        self.n_extra = n_extra
 
     def unpack(self, theta):
         values = dict(self.fixed)
-        names = [name for name in _ORDER if name in self.free]
+        names = [name for name in self.order if name in self.free]
         for name, t in zip(names, theta):
             values[name] = t if name == "angle" else np.exp(t)
         values["p"] = np.exp(theta[len(names):])
         return values
 
     def _pack_gradient(self, grad):
-        g = [grad[name] for name in _ORDER if name in self.free]
+        g = [grad[name] for name in self.order if name in self.free]
         return -np.concatenate([np.asarray(g, dtype=float), grad["p"]])
 
 
@@ -79,23 +87,34 @@ class _Likelihood(_Parameters):
 
     ``P`` are the positions (already in the anisotropy frame unless ``scaling`` or
     ``angle`` is free; then raw 2-D positions, rotated by ``-angle`` and the second
-    coordinate multiplied by ``scaling``, angle in radians, not a log-parameter).
+    coordinate multiplied by ``scaling``, angle in radians, not a log-parameter). With
+    ``n_extra`` factors free, the columns of ``P`` beyond the first two are multiplied by
+    them (``extra0``, ...) before distances are computed.
     """
 
-    def __init__(self, P, Y, F, noise, variogram, free, fixed):
-        super().__init__(Y, variogram, free, fixed)
+    def __init__(self, P, Y, F, noise, variogram, free, fixed, n_extra=0):
+        super().__init__(Y, variogram, free, fixed, n_extra)
         self.Y, self.F, self.noise = Y, F, noise
         self.aniso = "scaling" in free or "angle" in free
+        self.geometry = [name for name in self.order
+                         if name in free and (name in _GEOMETRY or name.startswith("extra"))]
         if self.aniso:
             self.dx = P[:, None, 0] - P[None, :, 0]
             self.dy = P[:, None, 1] - P[None, :, 1]
+        elif n_extra:
+            self.D2 = cdist(P[:, :2], P[:, :2], "sqeuclidean")
+            self.dz2 = [(P[:, None, j] - P[None, :, j]) ** 2 for j in range(2, 2 + n_extra)]
         else:
             self.D = cdist(P, P)
 
     def _geometry(self, v):
         """Correlations R and d R / d(free geometric parameter), by name."""
         a = v["range"]
-        if not self.aniso:
+        extra = []
+        if self.n_extra and not self.aniso:
+            extra = [v[f"extra{j}"] ** 2 * dz2 for j, dz2 in enumerate(self.dz2)]
+            D = np.sqrt(self.D2 + sum(extra))
+        elif not self.aniso:
             D = self.D
         else:
             c, s_ = np.cos(v["angle"]), np.sin(v["angle"])
@@ -105,10 +124,14 @@ class _Likelihood(_Parameters):
         r = D / a
         R = _CORRELATIONS[self.variogram](r.copy())
         grads = {}
-        if any(name in self.free for name in _GEOMETRY):
+        if self.geometry:
             dlog_a = _corr_dlog_range(self.variogram, r, R)  # = -rho'(r) r
             if "range" in self.free:
                 grads["range"] = dlog_a
+            if extra and "extra0" in self.free:  # dD/dlog e_j = (e_j dz_j)^2 / D
+                D2 = np.where(D > 0, D * D, np.inf)
+                for j, term in enumerate(extra):
+                    grads[f"extra{j}"] = -dlog_a * term / D2
             if self.aniso:
                 D2 = np.where(D > 0, D * D, np.inf)
                 sc = v["scaling"]
@@ -129,7 +152,7 @@ class _Likelihood(_Parameters):
         M = R
         M[np.diag_indices(n)] += nu
         FY = np.column_stack([F, Y])
-        grad = dict.fromkeys(_ORDER, 0.0)
+        grad = dict.fromkeys(self.order, 0.0)
         grad["p"] = np.zeros(self.T)
         nll = 0.0
         if self.noise is None:
@@ -270,8 +293,8 @@ def _fisher_quasi_newton(fun, starts, box, tol=1e-4, decrement=1e-2, max_iter=10
 
 
 def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scale,
-                        scaling=1.0, angle=0.0, neighbors=None, rng=None, start=None,
-                        range_floor=None):
+                        scaling=1.0, angle=0.0, extra=None, neighbors=None, rng=None,
+                        start=None, range_floor=None, gtol=_GTOL):
     """Maximum-likelihood range, nugget, sills, noise scale and anisotropy.
 
     Parameters
@@ -288,6 +311,10 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
     range_, nugget, noise_scale, scaling, angle : float or "auto"
         Fixed values, or "auto" to fit them (``noise_scale`` only with ``noise``);
         ``angle`` in degrees.
+    extra : "auto" or None
+        "auto": fit a factor on each column of ``P`` beyond the first two (raw columns; one
+        correlation length per extra dimension, exact likelihood only); None: ``P`` is
+        already in its final frame.
     neighbors : int or None
         None: the exact likelihood. An int ``m``: Vecchia's approximation with the ``m``
         nearest earlier stars in an order drawn from ``rng`` (fixed anisotropy only).
@@ -299,14 +326,17 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
         best point of a grid.
     range_floor : float, optional
         Lower bound of the range (default ``1e-3`` times the span of the positions).
+    gtol : float, optional
+        The exact likelihood's convergence: largest gradient component per star.
 
     Returns
     -------
     dict with ``range``, ``nugget`` (fraction of the sill), ``sill`` (T,), ``noise_scale``,
-    ``scaling``, ``angle`` (degrees) and ``log_likelihood`` (the maximum, in the units of
-    ``Y``).
+    ``scaling``, ``angle`` (degrees), ``extra`` (the factors, or None) and
+    ``log_likelihood`` (the maximum, in the units of ``Y``).
     """
     n, T = Y.shape
+    n_extra = P.shape[1] - 2 if isinstance(extra, str) else 0
     scale = Y.std(axis=0)
     scale[scale == 0] = 1.0
     Ys = Y / scale
@@ -324,14 +354,21 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
             free.append(name)
         else:
             fixed[name] = 1.0 if isinstance(value, str) else convert(value)
+    free += [f"extra{j}" for j in range(n_extra)]
     if neighbors is None:
-        fun = _Likelihood(P, Ys, F, Ns, variogram, free, fixed)
+        fun = _Likelihood(P, Ys, F, Ns, variogram, free, fixed, n_extra)
     else:
         fun = _VecchiaLikelihood(P, Ys, F, Ns, variogram, free, fixed, neighbors,
                                  rng.integers(2**63))
 
-    span = np.ptp(P, axis=0).max() if n > 1 else 1.0
+    span = np.ptp(P[:, :2] if n_extra else P, axis=0).max() if n > 1 else 1.0
     span = span if span > 0 else 1.0
+    # an extra column's factor in units of (position span / its own span): from a length
+    # 1000 times the range (the dimension has no effect) to a hundredth of it
+    extra_base = {}
+    for j in range(n_extra):
+        span_j = np.ptp(P[:, 2 + j]) if n > 1 else 0.0
+        extra_base[f"extra{j}"] = np.log(span / span_j) if span_j > 0 else 0.0
     mean_noise = 0.0 if Ns is None else Ns.mean(axis=0) * fixed.get("kappa", 1.0)
     p0 = np.log(np.clip(1.0 - mean_noise, 0.1, 1.0) / 1.1) * np.ones(T)
     low = max(1e-3 * span, range_floor or 0.0)
@@ -341,6 +378,7 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
         "angle": (-np.pi, np.pi),
         "nu": tuple(np.log(_NU_BOUNDS)),
         "kappa": tuple(np.log(_KAPPA_BOUNDS)),
+        **{name: (base + np.log(1e-3), base + np.log(1e2)) for name, base in extra_base.items()},
     }
     # a few starting points (ranges, anisotropy directions); the local optimisation
     # starts from the best of them
@@ -353,8 +391,9 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
         "angle": [0.0, np.pi / 3, 2 * np.pi / 3],
         "nu": [np.log(0.1)],
         "kappa": [0.0],
+        **{name: [base + np.log(0.3)] for name, base in extra_base.items()},
     }
-    names = [name for name in _ORDER if name in free]
+    names = [name for name in fun.order if name in free]
     box = [bounds[name] for name in names] + [tuple(np.log(_P_BOUNDS))] * T
     if start is None:
         starts = [np.concatenate([combo, p0])
@@ -363,7 +402,8 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
         nu0 = start["nugget"] / max(1.0 - start["nugget"], 1e-12)
         previous = {"range": np.log(start["range"]), "scaling": np.log(start["scaling"]),
                     "angle": np.deg2rad(start["angle"]), "nu": np.log(max(nu0, 1e-300)),
-                    "kappa": np.log(start["noise_scale"])}
+                    "kappa": np.log(start["noise_scale"]),
+                    **{f"extra{j}": np.log(e) for j, e in enumerate(start.get("extra") or ())}}
         p_start = np.log(np.maximum(start["sill"] / (1.0 + nu0) / scale**2, 1e-300))
         starts = [np.clip(np.concatenate([[previous[name] for name in names], p_start]),
                           *np.array(box).T)]
@@ -378,7 +418,7 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
             x0 = min(starts, key=lambda s: fun(s)[0]) if len(starts) > 1 else starts[0]
             res = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=box,
                            options={"maxiter": 500, "maxfun": 1000, "ftol": 1e-15,
-                                    "gtol": _GTOL * n})
+                                    "gtol": gtol * n})
             x, value, n_iter, n_eval = res.x, res.fun, res.nit, res.nfev
         else:  # quasi-Newton from the expected information (cheap for the approximation)
             x, value, n_iter, n_eval = _fisher_quasi_newton(fun, starts, box)
@@ -391,6 +431,7 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
         "noise_scale": float(v["kappa"]),
         "scaling": float(v["scaling"]),
         "angle": float(np.rad2deg(v["angle"])),
+        "extra": [float(v[f"extra{j}"]) for j in range(n_extra)] if n_extra else None,
         "log_likelihood": float(-value - n * np.sum(np.log(scale))),
         "n_iter": int(n_iter),
         "n_eval": int(n_eval),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import numbers
 import warnings
 from itertools import combinations_with_replacement
@@ -24,6 +25,17 @@ def _exponents(n_features: int, degree: int) -> np.ndarray:
             e = np.zeros(n_features, dtype=int)
             np.add.at(e, list(combo), 1)
             rows.append(e)
+    return np.array(rows, dtype=int).reshape(-1, n_features)
+
+
+def _group_exponents(n_features: int, degrees) -> np.ndarray:
+    """PSFEx's groups: total degree <= ``degrees[0]`` in (x, y) (the first two features) times
+    each further feature j to a power <= ``degrees[j - 1]`` (products of the groups' terms)."""
+    blocks = [_exponents(min(n_features, 2), int(degrees[0]))]
+    for g in degrees[1:]:
+        blocks.append(np.arange(int(g) + 1).reshape(-1, 1))
+    rows = [np.concatenate(parts) for parts in itertools.product(*blocks)]
+    rows.sort(key=lambda e: (e.sum(), tuple(-e)))
     return np.array(rows, dtype=int).reshape(-1, n_features)
 
 
@@ -70,8 +82,9 @@ class _PolynomialBase(_NoiseAwareInterpolator):
         return (X - self.center_) / self.half_width_
 
     def _fit_degree(self, U, Y, degree, sqrt_w=None):
-        exponents = _exponents(U.shape[1], degree)
-        A = _design(U, exponents, degree, self._basis)
+        exponents = (_exponents(U.shape[1], degree) if np.ndim(degree) == 0
+                     else _group_exponents(U.shape[1], degree))
+        A = _design(U, exponents, int(exponents.max(initial=0)), self._basis)
         coef, rank = _weighted_lstsq(A, Y, sqrt_w)
         return exponents, coef, rank, A
 
@@ -85,9 +98,34 @@ class _PolynomialBase(_NoiseAwareInterpolator):
                 f"{type(self).__name__}: {name} must be a non-negative integer, got {degree!r}."
             )
 
+    def _check_group_degrees(self, degree, d):
+        """A sequence of degrees: (x, y)'s, then one per further feature."""
+        owner = type(self).__name__
+        values = list(degree)
+        for g in values:
+            self._check_degree(g)
+        if len(values) != max(d - 1, 1):
+            raise ValueError(f"{owner}: a sequence of degrees holds the degree in (x, y) then one "
+                             f"per further feature: {max(d - 1, 1)} values for {d} features, "
+                             f"got {len(values)}.")
+        return tuple(int(g) for g in values)
+
     def _set_fit(self, X, U, Y, degree, sqrt_w):
         owner = type(self).__name__
         n, d = X.shape
+        if np.ndim(degree) == 1:  # PSFEx's groups: no lowering, a clear error instead
+            degree = self._check_group_degrees(degree, d)
+            m = len(_group_exponents(d, degree))
+            if m > n:
+                raise ValueError(f"{owner}: degrees {degree} give {m} terms, more than the "
+                                 f"{n} stars: give lower degrees.")
+            self.powers_, self.coef_, rank, _ = self._fit_degree(U, Y, degree, sqrt_w)
+            if rank < m:
+                warnings.warn(f"{owner}: the design matrix has rank {rank} < {m} terms; the "
+                              "minimum-norm least-squares solution is used. Lower the degrees.",
+                              RankDeficientWarning, stacklevel=4)
+            self.degree_ = degree
+            return
         capped = degree
         while capped > 0 and _n_terms(d, capped) > n:
             capped -= 1
@@ -118,7 +156,7 @@ class _PolynomialBase(_NoiseAwareInterpolator):
         self.half_width_ = half
 
     def _predict(self, X):
-        A = _design(self._scale(X), self.powers_, self.degree_, self._basis)
+        A = _design(self._scale(X), self.powers_, int(self.powers_.max(initial=0)), self._basis)
         return A @ self.coef_
 
 
@@ -133,17 +171,20 @@ class PolynomialRegressor(_PolynomialBase):
 
     Parameters
     ----------
-    degree : int or "auto", default=5
+    degree : int, "auto" or sequence of int, default=5
         Total degree. ``"auto"`` chooses it in ``0 .. max_degree`` by the Bayesian
-        information criterion (see Notes).
+        information criterion (see Notes). A sequence gives a degree per group of features,
+        as PSFEx's ``PSFVAR_GROUPS``/``PSFVAR_DEGREES``: the total degree in (x, y), then the
+        degree in each further feature (a colour, a magnitude); the terms are the products
+        of the groups' terms (``(3, 1)``: ``x^i y^j c^k`` with ``i + j <= 3``, ``k <= 1``).
     max_degree : int, default=8
         Largest degree tried when ``degree="auto"``; ignored otherwise.
 
     Attributes
     ----------
-    degree_ : int
+    degree_ : int or tuple of int
         Degree used (the chosen one when ``degree="auto"``; lowered with a warning when
-        there are fewer stars than terms).
+        there are fewer stars than terms; the groups' degrees for a sequence).
     powers_ : ndarray of shape (n_terms, n_features)
         Exponent vector of each term.
     coef_ : ndarray of shape (n_terms, n_targets)
@@ -184,6 +225,13 @@ class PolynomialRegressor(_PolynomialBase):
     array([1.75])
     >>> PolynomialRegressor(degree="auto", max_degree=4).fit(X, y).degree_
     2
+
+    A degree per group, as PSFEx's: cubic in (x, y), linear in a colour:
+
+    >>> Xc = np.column_stack([X, rng.uniform(0, 3, 50)])
+    >>> reg = PolynomialRegressor(degree=(3, 1)).fit(Xc, y + 0.1 * Xc[:, 2])
+    >>> reg.powers_.shape, bool(np.allclose(reg.predict(Xc), y + 0.1 * Xc[:, 2]))
+    ((20, 3), True)
 
     Weighted by per-star noise variances:
 
@@ -226,6 +274,8 @@ class PolynomialRegressor(_PolynomialBase):
                 p = _n_terms(d, g)
                 self.criterion_[g] = float(np.sum(n * np.log(rss / n) + p * np.log(n)))
             degree = min(self.criterion_, key=self.criterion_.get)
+        elif np.ndim(self.degree) == 1:
+            degree = self.degree
         else:
             self._check_degree(self.degree)
             degree = self.degree
@@ -243,12 +293,12 @@ class ChebyshevRegressor(_PolynomialBase):
 
     Parameters
     ----------
-    degree : int, default=5
-        Total degree.
+    degree : int or sequence of int, default=5
+        Total degree, or a degree per group of features as :class:`PolynomialRegressor`'s.
 
     Attributes
     ----------
-    degree_ : int
+    degree_ : int or tuple of int
         Degree used.
     powers_ : ndarray of shape (n_terms, n_features)
         Chebyshev index vector of each term.
@@ -280,7 +330,8 @@ class ChebyshevRegressor(_PolynomialBase):
         self.degree = degree
 
     def _fit(self, X, Y, noise):
-        self._check_degree(self.degree)
+        if np.ndim(self.degree) != 1:
+            self._check_degree(self.degree)
         self._bounds(X)
         sqrt_w = None if noise is None else 1.0 / np.sqrt(noise)
         self._set_fit(X, self._scale(X), Y, self.degree, sqrt_w)

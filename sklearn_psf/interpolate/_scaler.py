@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
 from sklearn.base import BaseEstimator, OneToOneFeatureMixin, TransformerMixin
 from sklearn.utils.validation import check_is_fitted, validate_data
@@ -23,12 +25,27 @@ class IsotropicScaler(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
     Distances in the scaled frame are the input's distances times ``scale_``: a Kriging range
     of 0.2 is 0.2 times the field's longer side.
 
+    Further columns that are not positions (a colour, a magnitude: the model's extra
+    dimensions) must not share the positions' factor (a colour spanning 3 would vanish beside
+    positions spanning 4000): with ``n_positions=2`` only the first two columns share it and
+    each further column is scaled into [0, 1] by its own span.
+
+    Parameters
+    ----------
+    n_positions : int or None, default=None
+        Number of leading columns that share the one factor (the positions); each further
+        column gets its own. None: every column shares it.
+
     Attributes
     ----------
     min_ : ndarray of shape (n_features,)
         Smallest value of each feature seen in fit (subtracted).
     scale_ : float
-        The factor: 1 / (largest span of a feature), 1 when every feature is constant.
+        The positions' factor: 1 / (largest span of the position columns), 1 when they are
+        all constant.
+    feature_scale_ : ndarray of shape (n_features,)
+        The factor of each column: ``scale_`` for the positions, 1 / (own span) for the
+        further columns (1 when constant).
     n_features_in_ : int
 
     See Also
@@ -44,7 +61,18 @@ class IsotropicScaler(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
     array([[0.  , 0.  ],
            [1.  , 0.25],
            [0.5 , 0.5 ]])
+
+    A colour column beside the positions keeps its own scale:
+
+    >>> Xc = np.column_stack([X, [0.5, 2.0, 3.5]])
+    >>> IsotropicScaler(n_positions=2).fit_transform(Xc)
+    array([[0.  , 0.  , 0.  ],
+           [1.  , 0.25, 0.5 ],
+           [0.5 , 0.5 , 1.  ]])
     """
+
+    def __init__(self, n_positions=None):
+        self.n_positions = n_positions
 
     def fit(self, X, y=None):
         """Learn the minimum of each feature and the largest span.
@@ -58,14 +86,23 @@ class IsotropicScaler(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
         -------
         self : IsotropicScaler
         """
+        m = self.n_positions
+        if m is not None and (isinstance(m, bool) or not isinstance(m, numbers.Integral)
+                              or m < 1):
+            raise ValueError(f"IsotropicScaler: n_positions must be None or a positive "
+                             f"integer, got {m!r}.")
         X = validate_data(self, X, dtype=np.float64, reset=True)
         self.min_ = X.min(axis=0)
-        span = float(np.max(X.max(axis=0) - self.min_))
+        spans = X.max(axis=0) - self.min_
+        m = X.shape[1] if m is None else min(int(m), X.shape[1])
+        span = float(np.max(spans[:m]))
         self.scale_ = 1.0 / span if span > 0 else 1.0
+        own = 1.0 / np.where(spans[m:] > 0, spans[m:], 1.0)
+        self.feature_scale_ = np.concatenate([np.full(m, self.scale_), own])
         return self
 
     def transform(self, X):
-        """Scaled positions ``(X - min_) * scale_``.
+        """Scaled positions ``(X - min_) * feature_scale_``.
 
         Parameters
         ----------
@@ -77,7 +114,8 @@ class IsotropicScaler(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
         """
         check_is_fitted(self)
         X = validate_data(self, X, dtype=np.float64, reset=False)
-        return (X - self.min_) * self.scale_
+        # (scalers pickled before feature_scale_ existed: one factor for every column)
+        return (X - self.min_) * getattr(self, "feature_scale_", self.scale_)
 
     def inverse_transform(self, X):
         """Positions in the input's units from scaled ones.
@@ -92,4 +130,4 @@ class IsotropicScaler(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
         """
         check_is_fitted(self)
         X = validate_data(self, X, dtype=np.float64, reset=False)
-        return X / self.scale_ + self.min_
+        return X / getattr(self, "feature_scale_", self.scale_) + self.min_

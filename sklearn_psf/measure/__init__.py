@@ -1,5 +1,6 @@
 """Measurement of PSF shapes: batched adaptive (Gaussian-weighted) moments."""
 
+from ._fourth import FOURTH_MOMENTS, fourth_moments
 from ._moments import (
     FLAG_BAD_PIXELS,
     FLAG_DIVERGED,
@@ -12,6 +13,8 @@ from ._moments import (
 
 __all__ = [
     "adaptive_moments",
+    "fourth_moments",
+    "FOURTH_MOMENTS",
     "FLAG_OK",
     "FLAG_BAD_PIXELS",
     "FLAG_NO_FLUX",

@@ -65,7 +65,8 @@ def make_default_interpolator():
     """The default interpolator: positions scaled by the field's longer side, then Kriging whose
     range and sills are fitted to the data, with each star's coefficient noise.
 
-    ``make_pipeline(IsotropicScaler(), KrigingRegressor(range="auto", n_neighbors="auto"))``:
+    ``make_pipeline(IsotropicScaler(n_positions=2), KrigingRegressor(range="auto",
+    n_neighbors="auto", extra_scaling="auto", extra_drift="linear"))``:
     the same factor on x and y (:class:`~sklearn_psf.interpolate.IsotropicScaler`), so that
     the isotropic variogram sees the field's own distances (``MinMaxScaler`` stretches the
     shorter side of a rectangular field to the longer one's length: on the package's default
@@ -85,6 +86,14 @@ def make_default_interpolator():
     ``PSFModel(interpolator=...)`` to tune nested parameters
     (``interpolator__krigingregressor__range``).
 
+    Columns of ``X`` beyond (x, y) (a colour, a magnitude, a flux: the model's extra
+    dimensions) are each scaled by their own span (``IsotropicScaler(n_positions=2)``), get
+    one correlation length each by maximum likelihood (``extra_scaling="auto"``: a dimension
+    with no effect gets a length far beyond its span and changes nothing) and a linear trend
+    (``extra_drift="linear"``: universal Kriging's drift, so that a galaxy bluer or fainter
+    than every star gets the trend extrapolated, not the mean). On (x, y) alone these
+    settings change nothing: the model is the position-only one.
+
     Returns
     -------
     interpolator : sklearn.pipeline.Pipeline
@@ -93,9 +102,12 @@ def make_default_interpolator():
     --------
     >>> from sklearn_psf.model import make_default_interpolator
     >>> make_default_interpolator()[-1]
-    KrigingRegressor(n_neighbors='auto', range='auto')
+    KrigingRegressor(extra_drift='linear', extra_scaling='auto', n_neighbors='auto',
+                     range='auto')
     """
-    return make_pipeline(IsotropicScaler(), KrigingRegressor(range="auto", n_neighbors="auto"))
+    return make_pipeline(IsotropicScaler(n_positions=2),
+                         KrigingRegressor(range="auto", n_neighbors="auto",
+                                          extra_scaling="auto", extra_drift="linear"))
 
 
 def make_paper_interpolator():
@@ -150,9 +162,11 @@ def make_interpolator(name: str = "kriging"):
         "kriging": make_default_interpolator,
         "polynomial": lambda: make_pipeline(MinMaxScaler(), PolynomialRegressor(degree="auto")),
         "chebyshev": lambda: make_pipeline(MinMaxScaler(), ChebyshevRegressor(degree=5)),
-        "delaunay": lambda: make_pipeline(IsotropicScaler(), DelaunayRegressor()),
-        "shepard": lambda: make_pipeline(IsotropicScaler(), ShepardRegressor(power=3.0)),
-        "rbf": lambda: make_pipeline(IsotropicScaler(), RBFRegressor(kernel="thin_plate_spline")),
+        "delaunay": lambda: make_pipeline(IsotropicScaler(n_positions=2), DelaunayRegressor()),
+        "shepard": lambda: make_pipeline(IsotropicScaler(n_positions=2),
+                                         ShepardRegressor(power=3.0)),
+        "rbf": lambda: make_pipeline(IsotropicScaler(n_positions=2),
+                                     RBFRegressor(kernel="thin_plate_spline")),
     }
     if name not in makers:
         raise ValueError(f"Unknown interpolator {name!r}: choose one of {list(INTERPOLATORS)}.")

@@ -42,7 +42,9 @@ positions with :class:`~sklearn_psf.interpolate.IsotropicScaler`; files of forma
 fitted with ``MinMaxScaler`` and are still refitted with it, so that they predict as when saved;
 likewise a pooled model's :class:`~sklearn_psf.interpolate.ExposureKrigingRegressor`, which
 now scales positions by the longer side too, refits a file of formats 1-3 with each axis
-scaled to [0, 1].
+scaled to [0, 1]. A model with extra dimensions (``X`` columns beyond (x, y): a colour, a
+magnitude) stores them as the ``STARS`` column ``extra`` (one value per extra column and star,
+in ``fit``'s order); older readers do not know it.
 
 Loading rebuilds the basis (``StampNormalizer`` steps + a fitted :class:`FixedBasis` of the
 stored mean and components, or the ``StampPCA``) and refits the interpolator (with the
@@ -343,7 +345,8 @@ def _model_hdus(model, *, summary=None, prefix="", exposure=False):
     if not hasattr(model, "coefficients_"):
         raise ValueError("This PSFModel was fitted by an older sklearn_psf without the stars' "
                          "coefficients (coefficients_): refit it, or use joblib.dump.")
-    if model.X_fit_.shape[1] != 2 + bool(exposure):
+    d = model.X_fit_.shape[1]
+    if (d != 3) if exposure else (d < 2):
         raise ValueError(f"Model files hold (x, y) star positions{' and an exposure' * exposure}"
                          f"; this model was fitted on {model.X_fit_.shape[1]} position columns: "
                          "use joblib.dump.")
@@ -388,6 +391,8 @@ def _model_hdus(model, *, summary=None, prefix="", exposure=False):
     }
     if exposure:
         columns["exposure"] = np.asarray(model.X_fit_[:, 2], dtype=np.int64)
+    elif d > 2:  # the model's extra dimensions (colour, magnitude...), in fit's order
+        columns["extra"] = np.asarray(model.X_fit_[:, 2:], dtype=np.float64)
     if model.coefficient_var_ is not None:
         columns["coeff_var"] = np.asarray(model.coefficient_var_, dtype=np.float64).reshape(-1, k)
     if getattr(model, "coefficient_cov_", None) is not None:
@@ -497,8 +502,8 @@ def _read(header, content, path, model_class, version):
     interpolator = _decode(spec["interpolator"], arrays)
     model = model_class(interpolator=interpolator, basis=_decode(spec["basis"], arrays),
                         outliers=_decode(spec["outliers"], arrays))
-    X = np.column_stack([np.asarray(stars[c], dtype=np.float64)
-                         for c in ("x", "y", "exposure") if c in stars.colnames])
+    X = np.column_stack([np.asarray(stars[c], dtype=np.float64).reshape(len(stars), -1)
+                         for c in ("x", "y", "exposure", "extra") if c in stars.colnames])
     n = len(X)
     coef = np.asarray(stars["coeffs"], dtype=np.float64).reshape(n, k)
     mask = np.asarray(stars["inlier"], dtype=bool)

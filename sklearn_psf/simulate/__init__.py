@@ -103,6 +103,7 @@ Relation to :mod:`sklearn_psf.datasets`: the reference bases are data
 """
 
 from ..datasets import ReferenceBasis, read_fits_image
+from ._chromatic import blackbody_colour, refraction
 from ._example import write_example_exposure, write_example_ldac
 from ._exposures import ExposureSet, make_exposures
 from ._field import PSFField, core_mask, realistic_snr
@@ -117,6 +118,7 @@ __all__ = [
     "RandomFieldSampler",
     "ReferenceBasis",
     "as_generator",
+    "blackbody_colour",
     "core_mask",
     "gaussian_random_field",
     "make_exposures",
@@ -125,6 +127,7 @@ __all__ = [
     "read_fits_image",
     "realistic_snr",
     "render_galsim_ccd",
+    "refraction",
     "write_example_exposure",
     "write_example_ldac",
 ]

@@ -26,6 +26,7 @@ from ._contaminants import (
     field_galaxies,
     render,
 )
+from ._chromatic import chromatic_stamps, draw_colours
 from ._field import PSFField, core_mask, realistic_snr
 from ._random_field import RandomFieldSampler, as_generator
 
@@ -94,7 +95,9 @@ def _draw_positions(n, fixed, lo, hi_x, hi_y, stamp, rng, what):
 
 
 
-def _truth(reference, positions, sampler, normalizer, basis):
+def _truth(reference, positions, sampler, normalizer, basis, source=None):
+    """Truth stamps, coefficients and moments; ``source`` (a dict of
+    :func:`chromatic_stamps`'s keywords) makes each PSF that of its source."""
     n = len(positions)
     s2 = reference.stamp_size ** 2
     if n == 0:
@@ -104,6 +107,8 @@ def _truth(reference, positions, sampler, normalizer, basis):
              "flag": np.zeros(0, dtype=np.int64)})
     weights = reference.coeff_mean + reference.coeff_std * sampler(positions)
     stamps = normalizer.transform(reference.synthesize(weights))
+    if source is not None:
+        stamps = normalizer.transform(chromatic_stamps(stamps, **source))
     coeffs = basis.transform(stamps)
     return stamps, coeffs, adaptive_moments(stamps)
 
@@ -202,6 +207,10 @@ def make_psf_field(
     grid_size: int | None = None,
     galaxy_positions=None,
     weight_fields=None,
+    chromatic: bool = False,
+    airmass: float | None = None,
+    optics_fraction: float = 0.1,
+    brighter_fatter: float = 0.0,
 ) -> PSFField:
     """Simulate a PSF field image with stars and galaxy-PSFs (Berge et al. 2012, sect. 3).
 
@@ -287,6 +296,25 @@ def make_psf_field(
         weights, replacing the random fields drawn from the seed (e.g. a static plus an
         atmospheric pattern, :func:`make_exposures`); ``weight_covariance`` then no longer
         describes the field.
+    chromatic : bool, default=False
+        Each source's PSF depends on its colour: stars get g-i colours of 0.3-3.0, galaxies
+        0-2 (columns ``g_i``; see :mod:`sklearn_psf.simulate._chromatic`), each a blackbody
+        spectrum, and the PSF is the photon-weighted sum over an r-like band (550-700 nm) of
+        the field's PSF dilated as the seeing (FWHM ~ wavelength^-0.2) and the optics
+        (~ wavelength) at each wavelength: bluer sources have larger PSFs.
+    airmass : float, optional
+        With ``chromatic``: differential chromatic refraction at this airmass (>= 1), along
+        the image's y axis (the PSF of a blue source is stretched along y more than a red
+        one's). None: no refraction.
+    optics_fraction : float, default=0.1
+        With ``chromatic``: the optics' share of the PSF's second moment, in [0, 1].
+    brighter_fatter : float, default=0
+        The brighter-fatter effect: each PSF is dilated by ``1 + brighter_fatter * (snr -
+        min) / (max - min)`` over the stars' S/N (e.g. 0.02: the brightest star's PSF 2%
+        larger than the faintest's); galaxies, whose own S/N is drawn log-uniform between a
+        fifth of the faintest star's and that star's (column ``source_snr``; the stars' is
+        their ``snr``), get the same law. The galaxy-PSF stamps' ``snr`` stays
+        ``galaxy_snr``.
 
     Returns
     -------
@@ -405,7 +433,8 @@ def make_psf_field(
 
     seed = int(random_state) if isinstance(random_state, numbers.Integral) else None
     rng = as_generator(random_state)
-    field_rng, star_rng, gal_rng, noise_rng, sub_rng, cont_rng, defect_rng = rng.spawn(7)
+    (field_rng, star_rng, gal_rng, noise_rng, sub_rng, cont_rng, defect_rng,
+     source_rng) = rng.spawn(8)
 
     # positions: fixed ones first, then random ones avoiding everything placed before; with
     # contaminants on stars, 8 more pixels between objects (a neighbour's or a galaxy's light
@@ -444,8 +473,13 @@ def make_psf_field(
         (ny, nx), reference.n_components, slope, cell=cell, random_state=field_rng)
     normalizer = StampNormalizer(flux=True, center=True).fit(reference.mean.reshape(1, -1))
     basis = reference.as_transformer(normalize=False)
-    star_stamps, star_coeffs, star_mom = _truth(reference, star_pos, sampler, normalizer, basis)
-    gal_stamps, gal_coeffs, gal_mom = _truth(reference, gal_pos, sampler, normalizer, basis)
+    star_source, gal_source, columns = _sources(
+        chromatic, airmass, optics_fraction, brighter_fatter, snr_arr, len(gal_pos),
+        pixel_scale, source_rng)
+    star_stamps, star_coeffs, star_mom = _truth(reference, star_pos, sampler, normalizer, basis,
+                                                star_source)
+    gal_stamps, gal_coeffs, gal_mom = _truth(reference, gal_pos, sampler, normalizer, basis,
+                                             gal_source)
 
     def flux_for(stamps, target):
         core = core_mask(stamps)
@@ -460,6 +494,9 @@ def make_psf_field(
 
     stars = _table(star_pos, star_stamps, star_coeffs, star_mom, snr_arr, star_flux)
     galaxies = _table(gal_pos, gal_stamps, gal_coeffs, gal_mom, gal_snr, gal_flux)
+    for table, values in zip((stars, galaxies), columns):
+        for name, v in values.items():
+            table[name] = v
     kinds = _star_kinds(n_stars, fractions, cont_rng)
 
     # the image: sources (noiseless canvas when the Poisson noise needs them), then noise
@@ -523,6 +560,38 @@ def make_psf_field(
             "gain": gain, "saturation": saturation, "version": _version()}
     return PSFField(image, noise_rms, pixel_scale, reference, stars, galaxies, meta,
                     weight=weight, contaminants=contam)
+
+
+def _sources(chromatic, airmass, optics_fraction, brighter_fatter, snr, n_galaxies,
+              pixel_scale, rng):
+    """:func:`chromatic_stamps` keywords of the stars and the galaxies (None when the PSF
+    is that of the position alone) and their truth columns."""
+    if airmass is not None and not (chromatic and np.isfinite(airmass) and airmass >= 1):
+        raise ValueError(f"airmass must be a number >= 1 and needs chromatic=True, got "
+                         f"{airmass!r} (chromatic={chromatic}).")
+    if not 0 <= float(optics_fraction) <= 1:
+        raise ValueError(f"optics_fraction must be in [0, 1], got {optics_fraction}.")
+    if not (np.isfinite(brighter_fatter) and brighter_fatter >= 0):
+        raise ValueError(f"brighter_fatter must be a number >= 0, got {brighter_fatter}.")
+    if not chromatic and not brighter_fatter:
+        return None, None, ({}, {})
+    colour_rng, flux_rng = rng.spawn(2)
+    sources, columns = [], []
+    lo, hi = float(snr.min()), float(snr.max())
+    gal_snr = np.exp(flux_rng.uniform(np.log(lo / 5.0), np.log(lo), n_galaxies))
+    for kind, own_snr in (("stars", snr), ("galaxies", gal_snr)):
+        kw, cols = {"pixel_scale": pixel_scale}, {}
+        if chromatic:
+            n = len(own_snr)
+            cols["g_i"] = kw["colour"] = draw_colours(n, kind, colour_rng)
+            kw.update(airmass=airmass, optics_fraction=float(optics_fraction))
+        if brighter_fatter:
+            span = hi - lo if hi > lo else 1.0
+            kw["size_factor"] = 1.0 + brighter_fatter * (own_snr - lo) / span
+            cols["source_snr"] = np.array(own_snr, dtype=np.float64)
+        sources.append(kw)
+        columns.append(cols)
+    return sources[0], sources[1], columns
 
 
 def _contaminant_table(rows):

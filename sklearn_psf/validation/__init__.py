@@ -24,6 +24,7 @@ set of reserved stars, in one table and one set of figures (:func:`plot_model_co
 
 from ._figures import (
     plot_psf_maps,
+    plot_residuals_against,
     plot_rho1,
     plot_rho_statistics,
     plot_stamp_residuals,
@@ -41,9 +42,8 @@ from ._verdict import PSFQualityWarning
 
 __all__ = ["fit_and_validate", "fit_exposure", "read_exposure", "ExposureFit",
            "ExposureInputs", "StarSelectionError", "PSFQualityWarning", "plot_stamp_residuals",
-           "plot_whiskers",
-           "plot_rho1", "plot_rho_statistics", "plot_psf_maps", "COMPARISON_COLUMNS",
-           "UNUSABLE_STAR_REASONS",
+           "plot_whiskers", "plot_rho1", "plot_rho_statistics", "plot_psf_maps",
+           "plot_residuals_against", "COMPARISON_COLUMNS", "UNUSABLE_STAR_REASONS",
            "PSFExModel", "PiffModel", "load_psf_model", "measure_residuals", "model_kind",
            "plot_model_comparison", "psfex_terms", "rho_bins", "to_psfex", "validate_models",
            "write_psfex"]

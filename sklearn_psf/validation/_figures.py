@@ -8,7 +8,7 @@ from .._validation import as_stamps
 from ..measure import adaptive_moments
 
 __all__ = ["plot_stamp_residuals", "plot_whiskers", "plot_rho1", "plot_rho_statistics",
-           "plot_psf_maps"]
+           "plot_psf_maps", "plot_residuals_against"]
 
 
 def plot_stamp_residuals(residuals, n: int = 5, pixel_scale: float | None = None):
@@ -300,4 +300,73 @@ def plot_psf_maps(model, shape, n_grid: int = 20):
         ax.set_aspect("equal")
         ax.set_xlabel("x [pixel]")
         ax.set_ylabel("y [pixel]")
+    return fig
+
+
+def plot_residuals_against(residuals, values, label: str = "g - i", n_bins: int = 8):
+    """Size and ellipticity residuals binned against a source quantity (colour, magnitude).
+
+    What a model that ignores a dimension the PSF depends on leaves: a trend of the size
+    residual with colour (chromatic seeing) or with magnitude (the brighter-fatter effect).
+
+    Parameters
+    ----------
+    residuals : astropy.table.Table
+        :func:`measure_residuals`' table (``de1``, ``de2``, ``dsigma``, ``sigma_star``,
+        ``flag``).
+    values : array-like of shape (n,)
+        The quantity of each row (e.g. the reserved stars' g-i or magnitude).
+    label : str, default="g - i"
+        Its name on the x axis.
+    n_bins : int, default=8
+        Bins of equal counts.
+
+    Returns
+    -------
+    fig : matplotlib.figure.Figure
+        Top: ``dsigma / sigma_star``; bottom: ``de1`` and ``de2``; bin means with their
+        standard errors.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astropy.table import Table
+    >>> from sklearn_psf.validation import plot_residuals_against
+    >>> rng = np.random.default_rng(0)
+    >>> c = rng.uniform(0.3, 3.0, 200)
+    >>> t = Table({"de1": rng.normal(0, 0.01, 200), "de2": rng.normal(0, 0.01, 200),
+    ...            "dsigma": 0.003 * (c - 1.5), "sigma_star": np.full(200, 2.0),
+    ...            "flag": np.zeros(200, dtype=int)})
+    >>> len(plot_residuals_against(t, c).axes)
+    2
+    """
+    import matplotlib.pyplot as plt
+
+    values = np.asarray(values, dtype=np.float64)
+    if values.shape != (len(residuals),):
+        raise ValueError(f"values must hold one number per residual row ({len(residuals)}), "
+                         f"got shape {values.shape}.")
+    ok = (np.asarray(residuals["flag"]) == 0) & np.isfinite(values)
+    x = values[ok]
+    series = {"dsigma / sigma": np.asarray(residuals["dsigma"])[ok]
+              / np.asarray(residuals["sigma_star"])[ok],
+              "de1": np.asarray(residuals["de1"])[ok], "de2": np.asarray(residuals["de2"])[ok]}
+    edges = np.quantile(x, np.linspace(0, 1, int(n_bins) + 1)) if x.size else np.zeros(2)
+    which = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
+    fig, axes = plt.subplots(2, 1, figsize=(6, 6), sharex=True, layout="constrained")
+    for name, y in series.items():
+        ax = axes[0] if name.startswith("dsigma") else axes[1]
+        centre, mean, err = [], [], []
+        for b in range(len(edges) - 1):
+            sel = which == b
+            if sel.sum() >= 2:
+                centre.append(np.mean(x[sel]))
+                mean.append(np.mean(y[sel]))
+                err.append(np.std(y[sel], ddof=1) / np.sqrt(sel.sum()))
+        ax.errorbar(centre, mean, yerr=err, marker="o", capsize=2, label=name)
+        ax.axhline(0.0, color="0.6", lw=0.8)
+    axes[0].set_ylabel(r"$\delta\sigma / \sigma$ (star - model)")
+    axes[1].set_ylabel(r"$\delta e$ (star - model)")
+    axes[1].legend()
+    axes[1].set_xlabel(label)
     return fig

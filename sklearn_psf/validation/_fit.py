@@ -105,8 +105,9 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
 
     Parameters
     ----------
-    X : array-like of shape (n, 2)
-        Star positions (x, y), 0-based pixels.
+    X : array-like of shape (n, 2) or (n, 2 + m)
+        Star positions (x, y), 0-based pixels, then optionally the model's extra dimensions
+        (a colour, a magnitude: passed to the model, not used as positions).
     stamps : array-like of shape (n, s*s) or (n, s, s)
         Background-subtracted star stamps (e.g. :func:`sklearn_psf.io.extract_star_stamps`).
         Not modified.
@@ -213,8 +214,9 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
     ['PSFQualityWarning']
     """
     X = np.array(X, dtype=np.float64, copy=True)
-    if X.ndim != 2 or X.shape[1] != 2:
-        raise ValueError(f"X must hold (x, y) positions of shape (n, 2), got {X.shape}.")
+    if X.ndim != 2 or X.shape[1] < 2:
+        raise ValueError(f"X must hold (x, y) positions and optionally further columns (the "
+                         f"model's extra dimensions), shape (n, 2 + m), got {X.shape}.")
     cube = as_stamps(stamps)
     n, s = cube.shape[0], cube.shape[1]
     if n != X.shape[0]:

@@ -13,7 +13,7 @@ from astropy.table import Table
 
 from .._validation import as_stamps
 from ..io import pixel_to_sky
-from ..measure import adaptive_moments
+from ..measure import adaptive_moments, fourth_moments
 from ..metrics import RHO_NAMES, rho_statistics
 from ..metrics._correlation import EmptyBinsWarning
 from ..preprocessing import StampNormalizer, estimate_pixel_weights, fourier_shift
@@ -23,7 +23,8 @@ __all__ = ["measure_residuals", "rho_bins"]
 
 #: Star-minus-model columns of the residual table (besides index, x, y, flag and stamps).
 RESIDUAL_COLUMNS = ("e1_star", "e2_star", "sigma_star", "e1_model", "e2_model",
-                    "sigma_model", "de1", "de2", "dsigma", "resid_rms", "chi2", "dof")
+                    "sigma_model", "de1", "de2", "dsigma", "dM22", "dM31", "dM13",
+                    "resid_rms", "chi2", "dof")
 
 
 def rho_bins(X, stamp_size):
@@ -89,8 +90,9 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
 
     Parameters
     ----------
-    X : array-like of shape (n, 2)
-        Star positions (x, y), 0-based pixels.
+    X : array-like of shape (n, 2) or (n, 2 + m)
+        Star positions (x, y), 0-based pixels, then optionally the model's extra dimensions
+        (a colour, a magnitude: passed to the model, not used as positions).
     stamps : array-like of shape (n, s*s) or (n, s, s)
         Raw, background-subtracted star stamps (NaN = masked pixel). Not modified.
     predicted : array-like of the stamps' shape
@@ -114,13 +116,16 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
     table : astropy.table.Table
         One row per star: ``index``, ``x``, ``y``, ``e1_star``, ``e2_star``,
         ``sigma_star``, ``e1_model``, ``e2_model``, ``sigma_model``, ``de1``, ``de2``,
-        ``dsigma`` (star - model), ``resid_rms`` (pixel rms of the unit-flux residual
+        ``dsigma`` (star - model), ``dM22``, ``dM31``, ``dM13`` (star - model: the spin-0
+        and spin-2 fourth moments of :func:`~sklearn_psf.measure.fourth_moments`, pixels^4,
+        PIFF's definitions), ``resid_rms`` (pixel rms of the unit-flux residual
         stamp), ``chi2`` and ``dof`` (of the raw stamp against the model, see above; NaN
         and 0 where it cannot be fitted), ``flag`` (0: both measured; 1: star's moments
         failed; 2: model's), ``stamp_star``, ``stamp_model`` (normalised).
     summary : dict
         ``n_measured``, ``de1_mean``, ``de1_rms``, ``de2_mean``, ``de2_rms``, ``e_rms``
         (sqrt <de1^2 + de2^2>), ``dsigma_mean``, ``dsigma_rms``, ``sigma_mean`` (pixels),
+        ``dM22_mean``, ``dM22_rms``, ``dM4_spin2_rms`` (sqrt <dM31^2 + dM13^2>),
         ``chi2_dof`` (sum of chi^2 over sum of dof of the measured stars: 1 for a model as
         good as the noise allows, when the weights are right), ``chi2_dof_median`` (median
         of the stars' chi^2 / dof), ``rho1`` to ``rho5`` (each a dict of ``theta``, ``xi``,
@@ -146,7 +151,7 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
     n, s = cube.shape[0], cube.shape[1]
     pred = as_stamps(predicted, name="predicted").reshape(-1, s * s) if n else \
         np.zeros((0, s * s))
-    if X.shape != (n, 2) or pred.shape != (n, s * s):
+    if X.ndim != 2 or X.shape[0] != n or X.shape[1] < 2 or pred.shape != (n, s * s):
         raise ValueError(f"X {X.shape}, stamps {cube.shape} and predicted {np.shape(predicted)} "
                          "must describe the same n stars with stamps of the same size.")
     y = cube.reshape(n, s * s)
@@ -181,6 +186,7 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
                     except ValueError:
                         usable[i] = False
         ms, mm = adaptive_moments(star), adaptive_moments(pred)
+        fs, fm = fourth_moments(star, ms), fourth_moments(pred, mm)
         flag = ((np.asarray(ms["flag"]) != 0) | ~usable).astype(np.int64) \
             | 2 * (np.asarray(mm["flag"]) != 0)
         ok = flag == 0
@@ -192,6 +198,8 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
         table["de1"] = table["e1_star"] - table["e1_model"]
         table["de2"] = table["e2_star"] - table["e2_model"]
         table["dsigma"] = table["sigma_star"] - table["sigma_model"]
+        for q in ("M22", "M31", "M13"):  # fourth moments: spin 0, spin 2 (star - model)
+            table[f"d{q}"] = np.where(ok, np.asarray(fs[q]) - np.asarray(fm[q]), np.nan)
         table["resid_rms"] = np.sqrt(np.mean((star - pred) ** 2, axis=1))
         chi2, dof = _chi2(y, w, pred, mm)
         table["chi2"], table["dof"] = np.where(ok, chi2, np.nan), np.where(ok, dof, 0)
@@ -206,6 +214,10 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
         "de2_mean": float(np.mean(de2)) if ok.any() else np.nan, "de2_rms": _rms(de2),
         "e_rms": _rms(np.hypot(de1, de2)),
         "dsigma_mean": float(np.mean(ds)) if ok.any() else np.nan, "dsigma_rms": _rms(ds),
+        "dM22_mean": float(np.mean(np.asarray(table["dM22"])[ok])) if ok.any() else np.nan,
+        "dM22_rms": _rms(np.asarray(table["dM22"])[ok]),
+        "dM4_spin2_rms": _rms(np.hypot(np.asarray(table["dM31"])[ok],
+                                       np.asarray(table["dM13"])[ok])),
         "sigma_mean": float(np.mean(np.asarray(table["sigma_star"])[ok])) if ok.any()
         else np.nan,
         "chi2_dof": float(chi2[fitted].sum() / dof[fitted].sum()) if fitted.any() else np.nan,
@@ -216,7 +228,7 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
     summary.update(dict.fromkeys(RHO_NAMES[1:]))
     if ok.sum() >= 10:
         t = table[ok]
-        where, sky = X[ok], {}
+        where, sky = X[ok][:, :2], {}
         if wcs is not None:  # xi+ ignores the uniform rotation of e from pixels to sky
             arcmin = 60.0 * float(np.sqrt(np.abs(np.linalg.det(wcs.pixel_scale_matrix))))
             where = pixel_to_sky(wcs, where)

@@ -104,6 +104,8 @@ def _kriging_range(model):
     if not hasattr(final, "range_") or not hasattr(final, "X_fit_"):
         return None
     P = np.asarray(final.X_fit_, dtype=np.float64)
+    if len(getattr(final, "extra_scaling_", ())):  # extra dimensions: the positions' spacing
+        P = P[:, :2]
     if len(P) < 3:
         return None
     scale = np.ones(P.shape[1])
