@@ -37,7 +37,7 @@ def _local_wcs(galsim, wcs, x, y):
                     f"astropy.wcs.WCS, got {type(wcs).__name__}.")
 
 
-def to_galsim(model, x: float, y: float, *, wcs=None, x_interpolant="quintic",
+def to_galsim(model, x: float, y: float, *, wcs=None, x_interpolant=None,
               gsparams=None):
     """The PSF at one position as a ``galsim.InterpolatedImage``, centred on its origin.
 
@@ -68,8 +68,11 @@ def to_galsim(model, x: float, y: float, *, wcs=None, x_interpolant="quintic",
         GalSim or astropy WCS of the image: its local Jacobian at (x, y) (evaluated at
         GalSim's 1-based ``image_pos = (x + 1, y + 1)``), so that the profile is in world
         coordinates (arcsec), sheared and rotated as the image's pixels are.
-    x_interpolant : str or galsim.Interpolant, default="quintic"
-        Real-space interpolant of ``galsim.InterpolatedImage`` (GalSim's default).
+    x_interpolant : str or galsim.Interpolant, optional
+        Real-space interpolant of ``galsim.InterpolatedImage``. Default "quintic" (GalSim's
+        default), "lanczos5" for the fine profile of a super-resolved basis (its samples
+        carry power up to ~0.8 of their Nyquist frequency, where quintic interpolation is
+        off by ~2% of the peak, Lanczos-5 by ~0.3% on the package's tests).
     gsparams : galsim.GSParams, optional
 
     Returns
@@ -108,6 +111,8 @@ def to_galsim(model, x: float, y: float, *, wcs=None, x_interpolant="quintic",
         raise ValueError(f"The position must be finite, got ({x}, {y}).")
     local = _local_wcs(galsim, wcs, x, y)
     factor = int(getattr(getattr(model, "basis_", None), "oversampling_", 1))
+    if x_interpolant is None:
+        x_interpolant = "lanczos5" if factor > 1 else "quintic"
     if factor > 1:  # a super-resolved basis: the fine profile, on pixels `factor` times smaller
         stamp = np.asarray(model.predict(np.array([[x, y]]), fine=True), dtype=np.float64)[0]
         local = galsim.JacobianWCS(*(local.jacobian().getMatrix().ravel() / factor))

@@ -116,15 +116,20 @@ class SuperResolvedPCA(StampPCA):
     - the fine-grid images are fitted through all stars together by weighted least squares
       (conjugate gradients on the normal equations, pixel weights times each star's weight,
       capped at ``max_star_weight`` times the median as in :class:`StampPCA`), so that stars
-      at different phases constrain the fine grid together; the mean is re-centred after
-      each round so that its adaptive centroid (on the fine grid) is the stamp centre (the
-      package's convention), and fluxes are normalised so that the mean image, drawn at the
-      pixels, sums to 1;
+      at different phases constrain the fine grid together. The mean and the stars' fluxes
+      and offsets are fitted together by Gauss-Newton steps (each star's flux, offset and
+      background profiled out of the fine grid's normal equations: variable projection),
+      until the offsets move by less than 1e-3 pixel (at most 10 rounds); the mean is
+      re-centred after each round so that its adaptive centroid (on the fine grid) is the
+      stamp centre (the package's convention), and normalised so that, drawn at the pixels,
+      it sums to 1;
     - the number of components: the stars' residuals from the mean, each drawn at its own
       phase, are PCA'd at the pixels' sampling with the noise edge of :class:`StampPCA`
       (``n_components="noise"``); their coefficients start the fine components, which are
-      then fitted jointly with the mean (alternating with the stars' fits, ``n_iter``
-      rounds).
+      then fitted with the mean by alternating least squares (the fine images given the
+      stars' coefficients and offsets, then each star's fit; a step is halved until the
+      weighted residual decreases; ``n_iter`` rounds at most). The components are kept
+      orthogonal to the mean's shifts (which the offsets take).
 
     ``transform``, ``project`` (with each star's fitted offsets), ``inverse_transform``
     (stamps centred on the centre pixel at the pixels' sampling) and ``render`` (at any
@@ -377,23 +382,28 @@ class SuperResolvedPCA(StampPCA):
         return q.T
 
     def _jacobian(self, fine, a, ramp):
-        """Each star's model pixels (n, p) and the rows (n, q, p) of its own parameters:
-        the fine images drawn at its phase, a constant (with a background), the offset
-        derivatives."""
+        """Each star's model pixels (n, p) and the rows (n, q, p) of the parameters profiled
+        out of the fine images' Gauss-Newton step: its flux (the model over the flux), a
+        constant (with a background) and its offset. The coefficients on the components
+        are held: given them, the components are linear (alternating with the stars' fits,
+        as alternating least squares does for a PCA), without the scale and rotation a
+        joint step would leave free."""
         n, m = a.shape
         s = self.stamp_size_
         size = self._grid(s)[1]
         fine_fft = np.fft.rfft2(fine.reshape(m, size, size))
+        model = np.empty((n, s * s))
         rows = []
         for lo in range(0, n, _CHUNK):
             sl = slice(lo, min(lo + _CHUNK, n))
-            A = self._draw(fine_fft, ramp[sl])
-            parts = [A, self._gradient(fine_fft, a[sl], ramp[sl])]
+            model[sl] = self._draw_sum(fine_fft, a[sl], ramp[sl])
+            flux = np.where(a[sl, 0] != 0, a[sl, 0], 1.0)
+            parts = [model[sl, None] / flux[:, None, None],
+                     self._gradient(fine_fft, a[sl], ramp[sl])]
             if self.background_:
-                parts.insert(1, np.ones((A.shape[0], 1, s * s)))
+                parts.insert(1, np.ones((len(flux), 1, s * s)))
             rows.append(np.concatenate(parts, axis=1))
-        J = np.concatenate(rows)
-        return np.einsum("bi,bip->bp", a, J[:, :m]), J
+        return model, np.concatenate(rows)
 
     def _recentre(self, fine):
         """Fine images moved so that the mean's centroid is the central sample; the move
@@ -472,27 +482,49 @@ class SuperResolvedPCA(StampPCA):
         fine = np.zeros((1, size * size))
         comps = np.zeros((0, size * size))
         lam, edge, noise = np.zeros(0), np.nan, np.nan
-        k, counted, joint = 0, False, 0
-        for round_ in range(_MEAN_ROUNDS + int(self.n_iter)):
-            ramp = self._ramps(offsets)
-            u = star_weights(a[:, 0])
-            if round_ == 0:
-                fine = self._fit_fine(d - level[:, None], u, a, ramp, fine)
-            else:  # a Gauss-Newton step of the fine images and the stars' parameters
-                model, J = self._jacobian(fine, a, ramp)
-                fine = fine + self._fit_fine(d - level[:, None] - model, u, a, ramp,
-                                             np.zeros_like(fine), J, _GN_TOL,
-                                             self._frame(fine))
+        def settle(fine, offsets):
+            """Re-centred, normalised fine images and the stars' fits on them."""
             fine, move = self._recentre(fine)
-            total = fine[0].sum()
-            mean = fine[0] / total
-            if k:  # orthonormal, summing to zero, orthogonal to the mean's shifts
-                comps = fine[1:] - (fine[1:] @ self._frame(fine).T) @ self._frame(fine)
-                comps = _sum_zero(comps, mean)
+            mean = fine[0] / fine[0].sum()
+            comps = fine[1:]
+            if len(comps):  # orthonormal, summing to zero, orthogonal to the mean's shifts
+                frame = self._frame(fine)
+                comps = _sum_zero(comps - (comps @ frame.T) @ frame, mean)
             fine = np.vstack([mean[None], comps])
-            before = offsets + move
-            a, cov, model, offsets, fitted, moved_ok = self._fit_stars(d, w, before, fine)
-            change = float(np.abs(offsets - before)[usable].max())
+            return (fine, offsets + move) + self._fit_stars(d, w, offsets + move, fine)
+
+        def objective(u, model, fitted):
+            return float((u * (d - model - fitted[:, None]) ** 2)[usable].sum())
+
+        k, counted, joint = 0, False, 0
+        u = star_weights(a[:, 0])
+        fine = self._fit_fine(d - level[:, None], u, a, self._ramps(offsets), fine)
+        for round_ in range(_MEAN_ROUNDS + int(self.n_iter)):
+            trial = None
+            if round_:  # a Gauss-Newton step of the fine images and the stars' parameters,
+                # shortened until the fit improves
+                u = star_weights(a[:, 0])
+                ramp = self._ramps(offsets)
+                previous = objective(u, model, fitted)
+                if k:  # with components: the images given the stars' parameters (least
+                    # squares; alternating with the stars' fits, as for a PCA)
+                    step = self._fit_fine(d - level[:, None], u, a, ramp, fine,
+                                          frame=self._frame(fine)) - fine
+                else:
+                    model, J = self._jacobian(fine, a, ramp)
+                    step = self._fit_fine(d - level[:, None] - model, u, a, ramp,
+                                          np.zeros_like(fine), J, _GN_TOL, self._frame(fine))
+                for damping in (1.0, 0.5, 0.25, 0.125):
+                    candidate = settle(fine + damping * step, offsets)
+                    if objective(u, candidate[4], candidate[6]) <= previous:
+                        trial = candidate
+                        break
+            else:
+                trial = settle(fine, offsets)
+            change = 0.0  # no step improves the fit: converged
+            if trial is not None:
+                fine, before, a, cov, model, offsets, fitted, moved_ok = trial
+                change = float(np.abs(offsets - before)[usable].max())
             good = (a[:, 0] > 0) & moved_ok
             usable = ok & good
             if usable.sum() < 2:
@@ -503,15 +535,13 @@ class SuperResolvedPCA(StampPCA):
             a = np.where(usable[:, None], a, 0.0)
             if counted:
                 joint += 1
-                if joint >= int(self.n_iter):
+                if joint >= int(self.n_iter) or trial is None:
                     break
             elif change < _OFFSET_TOL or round_ + 1 >= _MEAN_ROUNDS:
                 # the mean and the offsets have converged: how many components the stars hold
                 counted = True
                 k, lam, edge, noise, coef = self._components(d - level[:, None], w, a, offsets,
                                                              fine, usable, pixel_var)
-                if not k:
-                    break
                 a = np.column_stack([a[:, 0], a[:, :1] * coef])
                 fine = np.vstack([fine, np.zeros((k, size * size))])
         self.fine_mean_ = fine[0]
@@ -545,8 +575,6 @@ class SuperResolvedPCA(StampPCA):
         centre, axes, lam, total = _weighted_pca(resid[usable], u[usable], n_top)
         noise = float((u * v).sum() / u.sum())
         k, edge = self._choose(lam, total, noise, u[usable] * v[usable] / u.sum(), p)
-        if isinstance(self.n_components, str) and not (lam[:1] > edge).any():
-            k = 0
         coef = (resid - centre) @ axes[:k].T
         return k, lam, edge, noise, np.where(usable[:, None], coef, 0.0)
 
