@@ -83,6 +83,15 @@ from ._catalog import read_catalog, write_ldac
 from ._draw import draw_psf, extrapolation_flags
 from ._image import FITSHeaderWarning, read_image
 from ._psf_stamps import read_psf_stamps, write_psf_stamps
+from ._sextractor import (
+    DEFAULT_SEXTRACTOR_CONFIG,
+    DEFAULT_SEXTRACTOR_PARAMS,
+    ProgramError,
+    ProgramNotFoundError,
+    find_program,
+    run_psfex,
+    run_sextractor,
+)
 from ._select import SELECTION_OPTIONS, SELECTION_REASONS, select_stars
 from ._stars import REJECTION_REASONS, StarStamps, extract_star_stamps, find_stars
 from ._vignettes import VIGNET_MASKED, extract_vignettes
@@ -98,9 +107,13 @@ from ..model import (  # noqa: E402
 )
 
 __all__ = [
+    "DEFAULT_SEXTRACTOR_CONFIG",
+    "DEFAULT_SEXTRACTOR_PARAMS",
     "FITSHeaderWarning",
     "MODEL_FORMAT",
     "MODEL_FORMAT_VERSION",
+    "ProgramError",
+    "ProgramNotFoundError",
     "REJECTION_REASONS",
     "SELECTION_OPTIONS",
     "SELECTION_REASONS",
@@ -111,6 +124,7 @@ __all__ = [
     "extract_star_stamps",
     "extract_vignettes",
     "extrapolation_flags",
+    "find_program",
     "find_stars",
     "load_model",
     "pixel_to_sky",
@@ -118,6 +132,8 @@ __all__ = [
     "read_image",
     "read_model_validation",
     "read_psf_stamps",
+    "run_psfex",
+    "run_sextractor",
     "save_model",
     "select_stars",
     "sky_to_pixel",

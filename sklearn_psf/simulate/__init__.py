@@ -106,11 +106,13 @@ from ..datasets import ReferenceBasis, read_fits_image
 from ._example import write_example_exposure, write_example_ldac
 from ._exposures import ExposureSet, make_exposures
 from ._field import PSFField, core_mask, realistic_snr
+from ._galsim_ccd import GalSimCCD, render_galsim_ccd
 from ._make import make_psf_field
 from ._random_field import RandomFieldSampler, as_generator, gaussian_random_field, random_field_power
 
 __all__ = [
     "ExposureSet",
+    "GalSimCCD",
     "PSFField",
     "RandomFieldSampler",
     "ReferenceBasis",
@@ -122,6 +124,7 @@ __all__ = [
     "random_field_power",
     "read_fits_image",
     "realistic_snr",
+    "render_galsim_ccd",
     "write_example_exposure",
     "write_example_ldac",
 ]
