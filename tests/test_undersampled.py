@@ -211,3 +211,29 @@ def test_well_sampled_stars_keep_the_default_basis():
     explicit = PSFModel(basis=StampPCA()).fit(X, y)
     assert type(default.basis_) is StampPCA
     np.testing.assert_array_equal(default.predict(X[:10]), explicit.predict(X[:10]))
+
+
+def test_stamp_pca_and_residuals_measure_undersampled_stars(optical):
+    # the well-sampled basis no longer drops undersampled stars (centroids from the fixed
+    # weight where adaptive moments fail), and measure_residuals switches to fixed-weight
+    # moments when adaptive ones fail on most stars
+    from sklearn_psf.validation import measure_residuals
+
+    rng = np.random.default_rng(4)
+    off = rng.uniform(-0.5, 0.5, (40, 2))
+    stars = np.array([_draw(optical, o) for o in off]).reshape(40, -1)
+    stars = 1e4 * stars + rng.normal(0.0, 1.0, stars.shape)
+    fit = StampPCA().fit(stars).project(stars)
+    assert (fit.flag == 0).all()
+    X = rng.uniform(0, FIELD, (40, 2))
+    basis = SuperResolvedPCA(n_components=1).fit(stars)
+    pred = basis.render(np.zeros((40, 1)), offsets=basis.project(stars).offsets)
+    pred /= pred.sum(axis=1, keepdims=True)
+    table, summary = measure_residuals(X, stars, pred, weights=np.ones_like(stars))
+    assert summary["moments"].startswith("fixed-weight") and summary["n_measured"] == 40
+    assert summary["e_rms"] < 0.005  # the stars' noise: measured 0.0011
+    _, adaptive = measure_residuals(X, stars, pred, weights=np.ones_like(stars),
+                                    moments="adaptive")
+    assert adaptive["moments"] == "adaptive" and adaptive["n_measured"] < 20  # measured 0
+    with pytest.raises(ValueError, match="moments"):
+        measure_residuals(X, stars, pred, moments="hsm")
