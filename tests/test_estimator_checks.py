@@ -11,7 +11,7 @@ tests/test_preprocessing.py and tests/test_model.py.
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
 from sklearn_psf import FixedBasis, PSFModel, StampNormalizer
-from sklearn_psf.preprocessing import ChiSquareOutlierDetector, StampPCA
+from sklearn_psf.preprocessing import ChiSquareOutlierDetector, StampPCA, SuperResolvedPCA
 
 _NOT_SQUARE = ("the check's data have a non-square number of pixels (2-10 features); "
                "stamps must be square to be centred")
@@ -53,6 +53,11 @@ EXPECTED_FAILURES = {
         "check_n_features_in_after_fitting": _NOT_SQUARE,
         "check_positive_only_tag_during_fit": _NOT_SQUARE,
     },
+    "SuperResolvedPCA": {  # as StampPCA
+        **dict.fromkeys(set(_STAMP_DATA_CHECKS) - {"check_fit2d_1sample"}, _NOT_SQUARE),
+        "check_n_features_in_after_fitting": _NOT_SQUARE,
+        "check_positive_only_tag_during_fit": _NOT_SQUARE,
+    },
     "FixedBasis": {
         **dict.fromkeys(_STAMP_DATA_CHECKS, _FIXED_SIZE),
         "check_fit2d_1feature": _FIXED_SIZE,
@@ -69,7 +74,7 @@ def _expected(estimator):
 @parametrize_with_checks(
     [StampNormalizer(),
      FixedBasis(components=[[1.0, 2, 0, 0, 1, 0, 0, 0, 1], [0.0, 1, 3, 0, 0, 1, 2, 0, 0]]),
-     StampPCA(), ChiSquareOutlierDetector(), PSFModel()],
+     StampPCA(), SuperResolvedPCA(), ChiSquareOutlierDetector(), PSFModel()],
     expected_failed_checks=_expected,
 )
 def test_sklearn_compatible(estimator, check):

@@ -37,6 +37,11 @@ column) plus an ``EXPOSURES`` table; a per-exposure model has an ``EXPOSURES`` t
 (``exposure``, ``ncomp``) and the HDUs of each exposure's model with names prefixed by
 ``E<i>_`` (``E0_SPEC``, ``E0_STARS``, ...).
 
+A super-resolved basis (:class:`~sklearn_psf.preprocessing.SuperResolvedPCA`, for
+undersampled stars) is ``basis_kind`` ``"superres"``: its ``stamppca`` entry adds the fine
+grid (``fine_mean_``, ``fine_components_``, ``oversampling_``, ``fine_size_``, ``fwhm_``);
+the ``BASIS_*`` HDUs hold the basis drawn at the pixels' sampling.
+
 Format 4 changes no HDU: the default interpolator (``interpolator`` null in ``SPEC``) scales
 positions with :class:`~sklearn_psf.interpolate.IsotropicScaler`; files of formats 1-3 were
 fitted with ``MinMaxScaler`` and are still refitted with it, so that they predict as when saved;
@@ -193,6 +198,7 @@ def _leaf_steps(transformer):
 
 
 _STAMPPCA_STATE = ("explained_variance_", "noise_variance_", "noise_edge_", "background_")
+_SUPERRES_STATE = ("fine_mean_", "fine_components_", "oversampling_", "fine_size_", "fwhm_")
 
 
 def _describe_basis(basis, s):
@@ -201,11 +207,13 @@ def _describe_basis(basis, s):
     ``kind`` is ``"stamppca"`` for :class:`StampPCA`, ``"linear"`` for StampNormalizer steps
     and a linear basis (PCA without whitening, FixedBasis); anything else raises.
     """
-    from ..preprocessing import StampNormalizer, StampPCA
+    from ..preprocessing import StampNormalizer, StampPCA, SuperResolvedPCA
 
     if isinstance(basis, StampPCA):
-        state = {name: np.asarray(getattr(basis, name)).tolist() for name in _STAMPPCA_STATE}
-        return "stamppca", [], basis.mean_, basis.components_, state
+        fine = isinstance(basis, SuperResolvedPCA)
+        state = {name: np.asarray(getattr(basis, name)).tolist()
+                 for name in _STAMPPCA_STATE + _SUPERRES_STATE * fine}
+        return "superres" if fine else "stamppca", [], basis.mean_, basis.components_, state
     leaves = _leaf_steps(basis)
     *pre, last = leaves
     bad = [type(t).__name__ for t in pre if not isinstance(t, StampNormalizer)]
@@ -231,10 +239,10 @@ def _describe_basis(basis, s):
 
 
 def _rebuild_basis(kind, normalizer_params, mean, comps, params, state):
-    from ..preprocessing import FixedBasis, StampNormalizer, StampPCA
+    from ..preprocessing import FixedBasis, StampNormalizer, StampPCA, SuperResolvedPCA
 
-    if kind == "stamppca":
-        basis = StampPCA(**params)
+    if kind in ("stamppca", "superres"):
+        basis = (SuperResolvedPCA if kind == "superres" else StampPCA)(**params)
         s = int(round(np.sqrt(mean.size)))
         basis.mean_, basis.components_ = mean, comps
         basis.n_components_, basis.stamp_size_, basis.n_features_in_ = len(comps), s, s * s
@@ -244,6 +252,13 @@ def _rebuild_basis(kind, normalizer_params, mean, comps, params, state):
                 setattr(basis, name, np.asarray(state[name], dtype=np.float64)
                         if name == "explained_variance_" else float(state[name]))
         basis.background_ = bool(getattr(basis, "background_", False))
+        if kind == "superres":
+            basis.fine_mean_ = np.asarray(state["fine_mean_"], dtype=np.float64)
+            basis.fine_components_ = np.asarray(state["fine_components_"],
+                                                dtype=np.float64).reshape(len(comps), -1)
+            basis.oversampling_, basis.fine_size_ = (int(state["oversampling_"]),
+                                                     int(state["fine_size_"]))
+            basis.fwhm_ = float(state["fwhm_"])
         return basis
     steps = [(f"stampnormalizer{i or ''}", StampNormalizer(**p))
              for i, p in enumerate(normalizer_params)]
@@ -357,7 +372,8 @@ def _model_hdus(model, *, summary=None, prefix="", exposure=False):
         "interpolator": _encode(model.interpolator, arrays, "interpolator"),
         "basis_kind": kind,
         "stamppca": state,
-        "basis_params": _encode(model.basis_.get_params(deep=False) if kind == "stamppca"
+        "basis_params": _encode(model.basis_.get_params(deep=False)
+                                if kind in ("stamppca", "superres")
                                 else {}, arrays, "basis"),
         "basis": _encode(model.basis, arrays, "basis"),
         "outliers": _encode(model.outliers, arrays, "outlier detector"),

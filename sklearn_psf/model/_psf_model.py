@@ -15,7 +15,10 @@ from ..preprocessing import (
     ChiSquareOutlierDetector,
     IQROutlierDetector,
     StampNormalizer,
+    SuperResolvedPCA,
+    stamp_fwhm,
 )
+from ..preprocessing._superres import UNDERSAMPLED_FWHM
 from .._validation import rows_text
 from ._companions import COMPANION_P_VALUE, companion_log_p
 from ._defaults import make_default_basis, make_default_interpolator
@@ -79,7 +82,11 @@ class PSFModel(RegressorMixin, BaseEstimator):
         and sills fitted by maximum likelihood).
     basis : transformer, optional
         Transformer from stamps to coefficients with ``inverse_transform``. Default
-        :func:`make_default_basis` (:class:`~sklearn_psf.preprocessing.StampPCA`). Bases
+        :func:`make_default_basis` (:class:`~sklearn_psf.preprocessing.StampPCA`), or, when
+        the stars are undersampled (median FWHM under 2 pixels, see
+        :func:`~sklearn_psf.preprocessing.stamp_fwhm`),
+        :class:`~sklearn_psf.preprocessing.SuperResolvedPCA` (the PSF on a finer grid than
+        the pixels, each star fitted at its own sub-pixel phase). Bases
         without a ``project`` method (e.g. :func:`make_paper_basis`, or
         ``make_pipeline(StampNormalizer(), FixedBasis(components, mean))``) know no noise:
         they take clean, unmasked stamps and no weights.
@@ -256,7 +263,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
             X, None if y_in is None else np.where(np.isnan(y_in), 0.0, y_in), weights)
         if np.isnan(y_in).any():  # NaN pixels are masked pixels
             y = np.where(np.isnan(y_in.reshape(y.shape)), np.nan, y)
-        basis = make_default_basis() if self.basis is None else clone(self.basis)
+        basis = self._default_basis(y, weights) if self.basis is None else clone(self.basis)
         interp = make_default_interpolator() if self.interpolator is None else clone(
             self.interpolator)
         detector = self._make_outliers()
@@ -319,6 +326,15 @@ class PSFModel(RegressorMixin, BaseEstimator):
         self.coefficient_var_ = var
         self.coefficient_cov_ = cov
         return self
+
+    @staticmethod
+    def _default_basis(y, weights):
+        """:func:`make_default_basis`, or a super-resolved basis for undersampled stars."""
+        fwhm = stamp_fwhm(np.where(np.isnan(y), 0.0, y),
+                          np.where(np.isnan(y), 0.0, 1.0 if weights is None else weights))
+        if np.isfinite(fwhm).any() and np.nanmedian(fwhm) < UNDERSAMPLED_FWHM:
+            return SuperResolvedPCA()
+        return make_default_basis()
 
     @staticmethod
     def _check_noise_blind(basis, y, weights):
@@ -493,19 +509,38 @@ class PSFModel(RegressorMixin, BaseEstimator):
         coef = np.asarray(self.interpolator_.predict(X), dtype=np.float64)
         return coef.reshape(X.shape[0], self.n_components_)
 
-    def predict(self, X):
+    def predict(self, X, offsets=None, fine=False):
         """Normalised PSF stamps at positions X.
 
         Parameters
         ----------
         X : array-like of shape (m, 2)
+        offsets : array-like of shape (m, 2), optional
+            (dx, dy) of each star from the stamp's centre pixel, in pixels: the stamps as a
+            star at that sub-pixel position shows the PSF (drawn from the fine grid for a
+            :class:`~sklearn_psf.preprocessing.SuperResolvedPCA` basis; a Fourier shift of
+            the centred stamp for a basis with ``render``). Default: centred.
+        fine : bool, default=False
+            The PSF on the fine grid of a super-resolved basis (``(m, S*S)``, unit sum,
+            ``basis_.oversampling_`` samples per pixel) instead of the pixels.
 
         Returns
         -------
-        stamps : ndarray of shape (m, s*s)
+        stamps : ndarray of shape (m, s*s), or (m, S*S) with ``fine``
         """
         coef = self.predict_coefficients(X)
-        return np.asarray(self.basis_.inverse_transform(coef), dtype=np.float64)
+        if fine:
+            if not hasattr(self.basis_, "render_fine"):
+                raise ValueError(f"fine=True needs a super-resolved basis (SuperResolvedPCA); "
+                                 f"this model's basis is {type(self.basis_).__name__}.")
+            return self.basis_.render_fine(coef)
+        if offsets is None:
+            return np.asarray(self.basis_.inverse_transform(coef), dtype=np.float64)
+        if not hasattr(self.basis_, "render"):
+            raise ValueError(f"offsets need a basis with render (StampPCA, SuperResolvedPCA); "
+                             f"this model's basis is {type(self.basis_).__name__}.")
+        stamps = self.basis_.render(coef, offsets=np.asarray(offsets, dtype=np.float64))
+        return stamps / stamps.sum(axis=1, keepdims=True)
 
     def to_galsim(self, x: float, y: float, *, wcs=None, **kwargs):
         """The PSF at 0-based pixel (x, y) as a ``galsim.InterpolatedImage`` (needs GalSim).

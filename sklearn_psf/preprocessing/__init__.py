@@ -6,6 +6,7 @@ from ._chi2 import ChiSquareOutlierDetector
 from ._noise import estimate_pixel_weights
 from ._outliers import IQROutlierDetector
 from ._pca import FIT_NO_CENTROID, FIT_NO_FLUX, FIT_OK, StampFit, StampFitWarning, StampPCA
+from ._superres import SuperResolvedPCA, stamp_fwhm
 from ._stamps import (
     CUT_BAD_POSITION,
     CUT_MASKED,
@@ -24,6 +25,8 @@ __all__ = [
     "IQROutlierDetector",
     "ChiSquareOutlierDetector",
     "StampPCA",
+    "SuperResolvedPCA",
+    "stamp_fwhm",
     "StampFit",
     "StampFitWarning",
     "estimate_pixel_weights",

@@ -12,7 +12,7 @@ from scipy.optimize import minimize_scalar
 from sklearn.base import BaseEstimator, ClassNamePrefixFeaturesOutMixin, TransformerMixin
 from sklearn.utils.validation import check_is_fitted, validate_data
 
-from ..measure import adaptive_moments
+from ..measure import adaptive_moments, fixed_moments
 from ._normalize import fourier_shift, phase_ramp
 from .._validation import rows_text
 from ._noise import check_pixel_weights, estimate_pixel_weights
@@ -22,8 +22,12 @@ __all__ = ["StampPCA", "StampFit", "StampFitWarning", "FIT_OK", "FIT_NO_CENTROID
 
 #: The star's flux, centroid and coefficients were fitted.
 FIT_OK = 0
-#: Adaptive moments failed: the star was fitted at the stamp centre and left out of the basis.
+#: No centroid (adaptive moments and the fixed-weight fallback failed): the star was fitted
+#: at the stamp centre and left out of the basis.
 FIT_NO_CENTROID = 1
+#: Width (pixels) of the fixed Gaussian weight whose centre is a star's centroid where
+#: adaptive moments fail (undersampled stars, see :func:`~sklearn_psf.measure.fixed_moments`).
+FALLBACK_SIGMA = 1.5
 #: The fitted flux is not positive (noise or an empty stamp): coefficients are NaN.
 FIT_NO_FLUX = 2
 
@@ -214,7 +218,10 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
     stamp's border when not given, see :func:`estimate_pixel_weights`) and
 
     1. measures each star's adaptive centroid on its unmasked pixels (less the median of the
-       stamp's border when a local background is fitted, see ``background``);
+       stamp's border when a local background is fitted, see ``background``), or, where
+       adaptive moments fail (undersampled stars, under ~2 pixels per FWHM), the centre of a
+       fixed round Gaussian weight of sigma 1.5 pixels
+       (:func:`~sklearn_psf.measure.fixed_moments`);
     2. iterates (``n_iter`` times): fills masked pixels with the current model of the star,
        centres the stamps (Fourier shift), normalises each by its projection on the current
        mean stamp (a matched-filter flux: the noise of a flux measured so takes the noise
@@ -388,8 +395,16 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         except TypeError:  # moments without mask support: masked pixels are zero already
             mom = adaptive_moments(d.reshape(-1, s, s), guess_sigma=self.guess_sigma)
         ok = np.asarray(mom["flag"]) == 0
+        x0, y0 = np.asarray(mom["x0"], dtype=np.float64), np.asarray(mom["y0"], dtype=np.float64)
+        if not ok.all():  # undersampled stars (adaptive moments fail below ~2 px FWHM): the
+            # centre of a fixed Gaussian weight of FALLBACK_SIGMA
+            bad = np.flatnonzero(~ok)
+            fixed = fixed_moments(d[bad].reshape(-1, s, s), FALLBACK_SIGMA,
+                                  weights=w[bad].reshape(-1, s, s))
+            ok[bad] = np.asarray(fixed["flag"]) == 0
+            x0[bad], y0[bad] = np.asarray(fixed["x0"]), np.asarray(fixed["y0"])
         centre = (s - 1) / 2.0
-        off = np.column_stack([np.asarray(mom["x0"]) - centre, np.asarray(mom["y0"]) - centre])
+        off = np.column_stack([x0 - centre, y0 - centre])
         off[~ok | ~np.isfinite(off).all(axis=1)] = 0.0
         return off, ok
 

@@ -520,7 +520,7 @@ def _report(summary):
             f"e rms {summary['e_rms']:.4f} (e1 mean {summary['de1_mean']:+.4f} rms "
             f"{summary['de1_rms']:.4f}, e2 mean {summary['de2_mean']:+.4f} rms "
             f"{summary['de2_rms']:.4f}), size mean {summary['dsigma_mean']:+.4f} rms "
-            f"{summary['dsigma_rms']:.4f} pixels")
+            f"{summary['dsigma_rms']:.4f} pixels; {summary.get('moments', 'adaptive')} moments")
     if summary.get("n_verdict"):
         lines.append(
             f"reserved stars against their own noise ({summary['n_verdict']} stars; a constant "

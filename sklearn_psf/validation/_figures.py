@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from .._validation import as_stamps
-from ..measure import adaptive_moments
+from ..measure import adaptive_moments, fixed_moments
+from ._residuals import FIXED_WEIGHT_SIGMA
 
 __all__ = ["plot_stamp_residuals", "plot_whiskers", "plot_rho1", "plot_rho_statistics",
            "plot_psf_maps", "plot_residuals_against"]
@@ -246,7 +247,9 @@ def plot_psf_maps(model, shape, n_grid: int = 20):
     -------
     fig : matplotlib.figure.Figure
         Left (top for a chip wider than tall): whiskers of e (length |e|, angle of the major
-        axis); right (bottom): sigma [pixels], with the fitted stars as dots. The figure's
+        axis); right (bottom): sigma [pixels], with the fitted stars as dots (adaptive
+        moments, or, where they fail on most of the grid's stamps (undersampled PSFs),
+        fixed-weight moments of sigma 1.5 pixels). The figure's
         size follows the chip's aspect, so that a tall CCD fills the page.
 
     Examples
@@ -269,7 +272,10 @@ def plot_psf_maps(model, shape, n_grid: int = 20):
     xs = np.arange(step / 2, nx, step)
     ys = np.arange(step / 2, ny, step)
     gx, gy = np.meshgrid(xs, ys)
-    mom = adaptive_moments(model.predict(np.column_stack([gx.ravel(), gy.ravel()])))
+    stamps = model.predict(np.column_stack([gx.ravel(), gy.ravel()]))
+    mom = adaptive_moments(stamps)
+    if np.mean(np.asarray(mom["flag"]) != 0) > 0.5:  # undersampled: fixed-weight moments
+        mom = fixed_moments(stamps, FIXED_WEIGHT_SIGMA)
     e1 = np.asarray(mom["e1"], float).reshape(gx.shape)
     e2 = np.asarray(mom["e2"], float).reshape(gx.shape)
     sigma = np.asarray(mom["sigma"], float).reshape(gx.shape)

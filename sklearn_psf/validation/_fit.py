@@ -17,7 +17,7 @@ from ..metrics._correlation import EmptyBinsWarning
 from ..model import PSFModel
 from ..model._noise import pixel_residuals
 from ..preprocessing import ChiSquareOutlierDetector, estimate_pixel_weights
-from ._residuals import _chi2, measure_residuals, rho_bins
+from ._residuals import FIXED_WEIGHT_SIGMA, _chi2, measure_residuals, rho_bins
 from ._verdict import PSFQualityWarning, model_verdict
 
 __all__ = ["fit_and_validate"]
@@ -30,6 +30,20 @@ def _as_model(candidate):
         return PSFModel(interpolator=clone(candidate))
     raise TypeError(f"Expected a PSFModel or an interpolating regressor, got "
                     f"{type(candidate).__name__}.")
+
+
+def _undersampled(model, stamps, weights):
+    """Whether the reserved stars are undersampled: the model's basis is super-resolved, or
+    adaptive moments fail on more than half of them (with a basis that draws stars at
+    sub-pixel offsets)."""
+    if hasattr(model.basis_, "render_fine"):
+        return True
+    if not (hasattr(model.basis_, "project") and hasattr(model.basis_, "render")):
+        return False
+    s = int(round(np.sqrt(stamps.shape[1])))
+    d = np.where(np.isfinite(stamps), stamps, 0.0).reshape(-1, s, s)
+    w = None if weights is None else weights.reshape(-1, s, s)
+    return bool(np.mean(np.asarray(adaptive_moments(d, weights=w)["flag"]) != 0) > 0.5)
 
 
 def _accepted(model, fit_params):
@@ -85,7 +99,12 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
     3. The model is fitted on the remaining stars.
     4. The reserved stars are normalised (:class:`~sklearn_psf.preprocessing.StampNormalizer`)
        and measured with :func:`~sklearn_psf.measure.adaptive_moments`, like the model's
-       stamps at their positions; residuals are star minus model.
+       stamps at their positions; residuals are star minus model. Undersampled stars (a
+       super-resolved basis, or adaptive moments failing on more than half of the reserved
+       stars) are measured as they are, with fixed-weight moments
+       (:func:`~sklearn_psf.measure.fixed_moments`, a round Gaussian weight of sigma 1.5
+       pixels), against the model drawn at each star's sub-pixel position (fitted on the
+       star's pixels by the basis); ``summary["moments"]`` says which.
 
     5. The verdict: each reserved star's pixels are fitted (flux and sub-pixel centroid) with
        the model's PSF and with a constant PSF fitted on the same stars (the inverse-variance
@@ -160,7 +179,8 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
         :func:`~sklearn_psf.metrics.rho_statistics` with T = 2 sigma^2; each a dict of
         ``theta`` [``rho_theta_units``: pixel, or arcmin with a ``wcs``], ``xi``,
         ``sigma_xi``, ``npairs``, or None with fewer than 10 measured stars),
-        ``rho_theta_units``, ``rho1_mean_abs``, ``n_reserved_outliers`` and
+        ``rho_theta_units``, ``rho1_mean_abs``, ``moments`` ("adaptive", or the fixed
+        weight of the moments of undersampled stars, see 4.), ``n_reserved_outliers`` and
         ``reserved_outliers`` (their rows in X), and, with candidates,
         ``cv`` (list of per-scheme mean/std scores) and ``scheme`` (the chosen one). The
         verdict: ``n_components`` and ``components_reason`` (text: the noise edge and the
@@ -280,7 +300,14 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
                     "n_outliers": int(np.sum(~model.inlier_mask_))})
     pred = model.predict(X[reserved]) if k else np.zeros((0, s * s))
     w_res = None if weights is None else w[reserved]
-    options = {"wcs": wcs, "min_sep": min_sep, "max_sep": max_sep, "nbins": rho1_nbins}
+    sigma = offsets = None
+    if k and _undersampled(model, y[reserved], w_res):
+        # undersampled stars: the model drawn at each star's fitted sub-pixel position, both
+        # measured with fixed-weight moments
+        offsets = model.basis_.project(y[reserved], w_res).offsets
+        pred, sigma = model.predict(X[reserved], offsets=offsets), FIXED_WEIGHT_SIGMA
+    options = {"wcs": wcs, "min_sep": min_sep, "max_sep": max_sep, "nbins": rho1_nbins,
+               "moments": "adaptive" if sigma is None else sigma}
     table, measured = measure_residuals(X[reserved], y[reserved], pred, weights=w_res,
                                         index=reserved, **options)
     outlier = _reserved_outliers(table, y[reserved], w_res, model)
@@ -296,7 +323,8 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
     if hasattr(model, "coefficients_"):
         summary.update(model_verdict(model, X, y, None if weights is None else w,
                                      reserved[~outlier], table[~outlier],
-                                     random_state=rng.randint(0, 2**31 - 1)))
+                                     random_state=rng.randint(0, 2**31 - 1), sigma=sigma,
+                                     offsets=None if offsets is None else offsets[~outlier]))
         n_out, n_meas = int(outlier.sum()), int(np.sum(np.asarray(table["flag"]) == 0))
         if n_out >= 2 and n_out > _MOST_OUTLIERS * n_meas:
             summary["warnings"].append(

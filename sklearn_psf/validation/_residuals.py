@@ -13,7 +13,7 @@ from astropy.table import Table
 
 from .._validation import as_stamps
 from ..io import pixel_to_sky
-from ..measure import adaptive_moments, fourth_moments
+from ..measure import adaptive_moments, fixed_moments, fourth_moments
 from ..metrics import RHO_NAMES, rho_statistics
 from ..metrics._correlation import EmptyBinsWarning
 from ..preprocessing import StampNormalizer, estimate_pixel_weights, fourier_shift
@@ -40,6 +40,25 @@ def _rms(a):
     return float(np.sqrt(np.mean(np.square(a)))) if len(a) else float("nan")
 
 
+#: Width (pixels) of the fixed Gaussian weight of the moments of undersampled stars.
+FIXED_WEIGHT_SIGMA = 1.5
+
+
+def moments_kind(sigma):
+    """The summary's ``moments`` text: which moments measured e and size."""
+    if sigma is None:
+        return "adaptive"
+    return f"fixed-weight (round Gaussian weight of sigma {sigma:g} px)"
+
+
+def shape_moments(sigma):
+    """The moments e and size are measured with: adaptive (``sigma`` None) or with a fixed
+    Gaussian weight of ``sigma`` pixels."""
+    if sigma is None:
+        return adaptive_moments
+    return lambda stamps, weights=None: fixed_moments(stamps, sigma, weights=weights)
+
+
 def _chi2(raw, weights, model, model_mom, return_model=False):
     """chi^2 of each raw star stamp against its model stamp, and its degrees of freedom
     (and, with ``return_model``, the fitted model stamps ``flux * model + background``).
@@ -48,18 +67,22 @@ def _chi2(raw, weights, model, model_mom, return_model=False):
     shift), then scaled and offset by the weighted least-squares flux and constant
     background; chi^2 = sum w (star - flux * model - background)^2 over the unmasked pixels,
     with dof = their number - 4 (flux, background, centroid). NaN where either centroid is
-    unknown.
+    unknown. With ``model_mom`` None the model stamps are taken at the stars' positions
+    already (not moved).
     """
     n, p = raw.shape
     s = int(round(np.sqrt(p)))
     w = weights.reshape(n, p)
     d = np.where(w > 0, np.nan_to_num(raw.reshape(n, p)), 0.0)
-    ms = adaptive_moments(d.reshape(n, s, s), weights=w.reshape(n, s, s))
-    dx = np.asarray(ms["x0"], float) - np.asarray(model_mom["x0"], float)
-    dy = np.asarray(ms["y0"], float) - np.asarray(model_mom["y0"], float)
-    ok = np.isfinite(dx) & np.isfinite(dy)
-    m = fourier_shift(model.reshape(n, s, s), np.where(ok, dx, 0.0),
-                      np.where(ok, dy, 0.0)).reshape(n, p)
+    if model_mom is None:  # the model is already at the star's position
+        m, ok = model.reshape(n, p), np.ones(n, dtype=bool)
+    else:
+        ms = adaptive_moments(d.reshape(n, s, s), weights=w.reshape(n, s, s))
+        dx = np.asarray(ms["x0"], float) - np.asarray(model_mom["x0"], float)
+        dy = np.asarray(ms["y0"], float) - np.asarray(model_mom["y0"], float)
+        ok = np.isfinite(dx) & np.isfinite(dy)
+        m = fourier_shift(model.reshape(n, s, s), np.where(ok, dx, 0.0),
+                          np.where(ok, dy, 0.0)).reshape(n, p)
     # weighted least squares of d = f m + b, per star (2 x 2 normal equations)
     sw, smm, sm = w.sum(1), (w * m * m).sum(1), (w * m).sum(1)
     sdm, sd = (w * d * m).sum(1), (w * d).sum(1)
@@ -76,8 +99,29 @@ def _chi2(raw, weights, model, model_mom, return_model=False):
     return out
 
 
+def _fixed_sigma(moments, d, w, usable):
+    """The fixed weight's sigma for ``moments`` (None: adaptive moments)."""
+    if isinstance(moments, str):
+        if moments == "adaptive":
+            return None
+        if moments != "auto":
+            raise ValueError(f"moments must be 'auto', 'adaptive' or a weight sigma in pixels, "
+                             f"got {moments!r}.")
+        if not usable.any():
+            return None
+        s = int(round(np.sqrt(d.shape[1])))
+        flags = np.asarray(adaptive_moments(d[usable].reshape(-1, s, s),
+                                            weights=w[usable].reshape(-1, s, s))["flag"])
+        return FIXED_WEIGHT_SIGMA if np.mean(flags != 0) > 0.5 else None
+    sigma = float(moments)
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise ValueError(f"moments must be 'auto', 'adaptive' or a positive sigma, got "
+                         f"{moments!r}.")
+    return sigma
+
+
 def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=None,
-                      max_sep=None, nbins: int = 6, index=None):
+                      max_sep=None, nbins: int = 6, index=None, moments="auto"):
     """Star-minus-model residuals of PSF stamps at given stars, and their summary.
 
     The stars are normalised (:class:`~sklearn_psf.preprocessing.StampNormalizer`: unit
@@ -87,6 +131,15 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
     centroid and fitted in flux and a constant background: chi^2 per star over its unmasked
     pixels (``dof`` = pixels - 4). rho1 to rho5 (Jarvis et al. 2016,
     :func:`~sklearn_psf.metrics.rho_statistics`, T = 2 sigma^2) need 10 measured stars.
+
+    Undersampled stars (under ~2 pixels per FWHM) defeat adaptive moments and re-centring
+    by interpolation: with ``moments`` a number, or "auto" when adaptive moments fail on
+    more than half of the stars, e and size are measured with a fixed round Gaussian weight
+    (:func:`~sklearn_psf.measure.fixed_moments`, sigma ``moments`` or 1.5 pixels) on the
+    stars as they are (normalised to unit sum, not moved) and on ``predicted``, which must
+    then be the model drawn at each star's sub-pixel position (e.g.
+    ``PSFModel.predict(X, offsets=...)``, as :func:`fit_and_validate` does); the chi^2 fits
+    flux and background only.
 
     Parameters
     ----------
@@ -110,6 +163,10 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
         Logarithmic separation bins of the rho statistics.
     index : array-like of shape (n,), optional
         Row numbers stored in the table's ``index`` column; default 0 to n-1.
+    moments : "auto", "adaptive" or float, default="auto"
+        Adaptive moments, or fixed-weight moments of that sigma (pixels) for undersampled
+        stars; "auto": adaptive unless they fail on more than half of the stars (then
+        sigma 1.5 pixels). See above.
 
     Returns
     -------
@@ -130,7 +187,8 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
         good as the noise allows, when the weights are right), ``chi2_dof_median`` (median
         of the stars' chi^2 / dof), ``rho1`` to ``rho5`` (each a dict of ``theta``, ``xi``,
         ``sigma_xi``, ``npairs``, or None with fewer than 10 measured stars),
-        ``rho_theta_units`` ("pixel", or "arcmin" with a ``wcs``), ``rho1_mean_abs``.
+        ``rho_theta_units`` ("pixel", or "arcmin" with a ``wcs``), ``rho1_mean_abs``,
+        ``moments`` (text: "adaptive", or the fixed weight's sigma).
 
     Examples
     --------
@@ -171,22 +229,34 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
         w = np.where(np.isnan(y), 0.0, w)
         d = np.where(w > 0, y, 0.0)
         usable = (w > 0).any(axis=1) & (d.sum(axis=1) > 0)  # others: flagged, not normalised
+        sigma = _fixed_sigma(moments, d, w, usable)
         star = np.zeros_like(d)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # uncentrable stars show up as flagged rows
-            try:
-                if usable.any():
+            if not usable.any():
+                pass
+            elif sigma is None:
+                try:
                     star[usable] = StampNormalizer().fit_transform(d[usable],
                                                                    weights=w[usable])
-            except ValueError:  # one at a time: a star that cannot be normalised is flagged
-                for i in np.flatnonzero(usable):
-                    try:
-                        star[i] = StampNormalizer().fit_transform(d[i:i + 1],
-                                                                  weights=w[i:i + 1])[0]
-                    except ValueError:
-                        usable[i] = False
-        ms, mm = adaptive_moments(star), adaptive_moments(pred)
-        fs, fm = fourth_moments(star, ms), fourth_moments(pred, mm)
+                except ValueError:  # one at a time: a star that cannot be normalised is flagged
+                    for i in np.flatnonzero(usable):
+                        try:
+                            star[i] = StampNormalizer().fit_transform(d[i:i + 1],
+                                                                      weights=w[i:i + 1])[0]
+                        except ValueError:
+                            usable[i] = False
+            else:  # undersampled: normalised, not moved (the model is at the star's phase);
+                # masked pixels filled from the model
+                star[usable] = np.where(w[usable] > 0, d[usable], pred[usable]
+                                        * d[usable].sum(axis=1, keepdims=True))
+                star[usable] /= star[usable].sum(axis=1, keepdims=True)
+        measure = shape_moments(sigma)
+        ms, mm = measure(star), measure(pred)
+        if sigma is None:
+            fs, fm = fourth_moments(star, ms), fourth_moments(pred, mm)
+        else:  # the fourth moments are adaptive-weight moments: not for undersampled stars
+            fs = fm = {q: np.full(n, np.nan) for q in ("M22", "M31", "M13")}
         flag = ((np.asarray(ms["flag"]) != 0) | ~usable).astype(np.int64) \
             | 2 * (np.asarray(mm["flag"]) != 0)
         ok = flag == 0
@@ -201,7 +271,7 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
         for q in ("M22", "M31", "M13"):  # fourth moments: spin 0, spin 2 (star - model)
             table[f"d{q}"] = np.where(ok, np.asarray(fs[q]) - np.asarray(fm[q]), np.nan)
         table["resid_rms"] = np.sqrt(np.mean((star - pred) ** 2, axis=1))
-        chi2, dof = _chi2(y, w, pred, mm)
+        chi2, dof = _chi2(y, w, pred, mm if sigma is None else None)
         table["chi2"], table["dof"] = np.where(ok, chi2, np.nan), np.where(ok, dof, 0)
     ok = np.asarray(table["flag"]) == 0
     de1, de2 = np.asarray(table["de1"])[ok], np.asarray(table["de2"])[ok]
@@ -224,6 +294,7 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
         "chi2_dof_median": float(np.median(chi2[fitted] / dof[fitted])) if fitted.any()
         else np.nan,
         "rho1": None, "rho1_mean_abs": np.nan,
+        "moments": moments_kind(sigma if n else None),
     }
     summary.update(dict.fromkeys(RHO_NAMES[1:]))
     if ok.sum() >= 10:

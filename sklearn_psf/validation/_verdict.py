@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 
 from ..measure import adaptive_moments
 from ..preprocessing import estimate_pixel_weights
-from ._residuals import _chi2
+from ._residuals import _chi2, shape_moments
 
 __all__ = ["PSFQualityWarning"]
 
@@ -46,14 +46,14 @@ class PSFQualityWarning(UserWarning):
     """
 
 
-def _e_noise(model, w, rng):
+def _e_noise(model, w, rng, measure=adaptive_moments):
     """Per-star noise of e1 and e2: std over noise draws around the model star."""
     n, p = model.shape
     s = int(round(np.sqrt(p)))
     sigma = np.where(w > 0, 1.0 / np.sqrt(np.where(w > 0, w, 1.0)), 0.0)
     draws = model[:, None, :] + rng.standard_normal((n, _DRAWS, p)) * sigma[:, None, :]
     mask = np.broadcast_to((w > 0)[:, None, :], draws.shape).astype(np.float64)
-    mom = adaptive_moments(draws.reshape(-1, s, s), weights=mask.reshape(-1, s, s))
+    mom = measure(draws.reshape(-1, s, s), weights=mask.reshape(-1, s, s))
     ok = (np.asarray(mom["flag"]) == 0).reshape(n, _DRAWS)
     out = []
     for q in ("e1", "e2"):
@@ -64,9 +64,10 @@ def _e_noise(model, w, rng):
     return np.column_stack(out)
 
 
-def _constant_psf(model):
+def _constant_psf(model, offsets=None):
     """The unit-sum PSF of a constant model in the same basis: the coefficients' mean over the
-    kept stars, each weighted by its inverse noise variance when the basis gives it."""
+    kept stars, each weighted by its inverse noise variance when the basis gives it (drawn at
+    each of ``offsets`` when given: (n, p))."""
     coef = np.asarray(model.coefficients_, dtype=np.float64)[model.inlier_mask_]
     var = getattr(model, "coefficient_var_", None)
     if var is not None:
@@ -74,6 +75,9 @@ def _constant_psf(model):
         mean = (w * coef).sum(axis=0) / w.sum(axis=0)
     else:
         mean = coef.mean(axis=0)
+    if offsets is not None:
+        stamps = model.basis_.render(np.tile(mean, (len(offsets), 1)), offsets=offsets)
+        return stamps / stamps.sum(axis=1, keepdims=True)
     stamp = np.asarray(model.basis_.inverse_transform(mean[None, :]), dtype=np.float64)[0]
     return stamp / stamp.sum()
 
@@ -115,11 +119,15 @@ def _kriging_range(model):
     return float(final.range_), float(np.median(d[:, 1]))
 
 
-def model_verdict(model, X, stamps, weights, reserved, residuals, random_state=0):
+def model_verdict(model, X, stamps, weights, reserved, residuals, random_state=0,
+                  sigma=None, offsets=None):
     """The verdict entries of :func:`fit_and_validate`'s summary (see there), and warnings.
 
     ``stamps`` (n, p) raw, NaN = masked; ``weights`` (n, p) or None (estimated stamp by
-    stamp); ``reserved`` the rows of the reserved stars; ``residuals`` their table.
+    stamp); ``reserved`` the rows of the reserved stars; ``residuals`` their table. For
+    undersampled stars, ``sigma`` is the fixed weight of their moments and ``offsets`` their
+    sub-pixel positions, at which the model's stamps (``residuals["stamp_model"]``) and the
+    constant PSF are drawn.
     """
     k, reason = _components(model)
     out = {"n_components": k, "components_reason": reason, "chi2_dof_median": np.nan,
@@ -151,17 +159,24 @@ def model_verdict(model, X, stamps, weights, reserved, residuals, random_state=0
     # constant PSF is measured the same way
     psf = np.asarray(residuals["stamp_model"], dtype=np.float64)[ok]
     chi2 = np.asarray(residuals["chi2"], dtype=np.float64)[ok]
-    _, _, fitted = _chi2(d, w, psf, adaptive_moments(psf.reshape(n, s, s)), return_model=True)
-    const = np.broadcast_to(_constant_psf(model), (n, p))
-    chi2_c, _ = _chi2(d, w, const, adaptive_moments(const.reshape(n, s, s)))
+    measure = shape_moments(sigma)
+    if sigma is None:
+        _, _, fitted = _chi2(d, w, psf, adaptive_moments(psf.reshape(n, s, s)),
+                             return_model=True)
+        const = np.broadcast_to(_constant_psf(model), (n, p))
+        chi2_c, _ = _chi2(d, w, const, adaptive_moments(const.reshape(n, s, s)))
+    else:  # undersampled: the model and the constant PSF at each star's phase
+        _, _, fitted = _chi2(d, w, psf, None, return_model=True)
+        const = _constant_psf(model, np.asarray(offsets, dtype=np.float64)[ok])
+        chi2_c, _ = _chi2(d, w, const, None)
     dof = np.maximum(np.asarray(residuals["dof"], dtype=np.float64)[ok], 1)
     chi2, chi2_c = chi2 / dof, chi2_c / dof
     rng = np.random.default_rng(random_state)
-    noise = _e_noise(fitted, w, rng)
-    e_const = adaptive_moments(const[:1].reshape(1, s, s))
+    noise = _e_noise(fitted, w, rng, measure)
+    e_const = measure(const.reshape(n, s, s))
     de = np.column_stack([residuals["de1"], residuals["de2"]])[ok]
-    de_c = np.column_stack([residuals["e1_star"], residuals["e2_star"]])[ok] - np.array(
-        [float(e_const["e1"][0]), float(e_const["e2"][0])])
+    de_c = np.column_stack([residuals["e1_star"], residuals["e2_star"]])[ok] - np.column_stack(
+        [np.asarray(e_const["e1"], dtype=np.float64), np.asarray(e_const["e2"], np.float64)])
     good = np.isfinite(noise).all(axis=1) & (noise > 0).all(axis=1)
     out.update({
         "chi2_dof_median": float(np.nanmedian(chi2)),

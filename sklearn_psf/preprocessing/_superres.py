@@ -1,0 +1,678 @@
+"""A PSF basis on a finer grid than the pixels, fitted on undersampled stars at their phases."""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+from sklearn.utils.validation import check_is_fitted
+
+from ..measure import adaptive_moments, fixed_moments
+from ._pca import (
+    FALLBACK_SIGMA,
+    FIT_NO_CENTROID,
+    FIT_NO_FLUX,
+    FIT_OK,
+    StampFit,
+    StampPCA,
+    _border_level,
+    _has_background,
+    _star_weights,
+    _sum_zero,
+    _weighted_pca,
+)
+from ._normalize import phase_ramp
+
+__all__ = ["SuperResolvedPCA", "stamp_fwhm", "UNDERSAMPLED_FWHM"]
+
+#: Median star FWHM (pixels) below which stars count as undersampled (``PSFModel`` then
+#: chooses :class:`SuperResolvedPCA`).
+UNDERSAMPLED_FWHM = 2.0
+_FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
+_FWHM_WEIGHT = 1.0  # pixels: sigma of the fixed weight of stamp_fwhm
+_CHUNK = 256
+_STEPS = 4  # Gauss-Newton steps on each star's offset
+_CG_ITER = 100
+_CG_TOL = 1e-7  # relative residual of the conjugate gradients (a Gauss-Newton step: _GN_TOL)
+_GN_TOL = 1e-4
+_MEAN_ROUNDS = 10  # at most, rounds of (mean, stars' offsets) before the components
+_OFFSET_TOL = 1e-3  # pixels: the offsets have converged
+
+
+def stamp_fwhm(stamps, weights=None):
+    """FWHM (pixels) of each star, well sampled or not (NaN where not measurable).
+
+    Adaptive moments where they converge (FWHM = 2.355 sigma of the best-fitting Gaussian);
+    elsewhere (stars under ~2 pixels per FWHM) the moments with a fixed Gaussian weight of
+    sigma ``w`` = 1 pixel (:func:`~sklearn_psf.measure.fixed_moments`), corrected for the
+    weight as for a Gaussian star (``C = (M^-1 - I / w^2)^-1``).
+
+    Parameters
+    ----------
+    stamps : array-like of shape (n, s, s) or (n, s*s)
+        Background-subtracted stamps (NaN = masked).
+    weights : array-like of the stamps' shape, optional
+        Pixel weights (0 = masked).
+
+    Returns
+    -------
+    fwhm : ndarray of shape (n,)
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from sklearn_psf.preprocessing import stamp_fwhm
+    >>> y, x = np.mgrid[0:15, 0:15] - 7.0
+    >>> star = np.exp(-0.5 * ((x - 0.2) ** 2 + y**2) / 0.6**2)    # FWHM 1.41 px
+    >>> print(np.round(stamp_fwhm(star[None]), 1))
+    [1.4]
+    """
+    mom = adaptive_moments(stamps, weights=weights, guess_sigma=_FWHM_WEIGHT)
+    fwhm = _FWHM_PER_SIGMA * np.asarray(mom["sigma"], dtype=np.float64)
+    bad = np.flatnonzero(np.asarray(mom["flag"]) != 0)
+    if bad.size:
+        cube = np.asarray(stamps, dtype=np.float64)
+        cube = cube.reshape(cube.shape[0], -1)[bad]
+        wb = None if weights is None else np.asarray(weights, np.float64).reshape(
+            len(fwhm), -1)[bad]
+        t = fixed_moments(cube, _FWHM_WEIGHT, weights=wb)
+        mxx, mxy, myy = (np.asarray(t[c], dtype=np.float64) for c in ("Mxx", "Mxy", "Myy"))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            det = mxx * myy - mxy**2
+            ixx = myy / det - 1.0 / _FWHM_WEIGHT**2
+            iyy = mxx / det - 1.0 / _FWHM_WEIGHT**2
+            ixy = -mxy / det
+            idet = ixx * iyy - ixy**2
+            ok = (idet > 0) & (ixx > 0)
+            fwhm[bad] = np.where(ok, _FWHM_PER_SIGMA * np.abs(idet) ** -0.25, np.nan)
+    return fwhm
+
+
+class SuperResolvedPCA(StampPCA):
+    """PCA basis on a grid finer than the pixels, for undersampled stars.
+
+    Stars sampled at under ~2 pixels per FWHM (Euclid VIS, Roman, HST, JWST short
+    wavelengths) each show the PSF at their own sub-pixel phase: centring a stamp by
+    interpolation, as :class:`StampPCA` does, aliases it. Here the PSF's mean and components
+    live on a grid ``oversampling`` times finer than the pixels (as PSFEx's ``PSF_SAMPLING``
+    and PIFF's ``PixelGrid`` with a smaller scale), and each star is modelled as its own
+    image of it:
+
+    - the fine grid holds the pixel-convolved PSF (GalSim's default rendering, PSFEx's and
+      PIFF's convention) sampled every ``1 / oversampling`` pixel; a star's pixels are that
+      profile's values at the pixel centres for the star's sub-pixel position, obtained by a
+      Fourier (band-limited, sinc) shift of the fine grid followed by keeping every
+      ``oversampling``-th sample. This is exact when the pixel-convolved PSF has no power
+      beyond the fine grid's Nyquist frequency, ``oversampling / 2`` cycles per pixel: a
+      diffraction-limited PSF has none beyond ``D / lambda``, e.g. 0.83 cycles per pixel for
+      1.2 m at 700 nm and 0.1" pixels, so ``oversampling=2`` holds it exactly (up to the
+      wings beyond the stamp);
+    - each star is ``flux * image(mean + c @ components, offset) (+ background)``; flux,
+      coefficients, background and the sub-pixel offset are fitted on the star's unmasked
+      pixels by weighted least squares (Gauss-Newton on the offset, started from the centre
+      of a fixed Gaussian weight, or the adaptive centroid where it converges): centroids
+      and fluxes come from the model itself, not from adaptive moments;
+    - the fine-grid images are fitted through all stars together by weighted least squares
+      (conjugate gradients on the normal equations, pixel weights times each star's weight,
+      capped at ``max_star_weight`` times the median as in :class:`StampPCA`), so that stars
+      at different phases constrain the fine grid together. The mean and the stars' fluxes
+      and offsets are fitted together by Gauss-Newton steps (each star's flux, offset and
+      background profiled out of the fine grid's normal equations: variable projection),
+      until the offsets move by less than 1e-3 pixel (at most 10 rounds); the mean is
+      re-centred after each round so that its adaptive centroid (on the fine grid) is the
+      stamp centre (the package's convention), and normalised so that, drawn at the pixels,
+      it sums to 1;
+    - the number of components: the stars' residuals from the mean, each drawn at its own
+      phase, are PCA'd at the pixels' sampling with the noise edge of :class:`StampPCA`
+      (``n_components="noise"``); their coefficients start the fine components, which are
+      then fitted with the mean by alternating least squares (the fine images given the
+      stars' coefficients and offsets, then each star's fit; a step is halved until the
+      weighted residual decreases; ``n_iter`` rounds at most). The components are kept
+      orthogonal to the mean's shifts (which the offsets take) and on the PSF's core (the
+      fine samples where the mean exceeds 1% of its peak, grown by one pixel): beyond it
+      they fit noise (on the package's simulation of 120 stars at S/N 30-1000, the
+      ellipticity error at the truth falls from 0.0066 without it to 0.0047).
+
+    ``transform``, ``project`` (with each star's fitted offsets), ``inverse_transform``
+    (stamps centred on the centre pixel at the pixels' sampling) and ``render`` (at any
+    sub-pixel offset) work at the stars' sampling; :meth:`render_fine` gives the fine
+    images (unit sum, centre at the fine grid's central sample).
+
+    Parameters
+    ----------
+    oversampling : "auto" or int, default="auto"
+        Fine samples per pixel. "auto": 2 when the stars' median FWHM (:func:`stamp_fwhm`) is
+        at least 1.3 pixels, 3 below.
+    n_components : "noise", int or float, default="noise"
+        As :class:`StampPCA`'s.
+    max_components : int, default=10
+        Upper bound for "noise" and float choices.
+    n_iter : int, default=3
+        Rounds of (fine-grid fit, star fits) after the mean's.
+    max_star_weight : float, default=10.0
+        Cap of a star's weight in units of the median star weight.
+    guess_sigma : float, default=3.0
+        Initial width (pixels) of the adaptive weight used to start the centroids.
+    background : "auto" or bool, default="auto"
+        As :class:`StampPCA`'s.
+
+    Attributes
+    ----------
+    fine_mean_ : ndarray of shape (S*S,)
+        Mean PSF on the fine grid (S = ``fine_size_``), unit sum.
+    fine_components_ : ndarray of shape (n_components_, S*S)
+        Fine components, orthonormal and summing to zero.
+    mean_, components_ : ndarray
+        The same drawn at the pixels' sampling, centred (the star at the centre pixel).
+    oversampling_ : int
+    fine_size_ : int
+        Side S of the fine grid (odd; the PSF centre at its central sample).
+    fwhm_ : float
+        Median FWHM of the stars (pixels).
+    explained_variance_, noise_variance_, noise_edge_ : float or ndarray
+        Of the PCA of the residuals at the pixels' sampling (see above).
+    background_ : bool
+    n_components_ : int
+    stamp_size_ : int
+    n_features_in_ : int
+
+    See Also
+    --------
+    StampPCA : the basis at the pixels' sampling (well-sampled stars).
+    sklearn_psf.model.PSFModel : chooses this basis when the stars are undersampled.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from sklearn_psf.preprocessing import SuperResolvedPCA
+    >>> rng = np.random.default_rng(0)
+    >>> yy, xx = np.mgrid[0:11, 0:11] - 5.0
+    >>> off = rng.uniform(-0.5, 0.5, (60, 2, 1, 1))
+    >>> stars = 1e4 * np.exp(-0.5 * ((xx - off[:, 0]) ** 2 + (yy - off[:, 1]) ** 2) / 0.6**2)
+    >>> stamps = (stars + rng.normal(0, 3.0, stars.shape)).reshape(60, -1)
+    >>> basis = SuperResolvedPCA().fit(stamps)
+    >>> basis.oversampling_, basis.fine_size_
+    (2, 23)
+    >>> fit = basis.project(stamps)
+    >>> bool(np.abs(fit.offsets - off[:, :, 0, 0]).max() < 0.02)
+    True
+    """
+
+    def __init__(self, oversampling="auto", n_components="noise", max_components: int = 10,
+                 n_iter: int = 3, max_star_weight: float = 10.0, guess_sigma: float = 3.0,
+                 background="auto"):
+        self.oversampling = oversampling
+        super().__init__(n_components=n_components, max_components=max_components,
+                         n_iter=n_iter, max_star_weight=max_star_weight,
+                         guess_sigma=guess_sigma, background=background)
+
+    # -- geometry -----------------------------------------------------------------------------
+    def _grid(self, s):
+        f = self.oversampling_
+        size = f * s if (f * s) % 2 else f * s + 1
+        return f, size, (size - 1) // 2 - f * ((s - 1) // 2)  # factor, side, first sample
+
+    def _ramps(self, offsets):
+        f, size, _ = self._grid(self.stamp_size_)
+        return phase_ramp(size, f * offsets[:, 0], f * offsets[:, 1])
+
+    def _draw(self, fine_fft, ramp):
+        """Stars' pixels (b, m, p) of m fine images (given by their rfft2) at b phases."""
+        s = self.stamp_size_
+        f, size, o = self._grid(s)
+        img = np.fft.irfft2(fine_fft[None] * ramp[:, None], s=(size, size))
+        out = img[:, :, o:o + f * s:f, o:o + f * s:f]
+        return (f * f) * out.reshape(ramp.shape[0], fine_fft.shape[0], s * s)
+
+    def _draw_sum(self, fine_fft, a, ramp):
+        """Stars' pixels (b, p) of the combinations ``a @ fine`` (a: (b, m)) at b phases."""
+        s = self.stamp_size_
+        f, size, o = self._grid(s)
+        img = np.fft.irfft2(np.einsum("bi,iyx->byx", a, fine_fft) * ramp, s=(size, size))
+        return (f * f) * img[:, o:o + f * s:f, o:o + f * s:f].reshape(len(a), s * s)
+
+    def _draw_adjoint(self, pixels, ramp):
+        """Adjoint of :meth:`_draw` for one image per star: (b, p) -> rfft2 (b, S, S//2+1)."""
+        s = self.stamp_size_
+        f, size, o = self._grid(s)
+        up = np.zeros((pixels.shape[0], size, size))
+        up[:, o:o + f * s:f, o:o + f * s:f] = pixels.reshape(-1, s, s)
+        return (f * f) * np.fft.rfft2(up) * np.conj(ramp)
+
+    def _gradient(self, fine_fft, a, ramp):
+        """d(model)/d(offset x, y) at the pixels, (b, 2, p), of the stars' models
+        ``a @ fine`` (a: (b, m))."""
+        s = self.stamp_size_
+        f, size, o = self._grid(s)
+        ky = np.fft.fftfreq(size)[None, :, None]
+        kx = np.fft.rfftfreq(size)[None, None, :]
+        m = np.einsum("bi,iyx->byx", a, fine_fft) * ramp
+        d = np.fft.irfft2(np.stack([m * (-2j * np.pi * f * kx), m * (-2j * np.pi * f * ky)],
+                                   axis=1), s=(size, size))
+        d = d[:, :, o:o + f * s:f, o:o + f * s:f]
+        return (f * f) * d.reshape(ramp.shape[0], 2, s * s)
+
+    # -- the stars' fits on the basis -----------------------------------------------------
+    def _fit_stars(self, d, w, offsets, fine, steps=_STEPS):
+        """Per-star ``a`` (flux times [1, c]), its covariance, model (without background),
+        offsets, background level and whether the offset fit stayed on the stamp."""
+        n, p = d.shape
+        m = fine.shape[0]
+        s = self.stamp_size_
+        fine_fft = np.fft.rfft2(fine.reshape(m, *(2 * (self._grid(s)[1],))))
+        extra = int(self.background_)
+        offsets = offsets.copy()
+        start = offsets.copy()
+        a = np.full((n, m), np.nan)
+        cov = np.full((n, m, m), np.nan)
+        level = np.zeros(n)
+        model = np.zeros((n, p))
+        for lo in range(0, n, _CHUNK):
+            sl = slice(lo, min(lo + _CHUNK, n))
+            for step in range(steps + 1):
+                ramp = self._ramps(offsets[sl])
+                A = self._draw(fine_fft, ramp)
+                if extra:
+                    A = np.concatenate([A, np.ones((A.shape[0], 1, p))], axis=1)
+                Aw = A * w[sl, None, :]
+                normal = Aw @ A.transpose(0, 2, 1)
+                inv = np.linalg.pinv(normal, hermitian=True)
+                sol = (inv @ (Aw @ d[sl, :, None]))[:, :, 0]
+                if step == steps:
+                    break
+                # Gauss-Newton on the offsets, with flux, coefficients and background
+                G = np.concatenate([A, self._gradient(fine_fft, sol[:, :m], ramp)], axis=1)
+                Gw = G * w[sl, None, :]
+                resid = d[sl] - (sol[:, None, :] @ A)[:, 0]
+                move = (np.linalg.pinv(Gw @ G.transpose(0, 2, 1), hermitian=True)
+                        @ (Gw @ resid[:, :, None]))[:, -2:, 0]
+                move = np.where(np.isfinite(move), np.clip(move, -0.3, 0.3), 0.0)
+                offsets[sl] += move
+            a[sl], cov[sl] = sol[:, :m], inv[:, :m, :m]
+            if extra:
+                level[sl] = sol[:, m]
+            model[sl] = (sol[:, None, :m] @ A[:, :m])[:, 0]
+        ok = np.isfinite(offsets).all(axis=1) & (np.abs(offsets - start).max(axis=1) < 2.0) \
+            & (np.abs(offsets).max(axis=1) < 0.5 * s)
+        offsets[~ok] = start[~ok]
+        return a, cov, model, offsets, level, ok
+
+    # -- the fine images' joint fit -----------------------------------------------------------
+    def _fit_fine(self, target, u, a, ramp, fine0, J=None, tol=_CG_TOL, frame=None):
+        """Fine images x (m, S*S) minimising ``sum_n ||target_n - draw_n(a_n @ x)||^2`` in
+        the pixel weights ``u`` (n, p), conjugate gradients from ``fine0``. With ``J`` (n, q, p),
+        each star's residual is taken orthogonally (in ``u``) to the span of its rows: the
+        star's own parameters (flux, coefficients, offset, background) are profiled out, so
+        that ``target`` = the stars' residuals gives the Gauss-Newton step of all parameters
+        together (variable projection). Rows of ``frame`` are kept out of the components'
+        updates."""
+        n, m = a.shape
+        size = self._grid(self.stamp_size_)[1]
+        def keep(x):  # components stay on the PSF's support (``frame``: 0/1 per sample)
+            if frame is not None and m > 1:
+                x = x.copy()
+                x[1:] *= frame
+            return x
+
+        if J is not None:
+            Ju = J * u[:, None, :]
+            JuJ = np.linalg.pinv(Ju @ J.transpose(0, 2, 1), hermitian=True)
+
+        def weigh(y, sl):
+            out = u[sl] * y
+            if J is not None:
+                coef = (JuJ[sl] @ (Ju[sl] @ y[:, :, None]))[:, :, 0]
+                out -= (coef[:, None, :] @ Ju[sl])[:, 0]
+            return out
+
+        def normal(x):
+            x = keep(x)
+            fx = np.fft.rfft2(x.reshape(m, size, size))
+            out = 0.0
+            for lo in range(0, n, _CHUNK):
+                sl = slice(lo, min(lo + _CHUNK, n))
+                pix = self._draw_sum(fx, a[sl], ramp[sl])
+                back = self._draw_adjoint(weigh(pix, sl), ramp[sl])
+                out = out + np.einsum("bi,byx->iyx", a[sl], back)
+            return keep(np.fft.irfft2(out, s=(size, size)).reshape(m, -1))
+
+        rhs = 0.0
+        for lo in range(0, n, _CHUNK):
+            sl = slice(lo, min(lo + _CHUNK, n))
+            rhs = rhs + np.einsum("bi,byx->iyx", a[sl], self._draw_adjoint(
+                weigh(target[sl], sl), ramp[sl]))
+        rhs = keep(np.fft.irfft2(rhs, s=(size, size)).reshape(m, -1))
+        # preconditioned by the images' typical coupling (sum_n a_n a_n^T times the star's
+        # mean pixel weight); a small ridge keeps samples no star constrains at 0
+        scale = (a * u.sum(axis=1)[:, None]).T @ a / size**2  # (m, m): the images' coupling
+        diag = np.diag(scale).copy()
+        scale[np.diag_indices(m)] = np.where(diag > 0, diag, 1.0)
+        precond = np.linalg.pinv(scale, hermitian=True)
+        ridge = 1e-8 * np.diag(scale)[:, None]
+        x = fine0.copy()
+        r = rhs - normal(x) - ridge * x
+        z = precond @ r
+        rz = float((r * z).sum())
+        stop = tol**2 * float((rhs * (precond @ rhs)).sum())
+        direction = z.copy()
+        for _ in range(_CG_ITER):
+            if rz <= stop:
+                break
+            q = normal(direction) + ridge * direction
+            alpha = rz / float((direction * q).sum())
+            x += alpha * direction
+            r -= alpha * q
+            z = precond @ r
+            rz_new = float((r * z).sum())
+            direction = z + (rz_new / rz) * direction
+            rz = rz_new
+        return x
+
+    def _support(self, fine):
+        """0/1 per fine sample: where the mean exceeds 1e-2 of its peak, grown by one pixel
+        (the components' support: beyond it they would fit noise)."""
+        from scipy.ndimage import binary_dilation
+
+        size = self._grid(self.stamp_size_)[1]
+        mean = fine[0].reshape(size, size)
+        core = mean > 1e-2 * mean.max()
+        return binary_dilation(core, iterations=self.oversampling_).ravel().astype(float)
+
+    def _frame(self, fine):
+        """Orthonormal rows spanning the fine mean and its x and y derivatives (the
+        directions the stars' fluxes and offsets already take)."""
+        size = self._grid(self.stamp_size_)[1]
+        fx = np.fft.rfft2(fine[0].reshape(size, size))
+        ky = np.fft.fftfreq(size)[:, None]
+        kx = np.fft.rfftfreq(size)[None, :]
+        grads = np.fft.irfft2(np.stack([fx * 2j * np.pi * kx, fx * 2j * np.pi * ky]),
+                              s=(size, size)).reshape(2, -1)
+        rows = np.vstack([fine[:1], grads])
+        if not np.abs(rows).sum():
+            return np.zeros((0, size * size))
+        q, _ = np.linalg.qr(rows.T)
+        return q.T
+
+    def _jacobian(self, fine, a, ramp):
+        """Each star's model pixels (n, p) and the rows (n, q, p) of the parameters profiled
+        out of the fine images' Gauss-Newton step: its flux (the model over the flux), a
+        constant (with a background) and its offset. The coefficients on the components
+        are held: given them, the components are linear (alternating with the stars' fits,
+        as alternating least squares does for a PCA), without the scale and rotation a
+        joint step would leave free."""
+        n, m = a.shape
+        s = self.stamp_size_
+        size = self._grid(s)[1]
+        fine_fft = np.fft.rfft2(fine.reshape(m, size, size))
+        model = np.empty((n, s * s))
+        rows = []
+        for lo in range(0, n, _CHUNK):
+            sl = slice(lo, min(lo + _CHUNK, n))
+            model[sl] = self._draw_sum(fine_fft, a[sl], ramp[sl])
+            flux = np.where(a[sl, 0] != 0, a[sl, 0], 1.0)
+            parts = [model[sl, None] / flux[:, None, None],
+                     self._gradient(fine_fft, a[sl], ramp[sl])]
+            if self.background_:
+                parts.insert(1, np.ones((len(flux), 1, s * s)))
+            rows.append(np.concatenate(parts, axis=1))
+        return model, np.concatenate(rows)
+
+    def _recentre(self, fine):
+        """Fine images moved so that the mean's centroid is the central sample; the move
+        (pixels) to add to the stars' offsets."""
+        size = self._grid(self.stamp_size_)[1]
+        f = self.oversampling_
+        img = fine[:1].reshape(1, size, size)
+        mom = adaptive_moments(img, guess_sigma=f * FALLBACK_SIGMA)
+        if int(mom["flag"][0]) != 0:
+            mom = fixed_moments(img, f * FALLBACK_SIGMA)
+        c = (size - 1) / 2.0
+        dx, dy = float(mom["x0"][0]) - c, float(mom["y0"][0]) - c
+        if not (np.isfinite(dx) and np.isfinite(dy)):
+            return fine, np.zeros(2)
+        ramp = phase_ramp(size, np.array([-dx]), np.array([-dy]))
+        moved = np.fft.irfft2(np.fft.rfft2(fine.reshape(-1, size, size)) * ramp,
+                              s=(size, size)).reshape(fine.shape)
+        return moved, np.array([dx, dy]) / f
+
+    # -- estimator API ------------------------------------------------------------------------
+    def _check_params(self):
+        super()._check_params()
+        o = self.oversampling
+        if not (o == "auto" if isinstance(o, str) else
+                isinstance(o, numbers.Integral) and not isinstance(o, bool) and o >= 1):
+            raise ValueError(f"oversampling must be 'auto' or an int >= 1, got {o!r}.")
+
+    def fit(self, X, y=None, weights=None):
+        """Fit the fine-grid basis on raw star stamps.
+
+        Parameters
+        ----------
+        X : array-like of shape (n, s*s)
+            Raw star stamps (odd side s, the star near the centre pixel), NaN for masked
+            pixels. Not modified.
+        y : ignored
+        weights : array-like of shape (n, s*s), optional
+            Inverse variance of each pixel (0 = masked). Default: estimated from each
+            stamp's border.
+
+        Returns
+        -------
+        self : SuperResolvedPCA
+        """
+        self._check_params()
+        d, w, s = self._stamps_and_weights(X, weights, reset=True)
+        if s % 2 == 0:
+            raise ValueError(f"SuperResolvedPCA needs stamps of odd side (the star at the "
+                             f"centre pixel), got {s}x{s}.")
+        n, p = d.shape
+        self.stamp_size_ = s
+        self.background_ = bool(_has_background(d, w, s) if self.background == "auto"
+                                else self.background)
+        level = _border_level(d, w, s)[0] if self.background_ else np.zeros(n)
+        offsets, ok = self._centroids(d - level[:, None], w, s)
+        flux = ((d - level[:, None]) * (w > 0)).sum(axis=1)
+        usable = ok & (flux > 0)
+        if usable.sum() < 2:
+            raise ValueError("Fewer than 2 stamps have a measurable centroid and a positive "
+                             "flux: these are not star stamps.")
+        fwhm = stamp_fwhm((d - level[:, None])[usable], w[usable])
+        self.fwhm_ = float(np.nanmedian(fwhm)) if np.isfinite(fwhm).any() else np.nan
+        if self.oversampling == "auto":
+            self.oversampling_ = 2 if not self.fwhm_ < 1.3 else 3
+        else:
+            self.oversampling_ = int(self.oversampling)
+        size = self._grid(s)[1]
+        pixel_var = np.where(w > 0, 1.0 / np.where(w > 0, w, 1.0), 0.0).mean(axis=1)
+
+        def star_weights(flux):
+            safe = np.where(usable, np.abs(flux), 1.0)
+            u = _star_weights(pixel_var / safe**2, usable, self.max_star_weight)
+            return w * (u * pixel_var / safe**2)[:, None]  # pixel weights, capped per star
+
+        a = np.where(usable, flux, 0.0)[:, None]
+        fine = np.zeros((1, size * size))
+        comps = np.zeros((0, size * size))
+        lam, edge, noise = np.zeros(0), np.nan, np.nan
+        def settle(fine, offsets):
+            """Re-centred, normalised fine images and the stars' fits on them."""
+            fine, move = self._recentre(fine)
+            mean = fine[0] / fine[0].sum()
+            comps = fine[1:]
+            if len(comps):  # on the support, orthogonal to the mean's shifts, orthonormal,
+                # summing to zero
+                frame = self._frame(fine)
+                comps = (comps - (comps @ frame.T) @ frame) * self._support(fine)
+                comps = _sum_zero(comps, mean)
+            fine = np.vstack([mean[None], comps])
+            return (fine, offsets + move) + self._fit_stars(d, w, offsets + move, fine)
+
+        def objective(u, model, fitted):
+            return float((u * (d - model - fitted[:, None]) ** 2)[usable].sum())
+
+        k, counted, joint = 0, False, 0
+        u = star_weights(a[:, 0])
+        fine = self._fit_fine(d - level[:, None], u, a, self._ramps(offsets), fine)
+        for round_ in range(_MEAN_ROUNDS + int(self.n_iter)):
+            trial = None
+            if round_:  # a Gauss-Newton step of the fine images and the stars' parameters,
+                # shortened until the fit improves
+                u = star_weights(a[:, 0])
+                ramp = self._ramps(offsets)
+                previous = objective(u, model, fitted)
+                if k:  # with components: the images given the stars' parameters (least
+                    # squares; alternating with the stars' fits, as for a PCA)
+                    step = self._fit_fine(d - level[:, None], u, a, ramp, fine,
+                                          frame=self._support(fine)) - fine
+                else:
+                    model, J = self._jacobian(fine, a, ramp)
+                    step = self._fit_fine(d - level[:, None] - model, u, a, ramp,
+                                          np.zeros_like(fine), J, _GN_TOL)
+                for damping in (1.0, 0.5, 0.25, 0.125):
+                    candidate = settle(fine + damping * step, offsets)
+                    if objective(u, candidate[4], candidate[6]) <= previous:
+                        trial = candidate
+                        break
+            else:
+                trial = settle(fine, offsets)
+            change = 0.0  # no step improves the fit: converged
+            if trial is not None:
+                fine, before, a, cov, model, offsets, fitted, moved_ok = trial
+                change = float(np.abs(offsets - before)[usable].max())
+            good = (a[:, 0] > 0) & moved_ok
+            usable = ok & good
+            if usable.sum() < 2:
+                raise ValueError("Fewer than 2 stamps keep a positive flux on the basis: these "
+                                 "are not star stamps.")
+            if self.background_:
+                level = np.where(good, fitted, level)
+            a = np.where(usable[:, None], a, 0.0)
+            if counted:
+                joint += 1
+                if joint >= int(self.n_iter) or trial is None:
+                    break
+            elif change < _OFFSET_TOL or round_ + 1 >= _MEAN_ROUNDS:
+                # the mean and the offsets have converged: how many components the stars hold
+                counted = True
+                k, lam, edge, noise, coef = self._components(d - level[:, None], w, a, offsets,
+                                                             fine, usable, pixel_var)
+                a = np.column_stack([a[:, 0], a[:, :1] * coef])
+                fine = np.vstack([fine, np.zeros((k, size * size))])
+        self.fine_mean_ = fine[0]
+        self.fine_components_ = fine[1:]
+        self.explained_variance_ = lam
+        self.noise_variance_ = noise
+        self.noise_edge_ = edge
+        self.n_components_ = int(fine.shape[0] - 1)
+        self.fine_size_ = size
+        self._n_features_out = self.n_components_
+        drawn = self._draw(np.fft.rfft2(fine.reshape(-1, size, size)),
+                           self._ramps(np.zeros((1, 2))))[0]
+        self.mean_, self.components_ = drawn[0], drawn[1:]
+        return self
+
+    def _components(self, d, w, a, offsets, fine, usable, pixel_var):
+        """Number of components, PCA variances, noise edge and noise of the residuals from
+        the mean (each star at its phase, at the pixels' sampling) and each star's
+        coefficients on the kept principal axes."""
+        p = d.shape[1]
+        flux = np.where(usable, a[:, 0], 1.0)
+        size = self._grid(self.stamp_size_)[1]
+        mean_fft = np.fft.rfft2(fine[:1].reshape(1, size, size))
+        drawn = self._draw(mean_fft, self._ramps(offsets))[:, 0]
+        resid = np.where(w > 0, d / flux[:, None] - drawn, 0.0)
+        v = pixel_var / flux**2
+        u = _star_weights(v, usable, self.max_star_weight)
+        n_top = int(self.max_components) + 1
+        if isinstance(self.n_components, numbers.Integral):
+            n_top = max(n_top, int(self.n_components))
+        centre, axes, lam, total = _weighted_pca(resid[usable], u[usable], n_top)
+        noise = float((u * v).sum() / u.sum())
+        k, edge = self._choose(lam, total, noise, u[usable] * v[usable] / u.sum(), p)
+        coef = (resid - centre) @ axes[:k].T
+        return k, lam, edge, noise, np.where(usable[:, None], coef, 0.0)
+
+    def project(self, X, weights=None) -> StampFit:
+        """Fit stamps on the basis: coefficients, their noise, flux, offsets and model.
+
+        Each star's flux, coefficients, background and sub-pixel offset are fitted on its
+        pixels (Gauss-Newton on the offset from the centroid of :class:`StampPCA`).
+
+        Parameters
+        ----------
+        X : array-like of shape (n, s*s)
+            Raw stamps, NaN for masked pixels. Not modified.
+        weights : array-like of shape (n, s*s), optional
+            Inverse variance per pixel (0 = masked); default estimated from the stamps.
+
+        Returns
+        -------
+        StampFit
+        """
+        check_is_fitted(self)
+        d, w, s = self._stamps_and_weights(X, weights, reset=False)
+        level = _border_level(d, w, s)[0] if self.background_ else np.zeros(len(d))
+        offsets, ok = self._centroids(d - level[:, None], w, s)
+        fine = np.vstack([self.fine_mean_[None], self.fine_components_])
+        a, cov, model, offsets, level, moved_ok = self._fit_stars(d, w, offsets, fine)
+        flux, coef, var, ccov, good = self._coefficients(a, cov)
+        flag = np.where(ok & moved_ok, FIT_OK, FIT_NO_CENTROID)
+        flag[~good] = FIT_NO_FLUX
+        return StampFit(coef, var, flux, offsets, model + level[:, None], w, flag, ccov)
+
+    def render(self, coefficients, flux=1.0, offsets=None):
+        """Model stamps at the pixels' sampling, the star at ``offsets`` from the centre.
+
+        ``flux * image(mean + c @ components, offset)``, drawn from the fine grid (see the
+        class description): a star's pixels at any sub-pixel position, not a shifted stamp.
+
+        Parameters
+        ----------
+        coefficients : array-like of shape (n, n_components_)
+        flux : float or array-like of shape (n,), default=1
+        offsets : array-like of shape (n, 2), optional
+            (dx, dy) of the star from the centre pixel; default none.
+
+        Returns
+        -------
+        stamps : ndarray of shape (n, s*s)
+        """
+        check_is_fitted(self)
+        coef = self._check_coefficients(coefficients)
+        n = coef.shape[0]
+        off = np.zeros((n, 2)) if offsets is None else np.asarray(
+            offsets, dtype=np.float64).reshape(n, 2)
+        images = self.render_fine(coef, normalize=False)
+        size = self.fine_size_
+        stamps = np.empty((n, self.stamp_size_**2))
+        for lo in range(0, n, _CHUNK):
+            sl = slice(lo, min(lo + _CHUNK, n))
+            fft = np.fft.rfft2(images[sl].reshape(-1, size, size))
+            ramp = self._ramps(off[sl])
+            pix = np.fft.irfft2(fft * ramp, s=(size, size))
+            f, _, o = self._grid(self.stamp_size_)
+            s = self.stamp_size_
+            stamps[sl] = (f * f) * pix[:, o:o + f * s:f, o:o + f * s:f].reshape(-1, s * s)
+        return stamps * np.broadcast_to(np.asarray(flux, dtype=np.float64), (n,))[:, None]
+
+    def render_fine(self, coefficients, normalize=True):
+        """The PSF on the fine grid: ``mean + c @ components`` (unit sum with ``normalize``).
+
+        Parameters
+        ----------
+        coefficients : array-like of shape (n, n_components_)
+        normalize : bool, default=True
+
+        Returns
+        -------
+        images : ndarray of shape (n, fine_size_**2)
+            The pixel-convolved PSF sampled every ``1 / oversampling_`` pixel, its centre at
+            the central sample.
+        """
+        check_is_fitted(self)
+        coef = self._check_coefficients(coefficients)
+        images = self.fine_mean_ + coef @ self.fine_components_
+        if normalize:
+            images = images / images.sum(axis=1, keepdims=True)
+        return images
