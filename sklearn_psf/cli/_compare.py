@@ -6,7 +6,7 @@ import argparse
 from dataclasses import replace
 from functools import partial
 
-from ._common import CLIInputError, _check_output, _n_jobs, _positive_int
+from ._common import CLIInputError, _check_output, _n_jobs, _positive, _positive_int
 from ._parallel import dask_backend
 
 #: Sizes of ``sklearn-psf compare``: ``"paper"`` (the default) and ``"quick"`` (``--quick``);
@@ -44,16 +44,6 @@ def _snr(text):
         raise argparse.ArgumentTypeError(f"expected a number or 'realistic', got {text!r}") from None
     if not value > 0:
         raise argparse.ArgumentTypeError(f"S/N must be positive, got {value}")
-    return value
-
-
-def _positive_float(text):
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {value}")
     return value
 
 
@@ -95,7 +85,7 @@ def add_compare_parser(sub):
     cmp.add_argument("--image-shape", type=_shape, metavar="NY,NX",
                      help="simulated image size in pixels [7769,10032: Subaru SuprimeCam]")
     cmp.add_argument("--snr", type=_snr, default=100.0, help="star S/N, or 'realistic' [100]")
-    cmp.add_argument("--smallest-scale", type=_positive_float, metavar="ARCSEC",
+    cmp.add_argument("--smallest-scale", type=_positive, metavar="ARCSEC",
                      help="smallest scale of the simulated PSF variation, arcsec [8: the "
                           "cell of the simulations' random fields]")
     cmp.add_argument("--reference", default="default", metavar="NAME|PATH",
