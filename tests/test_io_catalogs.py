@@ -342,8 +342,10 @@ def test_real_decam_catalogue(realdata):
     locus = np.median(radius[sure])
     assert 2.3 < locus < 2.5   # pixels
     deviation = np.abs(radius[keep] / locus - 1)
-    assert np.percentile(deviation, 95) < 0.10 and deviation.max() < 0.2   # 0.078, 0.158
-    assert keep[sure].mean() >= 0.9          # measured 0.95 (the others crowded)
+    # the S/N without SNR_WIN is the best of FLUX_AUTO's and the apertures': fainter stars,
+    # with a wider locus, pass S/N 20
+    assert np.percentile(deviation, 95) < 0.14 and deviation.max() < 0.23   # 0.118, 0.196
+    assert keep[sure].mean() >= 0.85         # measured 0.91 (the others crowded)
     assert keep[galaxies].mean() <= 0.01     # measured 0 of 177
-    assert 150 <= keep.sum() <= 220          # 181; PSFEx-style selection: 217
+    assert 150 <= keep.sum() <= 260          # 225; PSFEx-style selection: 217
     assert counts["not_applied"] == {}       # SPREAD_MODEL agrees with the locus here

@@ -218,11 +218,12 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
     both coordinates, False keeps them.
 
     Optional columns are copied under standard names: ``flux`` (``FLUX``, ``FLUX_AUTO``,
-    ``FLUX_PSF``, ``FLUX_APER``), ``snr`` (``SNR``, ``SNR_WIN``, else ``FLUX_AUTO /
-    FLUXERR_AUTO``), ``flags`` (``FLAGS``, ``FLAG``; non-zero skips the star when stamps
+    ``FLUX_PSF``, ``FLUX_APER``), ``snr`` (``SNR``, ``SNR_WIN``, else from the fluxes, see
+    below), ``flags`` (``FLAGS``, ``FLAG``; non-zero skips the star when stamps
     are cut), ``peak`` (``FLUX_MAX``), ``flux_radius``, ``class_star``, ``spread_model``,
     ``background`` (read by :func:`select_stars`); without ``SNR``/``SNR_WIN``, the S/N is
-    ``FLUX_AUTO / FLUXERR_AUTO``, else ``FLUX_APER / FLUXERR_APER``. Other columns, e.g.
+    the largest of ``FLUX_AUTO / FLUXERR_AUTO`` and each aperture's ``FLUX_APER /
+    FLUXERR_APER`` (the estimate nearest the windowed S/N). Other columns, e.g.
     ``VIGNET``, are kept as they are. A ``FLUX_RADIUS`` that is 0 (or NaN) in every row is left
     out with a :class:`CatalogColumnWarning`.
 
@@ -345,13 +346,19 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
                 out[std] = _numbers(columns[name], lower[name], where,
                                     integer=std == "flags")
                 break
-    if "snr" not in out.colnames:  # as PSFEx: PHOTFLUX_KEY / PHOTFLUXERR_KEY
+    if "snr" not in out.colnames:  # the best of the fluxes' S/N: closest to SNR_WIN's
+        ratios = []
         for flux, err in (("flux_auto", "fluxerr_auto"), ("flux_aper", "fluxerr_aper")):
-            if flux in columns and err in columns:
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    out["snr"] = (_numbers(columns[flux], lower[flux], where)
-                                  / _numbers(columns[err], lower[err], where))
-                break
+            if flux in lower and err in lower:
+                f = np.asarray(table[lower[flux]], dtype=np.float64).reshape(len(table), -1)
+                e = np.asarray(table[lower[err]], dtype=np.float64).reshape(len(table), -1)
+                if f.shape == e.shape:
+                    with np.errstate(divide="ignore", invalid="ignore"):
+                        ratios.append(np.where(e > 0, f / e, np.nan))
+        if ratios:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows stay NaN
+                out["snr"] = np.nanmax(np.hstack(ratios), axis=1)
     dropped = set()
     if "flux_radius" in out.colnames and not (np.asarray(out["flux_radius"]) > 0).any():
         warnings.warn(
