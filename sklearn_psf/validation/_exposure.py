@@ -405,6 +405,13 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
                     f"{inputs.image_path} (ny, nx = {ny}, {nx}): check the HDU, or whether "
                     "the positions are 1-based (one_based=True, --one-based)")
         if select:
+            if data is not None and not any(c.upper() == "VIGNET" for c in table.colnames):
+                # sources measured on the image's cut-outs, their neighbours masked, as on
+                # a catalogue's VIGNETs (FLUX_RADIUS would carry the neighbours' light)
+                from ..io._stars import _image_vignettes
+
+                table = table.copy(copy_data=False)
+                table["VIGNET"] = _image_vignettes(data, table, stamp_size, inputs.weight)
             keep, counts = select_stars(
                 table, min_snr=min_snr, saturation=inputs.saturation, flag_mask=flag_mask,
                 stamp_size=stamp_size, isolation=isolation, locus_width=locus_width,
