@@ -59,7 +59,10 @@ def test_fit_then_predict(tmp_path, exposure, capsys):
                            "--stars", exposure["stars"], "-o", tmp_path / "cat.fits",
                            "--no-plots", "--interpolator", "delaunay"], capsys)
     assert code == 0, err
-    assert "stars used: 117 of 120 (skipped: masked 2, saturated 1)" in out
+    # the stars measured on the image's cut-outs: one saturated and one with a masked pixel
+    # are rejected by the selection, one more with a masked core pixel skipped when cut
+    assert "selected as stars: 118 (rejected: saturated 1, off_locus 1)" in out
+    assert "stars used: 117 of 118 (skipped: masked 1)" in out
     assert "1-based X_IMAGE" in out
     assert not (tmp_path / "cat_stamps.png").exists()
 
@@ -156,7 +159,9 @@ def test_some_positions_outside_are_skipped_and_counted(tmp_path, exposure, caps
                            "--stars", tmp_path / "stars.fits", "-o", tmp_path / "m.fits",
                            "--no-plots", "--reserve", "0"], capsys)
     assert code == 0, err
-    assert "stars used: 117 of 122 (skipped: off_image 1, edge 1, masked 2, saturated 1)" in out
+    assert ("selected as stars: 118 (rejected: bad_position 1, saturated 1, near_edge 1, "
+            "off_locus 1)") in out
+    assert "stars used: 117 of 118 (skipped: masked 1)" in out
     assert load_model(tmp_path / "m.fits").X_fit_.shape == (117, 2)
 
 

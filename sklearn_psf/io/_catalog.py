@@ -295,7 +295,8 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
     ...               "FLUX_APER": [[100.0, 150.0, 180.0]], "FLUXERR_APER": [[5.0, 6.0, 9.0]]})
     >>> cat = read_catalog(aper)
     >>> float(cat["flux"][0]), float(cat["snr"][0]), cat.meta["vector_elements"]["FLUX_APER"]
-    (100.0, 20.0, 1)
+    ... # flux: FLUX_APER(1), as PSFEx; S/N: the best of the apertures, 150 / 6
+    (100.0, 25.0, 1)
     >>> float(read_catalog(aper, aperture=3)["flux"][0])
     180.0
     """

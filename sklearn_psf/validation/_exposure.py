@@ -413,7 +413,8 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
                 table = table.copy(copy_data=False)
                 table["VIGNET"] = _image_vignettes(data, table, stamp_size, inputs.weight)
             keep, counts = select_stars(
-                table, min_snr=min_snr, saturation=inputs.saturation, flag_mask=flag_mask,
+                table, image_shape=None if data is None else data.shape,
+                min_snr=min_snr, saturation=inputs.saturation, flag_mask=flag_mask,
                 stamp_size=stamp_size, isolation=isolation, locus_width=locus_width,
                 max_spread_model=max_spread_model, min_class_star=min_class_star,
                 min_stars=0)
