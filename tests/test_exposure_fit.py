@@ -149,3 +149,37 @@ def test_real_decam_psfex_input_beside_psfex(realdata, tmp_path, capsys):
     table = T.read(tmp_path / "v" / "validation.csv", format="ascii.csv")
     assert sorted(table["kind"]) == ["psfex", "sklearn_psf"]
     assert len(set(table["n_measured"])) == 1 and table["n_measured"][0] >= 15
+
+
+def test_internal_error_of_one_of_many_fits_is_reported_as_a_bug(tmp_path, capsys,
+                                                                  monkeypatch):
+    """Several inputs (fitted one after the other here): a failure inside numpy is reported as
+    a bug of the package (exit status 3, --debug named), an input error as an error (2)."""
+    import sklearn_psf.validation as validation
+    from sklearn_psf.cli import main
+    from sklearn_psf.io import write_ldac
+
+    X, stamps, _ = _field(seed=5, n_stars=30)
+    side = int(np.sqrt(stamps.shape[1]))
+    cat = Table({"X_IMAGE": X[:, 0] + 1, "Y_IMAGE": X[:, 1] + 1,
+                 "VIGNET": stamps.reshape(-1, side, side).astype(np.float32)})
+    paths = [tmp_path / "a.ldac", tmp_path / "b.ldac"]
+    for path in paths:
+        write_ldac(path, cat)
+
+    def broken(*args, **kwargs):
+        return np.ones(2).reshape(3)   # a numpy failure, not about the input
+
+    monkeypatch.setattr(validation, "fit_exposure", broken)
+    args = ["fit", "--stars", *map(str, paths), "--no-plots", "-o", str(tmp_path / "m.fits")]
+    assert main(args) == 3
+    err = capsys.readouterr().err
+    assert err.count("sklearn-psf: internal error") == 3 and "--debug" in err
+
+    def refused(*args, **kwargs):
+        raise validation.StarSelectionError("0 of 30 sources pass", {"low_snr": 30}, "hint")
+
+    monkeypatch.setattr(validation, "fit_exposure", refused)
+    assert main(args + ["--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert "internal error" not in err and err.count("sklearn-psf: error:") == 3

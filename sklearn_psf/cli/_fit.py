@@ -278,7 +278,7 @@ def _fit_many(jobs, args):
         job.shown, job.image, job.stars, job.output = (
             job.output, *(None if p is None else os.path.abspath(p)
                           for p in (job.image, job.stars, job.output)))
-    failed, registry = [], {}
+    failed, bugs, registry = [], [], {}
     with dask_backend(args.scheduler), tqdm(total=len(jobs), desc="fitting",
                                             unit="model") as bar:
         outcomes = (map_ordered(_fit_of_many, jobs, args.n_jobs) if args.scheduler is None
@@ -288,13 +288,20 @@ def _fit_many(jobs, args):
             with tqdm.external_write_mode():
                 print(f"{job.source} -> {job.shown}")
                 _show(outcome, registry, shown_output=job.shown)
-                if outcome.error is not None:
+                if outcome.internal:
+                    bugs.append(job.source)
+                    print(f"sklearn-psf: internal error: {job.source}: "
+                          f"{type(outcome.error).__name__}: {outcome.error}: a bug of "
+                          "sklearn-psf, not of this input; fit it alone with --debug for the "
+                          "traceback", file=sys.stderr)
+                elif outcome.error is not None:
                     failed.append(job.source)
                     print(f"sklearn-psf: error: {job.source}: {outcome.error}", file=sys.stderr)
             bar.update()
-    if failed:
-        raise CLIInputError(f"{len(failed)} of {len(jobs)} fits failed ({', '.join(failed)}: "
-                            "errors above); the other models were written")
+    if failed or bugs:
+        text = (f"{len(failed) + len(bugs)} of {len(jobs)} fits failed "
+                f"({', '.join(failed + bugs)}: errors above); the other models were written")
+        raise RuntimeError(text) if bugs else CLIInputError(text)
     return 0
 
 
@@ -303,7 +310,8 @@ class _FitOutcome(NamedTuple):
     ``(message, category, filename, lineno)``, and this package's warnings about the fitted
     model (``notes``, plain text: the command prints them, and the process showing them need
     not import the library), in the order of printing; the files written and the error that
-    stopped the fit (or None)."""
+    stopped the fit (or None), and whether that error is internal (a bug, not the input's:
+    judged where it was raised, since its traceback does not cross processes)."""
 
     lines: list
     warnings: list
@@ -311,6 +319,7 @@ class _FitOutcome(NamedTuple):
     later_warnings: list
     written: list
     error: Exception | None
+    internal: bool = False
 
 
 def _plain(caught):
@@ -322,17 +331,20 @@ def _fit_one(args, quiet=False) -> _FitOutcome:
     ``quiet``): the outcome holds what to print, so that it can run in another process."""
     import warnings
 
+    from .._files import is_input_error
+
     lines, fit_warnings, written, error = [], [], [], None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
             written = _fit_steps(args, lines, fit_warnings, quiet)
-        except (CLIInputError, ValueError, OSError) as exc:
+        except Exception as exc:  # noqa: BLE001 - reported with the others' outcomes
             error = exc
     ours = [w.category.__module__.startswith("sklearn_psf") for w in fit_warnings]
     notes = [str(w.message) for w, mine in zip(fit_warnings, ours) if mine]
     others = _plain(w for w, mine in zip(fit_warnings, ours) if not mine)
-    return _FitOutcome(lines, _plain(caught), notes, others, written, error)
+    return _FitOutcome(lines, _plain(caught), notes, others, written, error,
+                       error is not None and not is_input_error(error))
 
 
 def _fit_of_many(args) -> _FitOutcome:
