@@ -83,15 +83,14 @@ def standard(image):
 @pytest.mark.parametrize("name", [n for n in CONFIGS if n != "standard"])
 def test_every_configuration_keeps_the_standard_stars(image, standard, name):
     true, other = _kept(image, name)
+    # measured against the standard's 190: 182-190 (VIGNET 63 and DETECT_THRESH 1.5: 182);
     # without SNR_WIN the S/N is the best of the apertures' and FLUX_AUTO's, lower than the
-    # windowed one for faint stars: 94% of the standard's stars pass S/N >= 20; from the
-    # image's stamps (no VIGNETs) the locus is FLUX_RADIUS's, neighbours unmasked: 95%
+    # windowed one for faint stars: 178 (94%); from the image's cut-outs (FITS_1.0): 180
     short = name == "no SNR_WIN" or CONFIGS[name][1]
     assert true >= (0.92 if short else 0.95) * standard[0], (name, true, standard)
     # non-stars: compact galaxies (hlr 0.2-0.3", S/N 10-80) the size cannot tell from stars:
-    # 6-7 of about 190 (3-3.5%, as the standard's); from the image's stamps, whose size is
-    # FLUX_RADIUS (neighbours not masked), 27 (13%)
-    limit = 0.16 if CONFIGS[name][1] else 0.05
+    # 1-9 of about 195 (at most 4.5%, without FLUX_AUTO), 7 for the standard recipe
+    limit = 0.07
     assert other <= limit * (true + other), (name, other)
 
 
@@ -99,7 +98,7 @@ def test_standard_recipe_model_and_missing_positions(image, standard):
     """The standard catalogue gives a model through fit_exposure; a catalogue without any
     position column is refused in one line that names what is missing."""
     true, other = standard
-    assert true >= 150 and other <= 0.05 * (true + other)   # measured 187 and 6
+    assert true >= 150 and other <= 0.07 * (true + other)   # measured 190 and 7
     ccd, path, weight, folder = image
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

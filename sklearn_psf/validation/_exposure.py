@@ -10,7 +10,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._files import InputError
+from .._files import InputError, is_input_error
 
 __all__ = ["ExposureInputs", "ExposureFit", "StarSelectionError", "fit_exposure",
            "read_exposure"]
@@ -145,11 +145,12 @@ class ExposureInputs(NamedTuple):
 
 @contextlib.contextmanager
 def _naming(path):
-    """Errors of the library about a file's content name the file."""
+    """Input errors about a file's content name the file (a failure that is not about the
+    input goes on as it is: a bug must not pass for the user's fault)."""
     try:
         yield
     except ValueError as exc:
-        if path is None or str(path) in str(exc):
+        if path is None or str(path) in str(exc) or not is_input_error(exc):
             raise
         raise InputError(f"{path}: {exc}") from None
 
