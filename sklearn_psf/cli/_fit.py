@@ -88,6 +88,11 @@ def _add_fit_parsers(sub):
                      "XWIN_IMAGE, YWIN_IMAGE of the degree, up to 8, that follows the model "
                      "best on a grid; the degree and the approximation error are printed. "
                      "One model only")
+    fit.add_argument("--keys", nargs="+", metavar="COL",
+                     help="catalogue columns (a colour, a magnitude, a flux) as further "
+                     "dimensions of the model after x, y, as PSFEx's PSFVAR_KEYS; stars with "
+                     "NaN in one are left out (counted); 'predict' reads the same columns at "
+                     "the galaxies")
     fit.add_argument("--overwrite", action="store_true",
                      help="replace an existing model file and its figures")
     fit.add_argument("--n-jobs", type=_n_jobs, default=1,
@@ -142,6 +147,9 @@ def _add_fit_parsers(sub):
     pred.add_argument("--radec", action="store_true",
                       help="positions are (RA, Dec) in degrees (ALPHA_J2000/DELTA_J2000, RA/DEC "
                       "or --x-col/--y-col), converted with the WCS of the fitted image")
+    pred.add_argument("--keys", nargs="+", metavar="COL",
+                      help="the catalogue's columns of the model's extra dimensions, in the "
+                      "order of the fit's --keys [the names the model file stores]")
     pred.add_argument("--centered", action="store_true",
                       help="shift each PSF by the position's sub-pixel offset from the stamp's "
                       "centre pixel floor(x + 0.5), as PSFEx and PIFF draw it")
@@ -253,6 +261,8 @@ def _fit(args):
         path, figures = _outputs(args, job.output)
         _check_output_file(path, args.overwrite, figures, inputs)
     if args.psfex is not None:
+        if args.keys:
+            raise CLIInputError("--psfex writes a model of x, y only: not with --keys")
         if len(jobs) > 1:
             raise CLIInputError("--psfex writes one .psf file: give one input (one model)")
         _check_output_file(args.psfex, args.overwrite, inputs=inputs)
@@ -416,7 +426,7 @@ def _fit_steps(args, lines, fit_warnings, quiet=False):
                     locus_width=args.locus_width, max_spread_model=args.max_spread_model,
                     min_class_star=args.min_class_star, stamp_size=args.stamp_size,
                     interpolator=args.interpolator, reserve=args.reserve,
-                    random_state=args.seed, progress=progress)
+                    random_state=args.seed, keys=args.keys, progress=progress)
         except StarSelectionError as exc:
             hint = ("or use --no-select if the catalogue holds stars only" if args.stars
                     else "or give a star catalogue with --stars")
@@ -488,11 +498,21 @@ def _predict(args):
                      read_catalog, read_model_validation, sky_to_pixel)
     from .._files import check_memory, write_fits_atomic
     from ..measure import adaptive_moments
+    from ..validation import key_columns
 
     if (args.x_col is None) != (args.y_col is None):
         raise CLIInputError("give both --x-col and --y-col, or neither")
     model = load_model(args.model)
-    wcs = celestial_wcs((read_model_validation(args.model)[1] or {}).get("wcs"))
+    summary = read_model_validation(args.model)[1] or {}
+    wcs = celestial_wcs(summary.get("wcs"))
+    keys = list(args.keys or summary.get("keys") or ())
+    n_extra = model.X_fit_.shape[1] - 2
+    if len(keys) != n_extra:
+        named = f" ({', '.join(summary['keys'])})" if summary.get("keys") else ""
+        raise CLIInputError(
+            f"the model {args.model!r} has {n_extra} dimensions after x, y{named}; "
+            + (f"--keys gives {len(keys)}" if args.keys
+               else "it does not name their columns: give them with --keys"))
     if args.radec and wcs is None:
         raise CLIInputError(f"--radec: the model {args.model!r} has no WCS (its image had none)")
     with _about(args.positions):
@@ -510,6 +530,15 @@ def _predict(args):
         X = sky_to_pixel(wcs, radec)
     elif wcs is not None:
         radec = pixel_to_sky(wcs, X)
+    if keys:  # the model's extra dimensions, from the galaxies' own columns
+        with _about(args.positions):
+            extra = key_columns(catalog, keys, f"the catalogue {args.positions!r}")
+        bad = ~np.isfinite(extra).all(axis=1)
+        if bad.any():
+            raise CLIInputError(f"{int(bad.sum())} rows of {args.positions} have NaN or "
+                                f"infinite values in {', '.join(keys)} (first at row "
+                                f"{int(np.flatnonzero(bad)[0])}): the model needs them")
+        X = np.column_stack([X, extra])
     size = model.stamp_size_ * args.oversampling
     check_memory(3 * 8 * len(X) * size**2, f"{len(X)} PSF stamps of {size} x {size} samples "
                  f"(--oversampling {args.oversampling})")
@@ -549,9 +578,12 @@ def _predict(args):
     except OSError as exc:
         raise CLIInputError(f"cannot write {args.output!r}: {exc.strerror or exc}") from None
     flagged = int(np.sum(out["moments_flag"] != 0))
-    n_extra = int(np.sum(out["extrapolated"]))
+    n_out = int(np.sum(out["extrapolated"]))
     print(f"PSFs at {len(X)} positions ({size}x{size} stamps, e1/e2/sigma measured"
-          + (f"; {flagged} could not be measured" if flagged else "") + ")"
-          + (f"; {n_extra} extrapolated (flagged in column 'extrapolated')" if n_extra else ""))
+          + (f"; {flagged} could not be measured" if flagged else "")
+          + (f"; model dimensions x, y, {', '.join(keys)}" if keys else "") + ")"
+          + (f"; {n_out} extrapolated (flagged in column 'extrapolated'"
+             + (": off the stars' positions or beyond their range of a key" if keys else "")
+             + ")" if n_out else ""))
     print(f"Wrote {args.output}")
     return 0

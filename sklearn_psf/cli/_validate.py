@@ -101,7 +101,8 @@ def _print_table(table):
     cols = (("model", "model", "{}"), ("kind", "kind", "{}"), ("rank", "rank", "{}"),
             ("n_measured", "stars", "{}"), ("chi2_dof", "chi2/dof", "{:.3f}"),
             ("e_rms", "e rms", "{:.4f}"), ("dsigma_rms", "size rms [px]", "{:.4f}"),
-            ("rho1_mean_abs", "|rho1|", "{:.2e}"), ("rho2_mean_abs", "|rho2|", "{:.2e}"))
+            ("rho1_mean_abs", "|rho1|", "{:.2e}"), ("rho2_mean_abs", "|rho2|", "{:.2e}"),
+            ("dM22_rel_rms", "dM22/s^4 rms", "{:.2e}"), ("dM4_rel_rms", "dM4/s^4 rms", "{:.2e}"))
     rows = [[fmt.format(r[key]) for key, _, fmt in cols] for r in table]
     widths = [max(len(title), *(len(row[j]) for row in rows)) for j, (_, title, _) in
               enumerate(cols)]

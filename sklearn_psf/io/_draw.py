@@ -31,8 +31,9 @@ def draw_psf(model, positions, *, centered: bool = True, oversampling: int = 1) 
     Parameters
     ----------
     model : fitted PSFModel (or any estimator whose ``predict(X)`` returns (n, s*s) stamps)
-    positions : array-like of shape (n, 2)
-        (x, y), 0-based pixels.
+    positions : array-like of shape (n, 2) or (n, 2 + m)
+        (x, y), 0-based pixels, then the model's extra dimensions (a colour, a magnitude) if
+        it has any: passed to ``predict``; the sub-pixel offsets come from (x, y).
     centered : bool, default=True
         Shift each PSF by its position's fractional offset.
     oversampling : int, default=1
@@ -58,8 +59,9 @@ def draw_psf(model, positions, *, centered: bool = True, oversampling: int = 1) 
     0.3
     """
     X = np.asarray(positions, dtype=np.float64)
-    if X.ndim != 2 or X.shape[1] != 2:
-        raise ValueError(f"positions must have shape (n, 2), got {X.shape}.")
+    if X.ndim != 2 or X.shape[1] < 2:
+        raise ValueError(f"positions must have shape (n, 2) or (n, 2 + m) (x, y, then the "
+                         f"model's extra dimensions), got {X.shape}.")
     if not np.isfinite(X).all():
         row = int(np.flatnonzero(~np.isfinite(X).all(axis=1))[0])
         raise ValueError(f"positions hold NaN or infinite values (first at row {row}).")
@@ -71,7 +73,8 @@ def draw_psf(model, positions, *, centered: bool = True, oversampling: int = 1) 
     cube = flat.reshape(len(X), s, s)
     if not centered and n_over == 1:
         return cube  # the model's own stamps
-    offset = X - np.floor(X + 0.5) if centered else np.zeros_like(X)
+    xy = X[:, :2]
+    offset = xy - np.floor(xy + 0.5) if centered else np.zeros_like(xy)
     c = (s - 1) / 2
     size = s * n_over
     grid = c + (np.arange(size) - (size - 1) / 2) / n_over
@@ -88,13 +91,16 @@ def extrapolation_flags(X_fit, X, max_distance: float | None = None) -> np.ndarr
     Rule: a position is flagged when it lies outside the convex hull of the fitted stars
     (:class:`scipy.spatial.Delaunay`), or when its nearest fitted star is farther than
     ``max_distance``, by default 3 times the median distance between a star and its nearest
-    neighbour (a hole in the star coverage).
+    neighbour (a hole in the star coverage). With extra dimensions (columns beyond x, y: a
+    colour, a magnitude), the positions are judged on (x, y) and a value of an extra column
+    outside the fitted stars' range of it is flagged too (a galaxy bluer than every star).
 
     Parameters
     ----------
-    X_fit : array-like of shape (m, 2)
-        Positions of the fitted stars (``PSFModel.X_fit_``).
-    X : array-like of shape (n, 2)
+    X_fit : array-like of shape (k, 2) or (k, 2 + m)
+        Positions (and extra dimensions) of the fitted stars (``PSFModel.X_fit_``).
+    X : array-like of shape (n, 2) or (n, 2 + m)
+        The same columns as ``X_fit``.
     max_distance : float, optional
 
     Returns
@@ -108,9 +114,20 @@ def extrapolation_flags(X_fit, X, max_distance: float | None = None) -> np.ndarr
     >>> grid = np.array([[x, y] for x in range(0, 1001, 100) for y in range(0, 1001, 100)])
     >>> extrapolation_flags(grid, [[500.0, 500.0], [1200.0, 500.0], [50.0, 950.0]]).tolist()
     [False, True, False]
+    >>> colour = np.linspace(0.3, 3.0, len(grid))          # a colour as a third column
+    >>> extrapolation_flags(np.column_stack([grid, colour]),
+    ...                     [[500.0, 500.0, 1.0], [500.0, 500.0, 0.1]]).tolist()
+    [False, True]
     """
-    X_fit = np.asarray(X_fit, dtype=np.float64)[:, :2]
-    X = np.asarray(X, dtype=np.float64)[:, :2]
+    X_fit = np.asarray(X_fit, dtype=np.float64)
+    X = np.asarray(X, dtype=np.float64)
+    if X_fit.ndim != 2 or X.ndim != 2 or X_fit.shape[1] < 2 or X.shape[1] != X_fit.shape[1]:
+        raise ValueError(f"X must have the columns of X_fit ((x, y) then the model's extra "
+                         f"dimensions): X_fit has shape {X_fit.shape}, X {X.shape}.")
+    extra, extra_fit = X[:, 2:], X_fit[:, 2:]
+    out_of_range = ((extra < extra_fit.min(axis=0)) | (extra > extra_fit.max(axis=0))).any(
+        axis=1) if extra.shape[1] else np.zeros(len(X), dtype=bool)
+    X_fit, X = X_fit[:, :2], X[:, :2]
     tree = cKDTree(X_fit)
     if max_distance is None:
         nn, _ = tree.query(X_fit, k=2) if len(X_fit) > 1 else (np.zeros((1, 2)), None)
@@ -120,4 +137,4 @@ def extrapolation_flags(X_fit, X, max_distance: float | None = None) -> np.ndarr
         outside = Delaunay(X_fit).find_simplex(X) < 0
     except (QhullError, ValueError):  # fewer than 3 stars or all aligned: no area
         outside = np.ones(len(X), dtype=bool)
-    return outside | far
+    return outside | far | out_of_range

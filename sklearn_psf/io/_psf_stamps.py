@@ -49,8 +49,9 @@ def write_psf_stamps(path, model, positions, *, oversampling: int = 1, centered:
         Ending in ``.fits`` or ``.npz``.
     model : fitted PSFModel (or any model whose ``predict`` gives (n, s*s) stamps; the
         extrapolation flags need its ``X_fit_``, otherwise they are all False)
-    positions : array-like of shape (n, 2)
-        Galaxy positions (x, y), 0-based pixels.
+    positions : array-like of shape (n, 2) or (n, 2 + m)
+        Galaxy positions (x, y), 0-based pixels, then the model's extra dimensions if it has
+        any (see :func:`draw_psf`).
     oversampling : int, default=1
     centered : bool, default=False
     ids : array-like of shape (n,), optional
@@ -76,8 +77,9 @@ def write_psf_stamps(path, model, positions, *, oversampling: int = 1, centered:
     """
     kind = _format(path)
     X = np.asarray(positions, dtype=np.float64)
-    if X.ndim != 2 or X.shape[1] != 2 or len(X) == 0:
-        raise ValueError(f"positions must have shape (n, 2) with n >= 1, got {X.shape}.")
+    if X.ndim != 2 or X.shape[1] < 2 or len(X) == 0:
+        raise ValueError(f"positions must have shape (n, 2) (or (n, 2 + m) with the model's "
+                         f"extra dimensions) with n >= 1, got {X.shape}.")
     if os.path.exists(path) and not overwrite:
         raise FileExistsError(f"{os.fspath(path)!r} already exists: pass overwrite=True to "
                               "replace it.")

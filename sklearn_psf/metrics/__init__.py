@@ -1,7 +1,7 @@
 """Diagnostics of PSF models: ellipticity correlation functions, scorers, lensing systematics."""
 
 from ._correlation import CorrelationResult, EmptyBinsWarning, ellipticity_correlation, rho1
-from ._rho import RHO_NAMES, rho_statistics
+from ._rho import FOURTH_RHO_NAMES, RHO_NAMES, fourth_moment_rho_statistics, rho_statistics
 from ._scorers import (
     CoefficientRMSScorer,
     EllipticityRMSScorer,
@@ -44,10 +44,12 @@ __all__ = [
     "DEFAULT_COSMOLOGY",
     "ELL_RANGE",
     "EmptyBinsWarning",
+    "FOURTH_RHO_NAMES",
     "RHO_NAMES",
     "RequirementCurves",
     "SURVEYS",
     "ellipticity_correlation",
+    "fourth_moment_rho_statistics",
     "hankel_xi_to_cl",
     "requirement_curves",
     "rho1",

@@ -32,7 +32,7 @@ from ._figures import (
 )
 from ._fit import fit_and_validate
 from ._exposure import (ExposureFit, ExposureInputs, StarSelectionError, fit_exposure,
-                        read_exposure)
+                        key_columns, read_exposure)
 from ._compare import COMPARISON_COLUMNS, UNUSABLE_STAR_REASONS, validate_models
 from ._compare_figures import plot_model_comparison
 from ._external import PiffModel, PSFExModel, load_psf_model, model_kind
@@ -41,7 +41,7 @@ from ._residuals import measure_residuals, rho_bins
 from ._verdict import PSFQualityWarning
 
 __all__ = ["fit_and_validate", "fit_exposure", "read_exposure", "ExposureFit",
-           "ExposureInputs", "StarSelectionError", "PSFQualityWarning", "plot_stamp_residuals",
+           "ExposureInputs", "StarSelectionError", "key_columns", "PSFQualityWarning", "plot_stamp_residuals",
            "plot_whiskers", "plot_rho1", "plot_rho_statistics", "plot_psf_maps",
            "plot_residuals_against", "COMPARISON_COLUMNS", "UNUSABLE_STAR_REASONS",
            "PSFExModel", "PiffModel", "load_psf_model", "measure_residuals", "model_kind",

@@ -9,7 +9,7 @@ from astropy.table import Table
 
 from .._files import InputError
 from .._validation import as_stamps
-from ..metrics import RHO_NAMES
+from ..metrics import FOURTH_RHO_NAMES, RHO_NAMES
 from ._external import PiffModel, PSFExModel, load_psf_model, model_kind
 from ._residuals import measure_residuals, rho_bins
 
@@ -18,7 +18,8 @@ __all__ = ["validate_models", "COMPARISON_COLUMNS", "UNUSABLE_STAR_REASONS"]
 #: Columns of the comparison table, after ``model`` and ``kind`` (see :func:`validate_models`).
 COMPARISON_COLUMNS = ("rank", "n_measured", "chi2_dof", "chi2_dof_median", "e_rms", "de1_mean",
                       "de1_rms", "de2_mean", "de2_rms", "dsigma_mean", "dsigma_rms",
-                      "resid_rms") + tuple(f"{r}_mean_abs" for r in RHO_NAMES)
+                      "resid_rms", "dM22_rel_mean", "dM22_rel_rms", "dM4_rel_rms") + tuple(
+                          f"{r}_mean_abs" for r in RHO_NAMES + FOURTH_RHO_NAMES)
 
 
 def _fit_size(stamps, s):
@@ -102,8 +103,8 @@ def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6
     readers, :class:`PSFExModel` and :class:`PiffModel`; stamps cropped or zero-padded to
     the stars' size) and :func:`measure_residuals` measures the same residuals for all: the
     stars' and the models' adaptive-moment e1, e2 and size, the pixel chi^2 of each raw star
-    against the model in the star's noise, and rho1 to rho5 in the same separation bins.
-    Give stars that none of the models was fitted on (reserved stars), otherwise the models
+    against the model in the star's noise, the fourth moments' residuals, and rho1 to rho5
+    and the fourth moments' correlation functions in the same separation bins. Give stars that none of the models was fitted on (reserved stars), otherwise the models
     that saw them are favoured. Stars that cannot be compared (every pixel masked, an
     infinite pixel, or no positive flux: a crowded or empty stamp) are left out and counted
     by reason (:data:`UNUSABLE_STAR_REASONS`) in ``table.meta["left_out"]``.
@@ -143,8 +144,11 @@ def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6
         One row per model: ``model`` (name), ``kind`` ("sklearn_psf", "psfex", "piff"),
         then :data:`COMPARISON_COLUMNS`: ``rank``, ``n_measured`` and the summary entries
         of :func:`measure_residuals` (``chi2_dof``, ``e_rms``, ... in pixels for sizes),
-        ``resid_rms`` (mean over stars of the unit-flux residual stamp's pixel rms) and
-        ``rho1_mean_abs`` ... ``rho5_mean_abs`` (mean |rho| over the separation bins).
+        ``resid_rms`` (mean over stars of the unit-flux residual stamp's pixel rms),
+        ``dM22_rel_mean``, ``dM22_rel_rms``, ``dM4_rel_rms`` (the fourth moments' residuals
+        over each star's sigma^4) and ``rho1_mean_abs`` ... ``rho5_mean_abs``,
+        ``rho_M4_mean_abs`` ... ``rho_TM22_mean_abs`` (mean |rho| over the separation bins;
+        :func:`~sklearn_psf.metrics.fourth_moment_rho_statistics`).
     results : dict
         ``{name: (residuals, summary)}`` of :func:`measure_residuals` for each model (for
         the figures, :func:`plot_model_comparison`).
@@ -217,8 +221,8 @@ def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6
     table = Table(rows=[[r[c] for c in ("model", "kind") + COMPARISON_COLUMNS] for r in rows],
                   names=("model", "kind") + COMPARISON_COLUMNS)
     for name in COMPARISON_COLUMNS[2:]:  # printed compactly; the values keep full precision
-        table[name].info.format = ".2e" if name.startswith("rho") or name == "resid_rms" \
-            else ".4f"
+        table[name].info.format = ".2e" if name.startswith(("rho", "dM")) \
+            or name == "resid_rms" else ".4f"
     table.meta["left_out"] = left_out
     table.meta["rho_theta_units"] = next(
         (sm.get("rho_theta_units") for _, sm in results.values() if sm.get("rho_theta_units")),

@@ -13,7 +13,7 @@ import numpy as np
 from .._files import InputError, is_input_error
 
 __all__ = ["ExposureInputs", "ExposureFit", "StarSelectionError", "fit_exposure",
-           "read_exposure"]
+           "key_columns", "read_exposure"]
 
 
 class StarSelectionError(InputError):
@@ -265,6 +265,84 @@ class ExposureFit:
         return figures
 
 
+def key_columns(catalog, keys, where="the catalogue") -> np.ndarray:
+    """The catalogue's columns ``keys`` as the model's extra dimensions, one column each.
+
+    PSFEx's ``PSFVAR_KEYS``: any catalogue quantity (a colour, a magnitude, a flux) as a
+    dimension of the model after the positions. Names are matched without regard to case.
+
+    Parameters
+    ----------
+    catalog : astropy.table.Table
+    keys : sequence of str
+        Column names.
+    where : str
+        How error messages name the catalogue.
+
+    Returns
+    -------
+    ndarray of shape (n, len(keys))
+        float64 (NaN where a value is masked or missing).
+
+    Raises
+    ------
+    InputError
+        A key that is not a column (the message lists some that are), or a column that does
+        not hold one number per row.
+
+    Examples
+    --------
+    >>> from astropy.table import Table
+    >>> from sklearn_psf.validation import key_columns
+    >>> cat = Table({"x": [1.0, 2.0], "y": [3.0, 4.0], "G_I": [0.5, 1.5]})
+    >>> key_columns(cat, ["g_i"]).tolist()
+    [[0.5], [1.5]]
+    """
+    lower = {name.lower(): name for name in catalog.colnames}
+    out = np.empty((len(catalog), len(keys)))
+    for j, key in enumerate(keys):
+        name = lower.get(str(key).lower())
+        if name is None:
+            some = [c for c in catalog.colnames if np.ndim(catalog[c]) == 1][:12]
+            raise InputError(f"{where} has no column {key!r} (a --keys / keys entry); "
+                             f"columns include: {', '.join(some)}"
+                             + (", ..." if len(catalog.colnames) > len(some) else ""))
+        column = catalog[name]
+        if np.ndim(column) != 1 or column.dtype.kind not in "biuf":
+            raise InputError(f"{where}: column {name!r} (a --keys / keys entry) does not hold "
+                             f"one number per row (dtype {column.dtype}, shape "
+                             f"{np.shape(column)})")
+        values = np.ma.asarray(column).astype(np.float64)
+        out[:, j] = np.ma.filled(values, np.nan)
+    return out
+
+
+def _drop_missing_keys(stars, keys, where):
+    """The used stars' key values (m, len(keys)); stars with a NaN or infinite value are
+    dropped from ``stars`` (counted as ``missing_key`` with a warning)."""
+    import warnings
+
+    from ..io import CatalogColumnWarning
+
+    used = np.flatnonzero(np.asarray(stars.catalog["used"], dtype=bool))
+    extra = key_columns(stars.catalog[used], keys, where)
+    bad = ~np.isfinite(extra).all(axis=1)
+    if bad.any():
+        warnings.warn(f"{int(bad.sum())} of the {len(used)} stars of {where} have NaN or "
+                      f"infinite values in the keys {', '.join(keys)}: left out of the fit",
+                      CatalogColumnWarning, stacklevel=3)
+        stars.positions, stars.stamps = stars.positions[~bad], stars.stamps[~bad]
+        if stars.weights is not None:
+            stars.weights = stars.weights[~bad]
+        stars.catalog["used"][used[bad]] = False
+        reason = np.asarray(stars.catalog["reason"], dtype=object)
+        reason[used[bad]] = "missing_key"
+        stars.catalog["reason"] = reason.astype(str)
+        stars.counts["used"] -= int(bad.sum())
+        stars.counts["missing_key"] = int(bad.sum())
+    return extra[~bad]
+
+
 def _selection_lines(counts, n_kept, head, max_spread_model, min_class_star):
     from ..io import SELECTION_REASONS
 
@@ -295,7 +373,8 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
                  isolation: float | None = None, locus_width: float | str = "auto",
                  max_spread_model: float = 0.003, min_class_star: float = 0.8,
                  stamp_size: int | None = None, interpolator: str = "kriging",
-                 reserve: float = 0.2, random_state=0, progress=None) -> ExposureFit:
+                 reserve: float = 0.2, random_state=0, keys=None,
+                 progress=None) -> ExposureFit:
     """Fit and validate the PSF model of an exposure, from its files to the verdict.
 
     What ``sklearn-psf fit`` does, as one call:
@@ -333,6 +412,13 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
         Fraction of the stars reserved for the verdict.
     random_state : int, default=0
         Seed of the reserved-star draw.
+    keys : sequence of str, optional
+        Catalogue columns (a colour, a magnitude, a flux) to add as the model's dimensions
+        after the positions, as PSFEx's ``PSFVAR_KEYS`` (:func:`key_columns`): the model is
+        fitted on ``X = (x, y, keys...)`` of the stars used, and ``summary["keys"]`` names
+        them (``sklearn-psf predict`` reads the same columns at the galaxies). Stars with a
+        NaN in a key are left out with a :class:`~sklearn_psf.io.CatalogColumnWarning` and
+        counted (``missing_key``).
     progress : callable, optional
         Called with the name of each step (``"selecting stars"``, ``"cutting stamps"``,
         ``"fitting and validating"``) as it starts: a progress bar's hook.
@@ -346,7 +432,8 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     StarSelectionError
         Fewer than 5 stars pass the selection (the counts of each cut in the message).
     ValueError
-        Unreadable inputs (the file named), positions all off the image.
+        Unreadable inputs (the file named), positions all off the image, a key that is not a
+        column of the catalogue (or no catalogue).
 
     Examples
     --------
@@ -376,6 +463,12 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
                            saturation=saturation)
     data, table = inputs.image, inputs.catalog
     source = inputs.catalog_path or inputs.image_path or "the catalogue"
+    keys = [str(k) for k in (keys or ())]
+    if keys:
+        if table is None:
+            raise InputError(f"keys ({', '.join(keys)}) are catalogue columns: give a "
+                             "catalogue")
+        key_columns(table[:0], keys, source)  # a missing column named before any work
     lines, counts, rows = [], {}, None
     n_nan = 0
     if data is not None:
@@ -447,6 +540,7 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
                 "or give a star catalogue", lines)
     step("cutting stamps")
     stars = inputs.cut_stamps(table, stamp_size)
+    extra = _drop_missing_keys(stars, keys, source) if keys else None
     skipped = {k: v for k, v in stars.counts.items() if k not in ("input", "used") and v}
     lines.append(f"stars used: {stars.counts['used']} of {stars.counts['input']}"
                  + (" (skipped: " + ", ".join(f"{k} {v}" for k, v in skipped.items()) + ")"
@@ -454,17 +548,21 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     if rows is not None and isolation is None:
         _mask_neighbours(stars, full, rows[np.asarray(stars.catalog["used"], dtype=bool)],
                          lines)
+    if stars.counts["used"] < MIN_STARS:
+        raise InputError(f"{stars.counts['used']} stars of {source} are usable: too few for "
+                         f"a PSF model (need {MIN_STARS})")
+    X = stars.positions if extra is None else np.column_stack([stars.positions, extra])
     step("fitting and validating")
     wcs = celestial_wcs(inputs.header)
     options = {"reserve": reserve, "random_state": random_state, "weights": stars.weights,
                "wcs": wcs}
     if interpolator == "auto":
         candidates = {n: PSFModel(interpolator=make_interpolator(n)) for n in INTERPOLATORS}
-        model, residuals, summary = fit_and_validate(stars.positions, stars.stamps,
-                                                     candidates=candidates, **options)
+        model, residuals, summary = fit_and_validate(X, stars.stamps, candidates=candidates,
+                                                     **options)
     else:
         model, residuals, summary = fit_and_validate(
-            stars.positions, stars.stamps, PSFModel(interpolator=make_interpolator(interpolator)),
+            X, stars.stamps, PSFModel(interpolator=make_interpolator(interpolator)),
             **options)
     summary["selection"] = dict(stars.counts)
     summary["image"] = os.path.abspath(inputs.image_path or inputs.catalog_path or ".")
@@ -472,6 +570,9 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     summary["nan_pixels"] = n_nan
     summary["saturation"] = inputs.saturation
     summary["gain"] = inputs.gain
+    if keys:  # the model's extra dimensions, as the catalogue names them
+        lower = {c.lower(): c for c in stars.catalog.colnames}
+        summary["keys"] = [lower[k.lower()] for k in keys]
     if wcs is not None:  # predict can then take and return (RA, Dec)
         summary["wcs"] = wcs.to_header_string()
     shape = inputs.image_shape
@@ -549,4 +650,18 @@ def _report(summary):
         theta = summary["rho1"]["theta"]
         lines.append(f"rho statistics of the reserved stars (mean |rho| over {len(theta)} bins, "
                      f"{theta[0]:.3g}-{theta[-1]:.3g} {unit}): " + ", ".join(means))
+    if np.isfinite(summary.get("dM22_rel_rms", np.nan)):
+        lines.append(
+            f"fourth moments of the reserved stars (star - model, over the star's sigma^4; a "
+            f"Gaussian's M22 is 2): spin-0 dM22 mean {summary['dM22_rel_mean']:+.2e} rms "
+            f"{summary['dM22_rel_rms']:.2e}, spin-2 |dM31 + i dM13| rms "
+            f"{summary['dM4_rel_rms']:.2e}")
+    if summary.get("rho_M4"):
+        means = []
+        for name in ("rho_M4", "rho_eM4", "rho_M22", "rho_TM22"):
+            xi = np.asarray((summary.get(name) or {}).get("xi", []), dtype=float)
+            means.append(f"{name} {np.nanmean(np.abs(xi)):.2e}" if np.isfinite(xi).any()
+                         else f"{name} -")
+        lines.append("their correlation functions (mean |xi|, same bins; M4 = M31 + i M13, "
+                     "e and T = 2 sigma^2 of the second moments): " + ", ".join(means))
     return lines

@@ -250,7 +250,8 @@ def plot_psf_maps(model, shape, n_grid: int = 20):
         axis); right (bottom): sigma [pixels], with the fitted stars as dots (adaptive
         moments, or, where they fail on most of the grid's stamps (undersampled PSFs),
         fixed-weight moments of sigma 1.5 pixels). The figure's
-        size follows the chip's aspect, so that a tall CCD fills the page.
+        size follows the chip's aspect, so that a tall CCD fills the page. A model with extra
+        dimensions (a colour, a magnitude) is drawn at the fitted stars' median of each.
 
     Examples
     --------
@@ -272,7 +273,10 @@ def plot_psf_maps(model, shape, n_grid: int = 20):
     xs = np.arange(step / 2, nx, step)
     ys = np.arange(step / 2, ny, step)
     gx, gy = np.meshgrid(xs, ys)
-    stamps = model.predict(np.column_stack([gx.ravel(), gy.ravel()]))
+    X_fit = np.asarray(getattr(model, "X_fit_", np.zeros((0, 2))), dtype=float)
+    grid = np.column_stack([gx.ravel(), gy.ravel()]
+                           + [np.full(gx.size, np.median(c)) for c in X_fit[:, 2:].T])
+    stamps = model.predict(grid)
     mom = adaptive_moments(stamps)
     if np.mean(np.asarray(mom["flag"]) != 0) > 0.5:  # undersampled: fixed-weight moments
         mom = fixed_moments(stamps, FIXED_WEIGHT_SIGMA)

@@ -14,7 +14,8 @@ from astropy.table import Table
 from .._validation import as_stamps
 from ..io import pixel_to_sky
 from ..measure import adaptive_moments, fixed_moments, fourth_moments
-from ..metrics import RHO_NAMES, rho_statistics
+from ..metrics import FOURTH_RHO_NAMES, RHO_NAMES, fourth_moment_rho_statistics, \
+    rho_statistics
 from ..metrics._correlation import EmptyBinsWarning
 from ..preprocessing import StampNormalizer, estimate_pixel_weights, fourier_shift
 from ..preprocessing._noise import check_pixel_weights
@@ -182,12 +183,18 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
     summary : dict
         ``n_measured``, ``de1_mean``, ``de1_rms``, ``de2_mean``, ``de2_rms``, ``e_rms``
         (sqrt <de1^2 + de2^2>), ``dsigma_mean``, ``dsigma_rms``, ``sigma_mean`` (pixels),
-        ``dM22_mean``, ``dM22_rms``, ``dM4_spin2_rms`` (sqrt <dM31^2 + dM13^2>),
+        ``dM22_mean``, ``dM22_rms``, ``dM4_spin2_rms`` (sqrt <dM31^2 + dM13^2>), in
+        pixels^4, and ``dM22_rel_mean``, ``dM22_rel_rms``, ``dM4_rel_rms`` the same of the
+        residuals over each star's sigma^4 (dimensionless: a Gaussian's M22 is 2 sigma^4; NaN
+        for undersampled stars, whose fourth moments are not measured),
         ``chi2_dof`` (sum of chi^2 over sum of dof of the measured stars: 1 for a model as
         good as the noise allows, when the weights are right), ``chi2_dof_median`` (median
         of the stars' chi^2 / dof), ``rho1`` to ``rho5`` (each a dict of ``theta``, ``xi``,
         ``sigma_xi``, ``npairs``, or None with fewer than 10 measured stars),
         ``rho_theta_units`` ("pixel", or "arcmin" with a ``wcs``), ``rho1_mean_abs``,
+        ``rho_M4``, ``rho_eM4``, ``rho_M22``, ``rho_TM22`` (the fourth-moment correlation
+        functions of :func:`~sklearn_psf.metrics.fourth_moment_rho_statistics` on the
+        residuals over sigma^4, dicts as ``rho1``; None for undersampled stars),
         ``moments`` (text: "adaptive", or the fixed weight's sigma).
 
     Examples
@@ -288,6 +295,7 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
         "dM22_rms": _rms(np.asarray(table["dM22"])[ok]),
         "dM4_spin2_rms": _rms(np.hypot(np.asarray(table["dM31"])[ok],
                                        np.asarray(table["dM13"])[ok])),
+        **_relative_fourth(table, ok),
         "sigma_mean": float(np.mean(np.asarray(table["sigma_star"])[ok])) if ok.any()
         else np.nan,
         "chi2_dof": float(chi2[fitted].sum() / dof[fitted].sum()) if fitted.any() else np.nan,
@@ -296,7 +304,7 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
         "rho1": None, "rho1_mean_abs": np.nan,
         "moments": moments_kind(sigma if n else None),
     }
-    summary.update(dict.fromkeys(RHO_NAMES[1:]))
+    summary.update(dict.fromkeys(RHO_NAMES[1:] + FOURTH_RHO_NAMES))
     if ok.sum() >= 10:
         t = table[ok]
         where, sky = X[ok][:, :2], {}
@@ -311,6 +319,15 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
                                  t["e2_model"], 2 * np.asarray(t["sigma_model"]) ** 2,
                                  **{"min_sep": min_sep, "max_sep": max_sep, **sky},
                                  nbins=nbins, num_threads=1)
+        four = _relative_fourth_columns(t)
+        if np.isfinite(four["dM22"]).all():  # adaptive moments: the fourth moments too
+            dT = 1 - (np.asarray(t["sigma_model"]) / np.asarray(t["sigma_star"])) ** 2
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", EmptyBinsWarning)
+                rho.update(fourth_moment_rho_statistics(
+                    where, four["dM31"], four["dM13"], four["dM22"], t["de1"], t["de2"], dT,
+                    **{"min_sep": min_sep, "max_sep": max_sep, **sky}, nbins=nbins,
+                    num_threads=1))
         summary["rho_theta_units"] = "arcmin" if sky else "pixel"
         for name, r in rho.items():
             summary[name] = {"theta": np.asarray(r.theta_nominal, dtype=float).tolist(),
@@ -321,3 +338,21 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
         if np.isfinite(xi).any():
             summary["rho1_mean_abs"] = float(np.nanmean(np.abs(xi)))
     return table, summary
+
+
+def _relative_fourth_columns(table):
+    """The fourth-moment residuals of a residual table in units of each star's sigma^4
+    (dimensionless; a Gaussian's M22 is 2 sigma^4 under its adaptive weight)."""
+    s4 = np.asarray(table["sigma_star"], dtype=np.float64) ** 4
+    return {q: np.asarray(table[q], dtype=np.float64) / s4 for q in ("dM22", "dM31", "dM13")}
+
+
+def _relative_fourth(table, ok):
+    """Summary of the relative fourth-moment residuals of the measured stars ``ok``."""
+    four = {k: v[ok] for k, v in _relative_fourth_columns(table).items()}
+    finite = np.isfinite(four["dM22"])
+    if not finite.any():
+        return {"dM22_rel_mean": np.nan, "dM22_rel_rms": np.nan, "dM4_rel_rms": np.nan}
+    return {"dM22_rel_mean": float(np.mean(four["dM22"][finite])),
+            "dM22_rel_rms": _rms(four["dM22"][finite]),
+            "dM4_rel_rms": _rms(np.hypot(four["dM31"], four["dM13"])[finite])}
