@@ -26,10 +26,15 @@ galaxies, adaptive moments):
   and the fit-time ratio (best of ``--repeat`` fits of each, alternated, one BLAS thread;
   target: at most 1.5).
 
+``--extra-drifts linear,quadratic`` measures the models with extra columns with each trend
+in the extra dimensions (``KrigingRegressor(extra_drift=...)``; the default model's is
+linear), paired on the same simulations.
+
 Usage::
 
     python benchmarks/bench_extra_dimensions.py [--n-sims 10] [--n-stars 600]
                                                 [--n-galaxies 2000] [--repeat 3]
+                                                [--extra-drifts linear]
 """
 
 from __future__ import annotations
@@ -41,40 +46,38 @@ import warnings
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from sklearn_psf.measure import adaptive_moments
 from sklearn_psf.model import PSFModel
 from sklearn_psf.simulate import make_psf_field
+from sklearn_psf.study.colour import galaxy_residuals
 
 
-def _design(table, extra):
-    return np.column_stack([table["x"], table["y"]] + [table[c] for c in extra])
+def _model(drift=None):
+    model = PSFModel()
+    if drift is not None:
+        model.set_params(interpolator__krigingregressor__extra_drift=drift)
+    return model
 
 
-def _fit(field, extra=()):
-    stamps, weights, _ = field.star_stamps(return_weights=True)
-    model = PSFModel().fit(_design(field.stars, extra), stamps, weights=weights)
-    mom = adaptive_moments(model.predict(_design(field.galaxies, extra)))
-    g = field.galaxies
-    ds = (np.asarray(mom["sigma"]) - g["sigma"]) / g["sigma"]
-    de2 = (np.asarray(mom["e1"]) - g["e1"]) ** 2 + (np.asarray(mom["e2"]) - g["e2"]) ** 2
-    return np.asarray(ds), np.asarray(de2)
+def _fit(field, extra=(), drift=None):
+    return galaxy_residuals(_model(drift), field, extra)
 
 
-def _fit_times(field, extra, repeat):
+def _fit_times(field, extra, repeat, drift=None):
     """Best fit time of the position-only and the extra-column model, fitted alternately
     (a busy spell of a shared machine then slows both)."""
     stamps, weights, _ = field.star_stamps(return_weights=True)
     best = [np.inf, np.inf]
     for _ in range(repeat):
         for i, cols in enumerate(((), extra)):
-            X = _design(field.stars, cols)
+            X = np.column_stack([field.stars["x"], field.stars["y"]]
+                                + [field.stars[c] for c in cols])
             t = time.perf_counter()
-            PSFModel().fit(X, stamps, weights=weights)
+            _model(drift).fit(X, stamps, weights=weights)
             best[i] = min(best[i], time.perf_counter() - t)
     return best
 
 
-def one_simulation(seed, n_stars, n_galaxies, repeat):
+def one_simulation(seed, n_stars, n_galaxies, repeat, drift=None):
     rng = np.random.default_rng(seed)
     kw = dict(n_stars=n_stars, n_galaxies=n_galaxies, image_shape=(3000, 3000),
               snr=rng.uniform(50.0, 500.0, n_stars), random_state=seed)
@@ -86,13 +89,13 @@ def one_simulation(seed, n_stars, n_galaxies, repeat):
         getattr(ctrl, name)["source_snr"] = getattr(bf, name)["source_snr"]
     colour = np.asarray(chrom.galaxies["g_i"])
     ds0, de0 = _fit(ctrl)
-    ds_x, de_x = _fit(ctrl, ("g_i", "source_snr"))
-    t0, t_x = _fit_times(ctrl, ("g_i", "source_snr"), repeat)
-    ds_c0, _ = _fit(ctrl, ("g_i",))
+    ds_x, de_x = _fit(ctrl, ("g_i", "source_snr"), drift)
+    t0, t_x = _fit_times(ctrl, ("g_i", "source_snr"), repeat, drift)
+    ds_c0, _ = _fit(ctrl, ("g_i",), drift)
     ds_p, _ = _fit(chrom)
-    ds_c, _ = _fit(chrom, ("g_i",))
+    ds_c, _ = _fit(chrom, ("g_i",), drift)
     ds_bp, _ = _fit(bf)
-    ds_bf, _ = _fit(bf, ("source_snr",))
+    ds_bf, _ = _fit(bf, ("source_snr",), drift)
 
     def slope(d):
         return np.polyfit(colour, d, 1)[0]
@@ -119,12 +122,21 @@ def main():
     parser.add_argument("--n-stars", type=int, default=600)
     parser.add_argument("--n-galaxies", type=int, default=2000)
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--extra-drifts", default="linear",
+                        help="comma-separated trends in the extra dimensions to measure "
+                        "(linear, quadratic)")
     args = parser.parse_args()
+    for drift in args.extra_drifts.split(","):
+        print(f"\n=== extra_drift={drift!r} ===", flush=True)
+        report(args, drift)
+
+
+def report(args, drift):
     rows = []
     warnings.simplefilter("ignore")
     with threadpool_limits(limits=1, user_api="blas"):
         for seed in range(args.n_sims):
-            r = one_simulation(seed, args.n_stars, args.n_galaxies, args.repeat)
+            r = one_simulation(seed, args.n_stars, args.n_galaxies, args.repeat, drift)
             rows.append(r)
             print(f"sim {seed}: size slope vs g-i pos {r['slope_pos']:+.2e} colour "
                   f"{r['slope_col']:+.2e} (paired {r['slope_pos_paired']:+.2e} / "

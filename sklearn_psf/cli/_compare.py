@@ -21,7 +21,9 @@ PRESETS = {
               "image_shape": (7769, 10032)},
 }
 #: Side studies of ``sklearn-psf compare`` (``--studies``).
-STUDIES = ("maps", "snr", "density", "outliers", "tuning", "scale", "exposures")
+STUDIES = ("maps", "snr", "density", "outliers", "tuning", "scale", "exposures", "colour")
+#: Studies run only when named in ``--studies``.
+OPT_IN_STUDIES = ("colour",)
 #: Schemes of the side studies: the paper's figures of the discussion show these three.
 STUDY_SCHEMES = ("polynomial", "delaunay", "kriging")
 # Embedded reference bases: the default (5 components, 90% of the variance) and one the size of
@@ -94,8 +96,11 @@ def add_compare_parser(sub):
                           "ReferenceBasis FITS file")
     cmp.add_argument("--schemes", type=_csv_list,
                      help="comma-separated schemes of the main comparison (default: all)")
-    cmp.add_argument("--studies", type=_csv_list, default=list(STUDIES),
-                     help=f"comma-separated studies among {','.join(STUDIES)}, or 'none'")
+    cmp.add_argument("--studies", type=_csv_list,
+                     default=[n for n in STUDIES if n not in OPT_IN_STUDIES],
+                     help=f"comma-separated studies among {','.join(STUDIES)}, or 'none' "
+                     f"[all but {', '.join(OPT_IN_STUDIES)}: the colour study (a chromatic "
+                     "PSF, models with and without a g-i dimension) runs only when named]")
     cmp.add_argument("--seed", type=int, default=0, help="seed of the whole study [0]")
     cmp.add_argument("--n-jobs", type=_n_jobs,
                      help="simulations and figures at once, each in its own process (-1: one "
@@ -122,7 +127,8 @@ def _load_reference(name):
 
 #: Files of a run whose names do not depend on the study (the figures are listed in report.md).
 OWN_FILES = ("report.md", "scores.csv", "scores.fits", "galaxies.fits", "correlations.fits",
-             "config.json", "exposures.md", "sigma_sys_vs_exposures.png", "exposure_scores.csv")
+             "config.json", "exposures.md", "sigma_sys_vs_exposures.png", "exposure_scores.csv",
+             "colour.md", "size_vs_colour.png", "colour_scores.csv")
 
 
 def _earlier_outputs(folder):
@@ -276,6 +282,8 @@ def run_compare(args) -> int:
                          n_jobs=-1 if args.scheduler else n_jobs)  # figures drawn locally
     if "exposures" in studies:
         paths = [*paths, *_run_exposures(args, n_jobs, *exposures)]
+    if "colour" in studies:
+        paths = [*paths, *_run_colour(args, n_jobs)]
     print(_summary_text(result))
     print(f"\nWrote {len(paths)} files to {args.output}/ (report: {args.output}/report.md)")
     return 0
@@ -313,6 +321,24 @@ def _run_exposures(args, n_jobs, result=None):
     with open(Path(args.output) / "report.md", "a", encoding="utf-8") as fh:
         fh.write("\n" + exposure_report_section(result))
     return [md, md.with_name("sigma_sys_vs_exposures.png"), md.with_name("exposure_scores.csv")]
+
+
+def _run_colour(args, n_jobs):
+    """The colour study (fewer simulations under --quick): colour_scores.csv, its figure and
+    colour.md, its section in report.md."""
+    from pathlib import Path
+
+    from tqdm.auto import tqdm
+
+    from ..study.colour import colour_report_section, run_colour_study, write_colour_report
+
+    with dask_backend(args.scheduler), tqdm(desc="colour study", unit="sim") as bar:
+        result = run_colour_study(random_state=args.seed, n_jobs=n_jobs, progress=bar.update,
+                                  **({"n_simulations": 1} if args.quick else {}))
+    md = write_colour_report(result, args.output)
+    with open(Path(args.output) / "report.md", "a", encoding="utf-8") as fh:
+        fh.write("\n" + colour_report_section(result))
+    return [md, md.with_name("size_vs_colour.png"), md.with_name("colour_scores.csv")]
 
 
 def _summary_text(result):

@@ -129,10 +129,11 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         with five: a subset drawn with ``random_state``), with the other ``"auto"``
         hyperparameters fitted along with them; those are then fitted again on all the
         stars (as set by ``likelihood``) with the factors held. Ignored with two features.
-    extra_drift : {None, "linear"}, default=None
+    extra_drift : {None, "linear", "quadratic"}, default=None
         ``"linear"``: the drift also holds a linear term in each feature beyond the first
         two (a trend along a colour or a magnitude, which predictions beyond the stars'
-        range extrapolate instead of returning to the mean).
+        range extrapolate instead of returning to the mean); ``"quadratic"``: a linear and a
+        squared term in each (a curved trend, e.g. the PSF size against g-i; no cross terms).
     likelihood : "auto", "exact" or int, default="auto"
         Likelihood maximised when a hyperparameter is ``"auto"``. ``"exact"``: the
         Gaussian likelihood of all the stars (one ``n x n`` Cholesky factorisation per step,
@@ -344,10 +345,13 @@ class KrigingRegressor(_NoiseAwareInterpolator):
 
     def _drift_powers_for(self, d):
         """Drift exponents: ``drift``'s polynomial in all features, plus with
-        ``extra_drift="linear"`` the linear terms of the features beyond the first two."""
+        ``extra_drift`` the linear (and squared) terms of the features beyond the first
+        two."""
         powers = _exponents(d, _DRIFT_DEGREE[self.drift])
-        if self.extra_drift == "linear" and d > 2:
+        if self.extra_drift in ("linear", "quadratic") and d > 2:
             units = np.eye(d, dtype=int)[2:]
+            if self.extra_drift == "quadratic":
+                units = np.vstack([units, 2 * units])
             new = [u for u in units if not (powers == u).all(axis=1).any()]
             powers = np.vstack([powers] + new) if new else powers
         return powers
@@ -372,9 +376,9 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             raise ValueError(
                 f"{_NAME}: drift must be None, 'linear' or 'quadratic', got {self.drift!r}."
             )
-        if self.extra_drift not in (None, "linear"):
-            raise ValueError(f"{_NAME}: extra_drift must be None or 'linear', got "
-                             f"{self.extra_drift!r}.")
+        if self.extra_drift not in (None, "linear", "quadratic"):
+            raise ValueError(f"{_NAME}: extra_drift must be None, 'linear' or 'quadratic', "
+                             f"got {self.extra_drift!r}.")
         self._extra_factors(n_features)
         if isinstance(self.max_ml_samples, bool) or not isinstance(
             self.max_ml_samples, numbers.Integral

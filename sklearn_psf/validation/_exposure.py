@@ -652,7 +652,7 @@ def _report(summary):
                      f"{theta[0]:.3g}-{theta[-1]:.3g} {unit}): " + ", ".join(means))
     if np.isfinite(summary.get("dM22_rel_rms", np.nan)):
         lines.append(
-            f"fourth moments of the reserved stars (star - model, over the star's sigma^4; a "
+            f"fourth moments, same stars (residual star - model over the star's sigma^4; a "
             f"Gaussian's M22 is 2): spin-0 dM22 mean {summary['dM22_rel_mean']:+.2e} rms "
             f"{summary['dM22_rel_rms']:.2e}, spin-2 |dM31 + i dM13| rms "
             f"{summary['dM4_rel_rms']:.2e}")
