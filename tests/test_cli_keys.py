@@ -11,7 +11,7 @@ from sklearn_psf.cli import main
 from sklearn_psf.io import CatalogColumnWarning, draw_psf, extrapolation_flags, load_model, \
     read_model_validation
 from sklearn_psf.simulate import make_psf_field
-from sklearn_psf.validation import fit_exposure, key_columns
+from sklearn_psf.validation import fit_exposure, key_columns, validate_models
 
 
 @pytest.fixture(scope="module")
@@ -134,3 +134,34 @@ def test_key_columns_and_library_errors(chromatic):
     # extrapolation needs the fitted columns, all of them
     with pytest.raises(ValueError, match="columns of X_fit"):
         extrapolation_flags(np.zeros((5, 3)), np.zeros((2, 2)))
+
+
+def test_validate_reads_the_keys_of_the_model(tmp_path, chromatic, capsys):
+    paths, _ = chromatic
+    model_path = tmp_path / "psf.fits"
+    with pytest.warns(CatalogColumnWarning):
+        assert _run(["fit", "--stars", paths["stars"], "--no-select", "--keys", "G_I",
+                     "-o", model_path, "--no-plots"], capsys)[0] == 0
+    stars = Table.read(paths["stars"])
+    colour = np.ma.filled(np.ma.asarray(stars["G_I"], dtype=float), np.nan)
+    good = np.isfinite(colour)
+    clean = tmp_path / "clean.fits"
+    stars[good].write(clean)
+    code, out, err = _run(["validate", "--stars", clean, "-m", model_path, "-o",
+                           tmp_path / "val", "--no-plots"], capsys)
+    assert code == 0, err
+    assert "model dimensions after x, y: G_I" in out
+    table = Table.read(tmp_path / "val" / "validation.csv")
+    # the same residuals as the library's on the same stars with their colours
+    X = np.column_stack([stars["x"], stars["y"], colour])[good]
+    vignets = np.asarray(stars["VIGNET"])[good]
+    lib, _ = validate_models(X, vignets, [str(model_path)])
+    assert table["e_rms"][0] == pytest.approx(lib["e_rms"][0], abs=5e-5)  # printed to 4 places
+    assert np.isfinite(table["dM22_rel_rms"][0]) and np.isfinite(table["rho_M4_mean_abs"][0])
+    with pytest.raises(ValueError, match="1 dimensions after x, y"):
+        validate_models(X[:, :2], vignets, [str(model_path)])
+    # the stars without their colour column: an error naming it
+    stars[["x", "y", "VIGNET"]].write(tmp_path / "plain.fits")
+    code, _, err = _run(["validate", "--stars", tmp_path / "plain.fits", "-m", model_path,
+                         "-o", tmp_path / "val2", "--no-plots"], capsys)
+    assert code == 2 and "no column 'G_I'" in err

@@ -32,7 +32,7 @@ def test_what_colour_costs_and_what_the_colour_dimension_gives_back(result):
 def test_report_figure_and_opt_in(result, tmp_path):
     text = colour_report_section(result)
     assert "(sigma_model - sigma_true) / sigma_true" in text and "per magnitude" in text
-    assert "| slope of ds against g-i |" in text
+    assert "| slope of ds against g-i [1/mag] |" in text and "true PSF size" in text
     path = write_colour_report(result, tmp_path)
     assert path.read_text() == text
     assert (tmp_path / "size_vs_colour.png").stat().st_size > 1000

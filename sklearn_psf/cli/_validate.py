@@ -63,6 +63,9 @@ def add_validate_parser(sub):
                    help="pixel convention of PSFEx and PIFF models: 1 = FITS (X_IMAGE), as "
                    "PSFEx and PIFF on FITS images use [1]")
     p.add_argument("--chipnum", type=int, help="CCD of a multi-chip PIFF model")
+    p.add_argument("--keys", nargs="+", metavar="COL",
+                   help="the catalogue's columns of the extra dimensions of models fitted "
+                   "with 'fit --keys' [the names their model file stores]")
     p.add_argument("--no-plots", action="store_true", help="do not write figures")
     return p
 
@@ -111,6 +114,16 @@ def _print_table(table):
         print("  ".join(v.ljust(w) for v, w in zip(row, widths)))
 
 
+def _model_keys(path):
+    """The catalogue keys a model file of this package names (None for other files)."""
+    from ..io import read_model_validation
+    from ..validation import model_kind
+
+    if model_kind(path) != "sklearn_psf":
+        return None
+    return (read_model_validation(path)[1] or {}).get("keys")
+
+
 def run_validate(args) -> int:
     """Run ``sklearn-psf validate``."""
     for path in args.model:
@@ -141,8 +154,23 @@ def run_validate(args) -> int:
             model_kind(path)
     cut, wcs, line = _stars(args)
     print(line)
+    X = cut.positions
+    keys = args.keys or next((k for k in map(_model_keys, args.model) if k), None)
+    if keys:  # the extra dimensions, from the stars' own columns
+        import numpy as np
+
+        from ..validation import key_columns
+
+        used = np.flatnonzero(np.asarray(cut.catalog["used"], dtype=bool))
+        extra = key_columns(cut.catalog[used], keys, f"the catalogue {args.stars!r}")
+        bad = ~np.isfinite(extra).all(axis=1)
+        if bad.any():
+            raise CLIInputError(f"{int(bad.sum())} stars of {args.stars} have NaN or infinite "
+                                f"values in {', '.join(keys)}: the models need them")
+        X = np.column_stack([X, extra])
+        print(f"model dimensions after x, y: {', '.join(keys)}")
     with _about(", ".join(args.model)):
-        table, results = validate_models(cut.positions, cut.stamps, list(args.model),
+        table, results = validate_models(X, cut.stamps, list(args.model),
                                          weights=cut.weights, wcs=wcs,
                                          origin=args.model_origin, chipnum=args.chipnum)
     written = [os.path.join(out, OUTPUTS["table"])]

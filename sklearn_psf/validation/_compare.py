@@ -116,8 +116,10 @@ def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6
 
     Parameters
     ----------
-    X : array-like of shape (n, 2)
-        Star positions (x, y), 0-based pixels.
+    X : array-like of shape (n, 2) or (n, 2 + m)
+        Star positions (x, y), 0-based pixels, then the extra dimensions (catalogue keys, see
+        :func:`fit_exposure`) of the models that have them: each model is given as many
+        columns as it was fitted on (PSFEx and PIFF models: x, y).
     stamps : array-like of shape (n, s*s) or (n, s, s)
         Raw, background-subtracted star stamps (e.g. :func:`sklearn_psf.io.extract_vignettes`
         or :func:`~sklearn_psf.io.extract_star_stamps`), NaN = masked. Not modified.
@@ -178,9 +180,9 @@ def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6
     X = np.asarray(X, dtype=np.float64)
     cube = as_stamps(stamps)
     n, s = cube.shape[0], cube.shape[1]
-    if X.shape != (n, 2):
-        raise ValueError(f"X must hold the (x, y) of the {n} stars, shape ({n}, 2); got "
-                         f"{X.shape}.")
+    if X.ndim != 2 or X.shape[0] != n or X.shape[1] < 2:
+        raise ValueError(f"X must hold the (x, y) of the {n} stars (then the extra dimensions "
+                         f"of models that have them), shape ({n}, 2 + m); got {X.shape}.")
     if n < 1:
         raise InputError("No stars to validate on.")
     if weights is not None and np.shape(weights) not in (cube.shape, (n, s * s)):
@@ -198,7 +200,11 @@ def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6
     min_sep, max_sep = rho_bins(X, s)
     results, rows = {}, []
     for name, (model, kind) in named.items():
-        pred = _fit_size(model.predict(X), s)
+        width = np.shape(getattr(model, "X_fit_", np.zeros((0, 2))))[1]
+        if width > X.shape[1]:
+            raise InputError(f"model {name!r} has {width - 2} dimensions after x, y (catalogue "
+                             f"keys) but X gives {X.shape[1] - 2}")
+        pred = _fit_size(model.predict(X[:, :width]), s)
         table, summary = measure_residuals(X, cube, pred, weights=weights, wcs=wcs,
                                            min_sep=min_sep, max_sep=max_sep, nbins=nbins)
         results[name] = (table, summary)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ...measure import adaptive_moments
+from ...measure import adaptive_moments, fourth_moments
 from ...metrics import ellipticity_correlation, shear_bias_bound, sigma_sys2
 from ._schemes import ARCMIN
 
@@ -52,6 +52,15 @@ def _evaluate(model, X_gal, gal, theta_bins, pixel_scale, same_basis=True):
     filled = np.isfinite(d1)  # bins without pairs (small fields) are left out of the integral
     implied = (float(sigma_sys2(theta[filled], shear_bias_bound(d1[filled])))
                if filled.sum() >= 2 else np.nan)
+    if "M22" in gal:  # fourth moments, model - truth, over the true sigma^4
+        four = fourth_moments(stamps, mom)
+        s4 = np.asarray(gal["sigma"], dtype=float)[ok] ** 4
+        dm = {q: (np.asarray(four[q]) - np.asarray(gal[q]))[ok] / s4
+              for q in ("M22", "M31", "M13")}
+        fourth = {"dM22_rel_rms": _rms(dm["M22"]),
+                  "dM4_rel_rms": _rms(np.hypot(dm["M31"], dm["M13"]))}
+    else:
+        fourth = {}
     scores = {
         "e_rms": _rms(np.hypot(de1, de2)),
         "e1_rms": _rms(de1),
@@ -59,6 +68,7 @@ def _evaluate(model, X_gal, gal, theta_bins, pixel_scale, same_basis=True):
         "coeff_rms": _rms(coeffs_m[:, :k] - coeffs_t[:, :k]),
         "rho1_mean_abs": float(np.nanmean(np.abs(d1))) if filled.any() else np.nan,
         "sigma_sys2": implied,
+        **fourth,
     }
     rows = {
         "x": X_gal[:, 0],

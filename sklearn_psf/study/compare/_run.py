@@ -13,6 +13,7 @@ from joblib import Parallel, delayed
 from sklearn.base import clone
 from threadpoolctl import threadpool_limits
 
+from ...measure import fourth_moments
 from ...model import PSFModel
 from .._names import ORACLE
 from ._configs import SimulationConfig, field_scale_kwargs
@@ -113,7 +114,9 @@ def _run_one_simulation(config, sim_index, seed, schemes, reference, theta_bins,
     gal = sim.galaxies
     X_gal = np.column_stack([gal["x"], gal["y"]]).astype(float)
     gal_mom = {"e1": gal["e1"], "e2": gal["e2"], "coeffs": gal["coeffs"],
-               "flag": np.zeros(len(gal), dtype=int)}
+               "sigma": gal["sigma"], "flag": np.zeros(len(gal), dtype=int)}
+    true_fourth = fourth_moments(np.asarray(gal["stamp"]))
+    gal_mom.update({q: np.asarray(true_fourth[q]) for q in ("M22", "M31", "M13")})
     density = _local_density(X_stars, X_gal, ARCMIN / config.pixel_scale)
 
     models = {name: _study_model(scheme, reference, config.iqr) for name, scheme in schemes.items()}

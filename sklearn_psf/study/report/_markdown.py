@@ -75,7 +75,8 @@ def _markdown(result, config, schemes, figure_entries, notes, written):
     if len(base) == 0:
         lines += [f"No scores for the configuration {config!r}.", ""]
     else:
-        metrics = [m for m in ("e_rms", "e_rms_ratio", "coeff_rms", "rho1_mean_abs", "sigma_sys2")
+        metrics = [m for m in ("e_rms", "e_rms_ratio", "coeff_rms", "rho1_mean_abs", "sigma_sys2",
+                               "dM22_rel_rms", "dM4_rel_rms")
                    if f"{m}_median" in summary.colnames]
         header = ["scheme", "simulations"] + [f"{m} median [16%, 84%]" for m in metrics]
         rows = []

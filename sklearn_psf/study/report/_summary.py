@@ -14,7 +14,7 @@ from ..plotting._common import _unique_in_order
 
 #: Metrics summarised per (config, scheme), when present in the scores table.
 SUMMARY_METRICS = ("e_rms", "e_rms_ratio", "e1_rms", "e2_rms", "coeff_rms", "rho1_mean_abs", "sigma_sys2",
-                   "n_inliers", "fit_seconds")
+                   "dM22_rel_rms", "dM4_rel_rms", "n_inliers", "fit_seconds")
 
 _PAPER_TRIO = ("polynomial", "delaunay", "kriging")
 

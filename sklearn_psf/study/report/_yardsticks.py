@@ -35,6 +35,11 @@ METRICS = (
     ("sigma_sys2", "dimensionless (shear variance)", "variance of the systematic shear implied by "
      "D1 (Amara & Refregier 2008): D1 bounds delta xi+ through P_gamma = 1.84 and a galaxy/PSF "
      "size ratio 1.5, Hankel-transformed to C_l and integrated over l(l+1) C_l / 2 pi dln l"),
+    ("dM22_rel_rms", "dimensionless", "rms over galaxy-PSFs of the spin-0 fourth moment's "
+     "residual (M22 of the model - of the truth) over the true sigma^4; M22 = <r^4> under the "
+     "adaptive Gaussian weight (PIFF's definition), 2 sigma^4 for a Gaussian"),
+    ("dM4_rel_rms", "dimensionless", "the same for the spin-2 fourth moment, |dM31 + i dM13|, "
+     "M31 = <r^2 (u^2 - v^2)>, M13 = <2 r^2 u v>"),
     ("theta", "arcmin", "separation of the correlation bins (log-spaced)"),
     ("best_score", "dimensionless", "tuning: minus the mean |rho1| of held-out stars between 1 "
      "and 10 arcmin in 5-fold cross-validation (higher is better)"),
