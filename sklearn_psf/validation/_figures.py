@@ -180,7 +180,10 @@ def plot_rho1(summary):
 def plot_rho_statistics(summary):
     """rho1 to rho5 of the reserved stars against separation, as PIFF plots them.
 
-    Left: rho1, rho3, rho4 (the residual terms); right: rho2, rho5. Negative values are
+    Left: rho1, rho3, rho4 (the residual terms); right: rho2, rho5. With the fourth moments'
+    correlation functions in the summary (``rho_M4`` ...,
+    :func:`~sklearn_psf.metrics.fourth_moment_rho_statistics`), a second row: spin 2
+    (``rho_M4``, ``rho_eM4``) and spin 0 (``rho_M22``, ``rho_TM22``). Negative values are
     drawn as open symbols at their absolute value.
 
     Parameters
@@ -198,6 +201,9 @@ def plot_rho_statistics(summary):
     >>> r = {"theta": [10.0, 100.0], "xi": [1e-5, -2e-6], "sigma_xi": [1e-6, 1e-6]}
     >>> len(plot_rho_statistics({f"rho{k}": r for k in range(1, 6)}).axes)
     2
+    >>> four = {n: r for n in ("rho_M4", "rho_eM4", "rho_M22", "rho_TM22")}
+    >>> len(plot_rho_statistics({**{f"rho{k}": r for k in range(1, 6)}, **four}).axes)
+    4
     """
     import matplotlib.pyplot as plt
 
@@ -206,8 +212,17 @@ def plot_rho_statistics(summary):
                          "stars).")
     from matplotlib.ticker import NullFormatter
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4), layout="constrained")
-    panels = ((axes[0], ("rho1", "rho3", "rho4")), (axes[1], ("rho2", "rho5")))
+    labels = {f"rho{k}": (rf"$\rho_{k}$", f"C{k - 1}") for k in range(1, 6)}
+    labels.update({"rho_M4": (r"$\langle dM_4^* dM_4 \rangle$", "C0"),
+                   "rho_eM4": (r"$\langle de^* dM_4 \rangle$", "C1"),
+                   "rho_M22": (r"$\langle dM_{22} dM_{22} \rangle$", "C2"),
+                   "rho_TM22": (r"$\langle (dT/T) dM_{22} \rangle$", "C3")})
+    fourth = bool(summary.get("rho_M4"))
+    fig, axes = plt.subplots(1 + fourth, 2, figsize=(10, 4 + 3.5 * fourth),
+                             layout="constrained", squeeze=False)
+    panels = [(axes[0, 0], ("rho1", "rho3", "rho4")), (axes[0, 1], ("rho2", "rho5"))]
+    if fourth:  # the fourth moments' (over sigma^4): spin 2, spin 0
+        panels += [(axes[1, 0], ("rho_M4", "rho_eM4")), (axes[1, 1], ("rho_M22", "rho_TM22"))]
     for ax, names in panels:
         for k, name in enumerate(names):
             r = summary.get(name)
@@ -217,9 +232,8 @@ def plot_rho_statistics(summary):
             err = np.asarray(r["sigma_xi"], float)
             theta = theta * (1 + 0.03 * (k - 1))  # side by side
             pos = xi > 0
-            color = f"C{int(name[-1]) - 1}"
-            ax.errorbar(theta[pos], xi[pos], yerr=err[pos], fmt="o", color=color,
-                        label=rf"$\rho_{name[-1]}$")
+            label, color = labels[name]
+            ax.errorbar(theta[pos], xi[pos], yerr=err[pos], fmt="o", color=color, label=label)
             ax.errorbar(theta[~pos], -xi[~pos], yerr=err[~pos], fmt="o", mfc="none",
                         color=color)
         ax.set_xscale("log")
@@ -228,6 +242,10 @@ def plot_rho_statistics(summary):
         ax.set_xlabel(rf"separation $\theta$ [{summary.get('rho_theta_units', 'pixel')}]")
         ax.set_ylabel(r"$|\rho(\theta)|$ (open: negative)")
         ax.legend(fontsize=8)
+    if fourth:
+        axes[1, 0].set_title("fourth moments, spin 2: M4 = M31 + i M13 (over sigma^4)",
+                             fontsize=9)
+        axes[1, 1].set_title("fourth moments, spin 0: M22 (over sigma^4)", fontsize=9)
     fig.suptitle("rho statistics of the reserved stars (Jarvis et al. 2016)")
     return fig
 
