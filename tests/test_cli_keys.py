@@ -48,6 +48,8 @@ def test_fit_with_keys_then_predict_equals_the_library(tmp_path, chromatic, caps
                                "G_I", "-o", model_path, "--no-plots"], capsys)
     assert code == 0, err
     assert "missing_key 3" in out  # counted among the skipped stars
+    # the verdict gives the fourth moments' residuals and their correlation functions
+    assert "spin-0 dM22 mean" in out and "rho_M4" in out and "rho_TM22" in out
     model = load_model(model_path)
     _, summary = read_model_validation(model_path)
     assert summary["keys"] == ["G_I"]

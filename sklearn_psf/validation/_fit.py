@@ -179,7 +179,10 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
         :func:`~sklearn_psf.metrics.rho_statistics` with T = 2 sigma^2; each a dict of
         ``theta`` [``rho_theta_units``: pixel, or arcmin with a ``wcs``], ``xi``,
         ``sigma_xi``, ``npairs``, or None with fewer than 10 measured stars),
-        ``rho_theta_units``, ``rho1_mean_abs``, ``moments`` ("adaptive", or the fixed
+        ``rho_theta_units``, ``rho1_mean_abs``, the fourth moments' residuals and their
+        correlation functions (``dM22_rel_mean``, ``dM22_rel_rms``, ``dM4_rel_rms``,
+        ``rho_M4``, ``rho_eM4``, ``rho_M22``, ``rho_TM22``: see :func:`measure_residuals`),
+        ``moments`` ("adaptive", or the fixed
         weight of the moments of undersampled stars, see 4.), ``n_reserved_outliers`` and
         ``reserved_outliers`` (their rows in X), and, with candidates,
         ``cv`` (list of per-scheme mean/std scores) and ``scheme`` (the chosen one). The
