@@ -2,7 +2,6 @@
 galaxies' true colour dependence (simulation truth), and the colour dimension removes most of
 it at no ellipticity cost on the control field."""
 
-import numpy as np
 import pytest
 
 from sklearn_psf.cli import build_parser

@@ -41,7 +41,8 @@ from ._residuals import measure_residuals, rho_bins
 from ._verdict import PSFQualityWarning
 
 __all__ = ["fit_and_validate", "fit_exposure", "read_exposure", "ExposureFit",
-           "ExposureInputs", "StarSelectionError", "key_columns", "PSFQualityWarning", "plot_stamp_residuals",
+           "ExposureInputs", "StarSelectionError", "key_columns", "PSFQualityWarning",
+           "plot_stamp_residuals",
            "plot_whiskers", "plot_rho1", "plot_rho_statistics", "plot_psf_maps",
            "plot_residuals_against", "COMPARISON_COLUMNS", "UNUSABLE_STAR_REASONS",
            "PSFExModel", "PiffModel", "load_psf_model", "measure_residuals", "model_kind",

@@ -104,8 +104,9 @@ def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6
     the stars' size) and :func:`measure_residuals` measures the same residuals for all: the
     stars' and the models' adaptive-moment e1, e2 and size, the pixel chi^2 of each raw star
     against the model in the star's noise, the fourth moments' residuals, and rho1 to rho5
-    and the fourth moments' correlation functions in the same separation bins. Give stars that none of the models was fitted on (reserved stars), otherwise the models
-    that saw them are favoured. Stars that cannot be compared (every pixel masked, an
+    and the fourth moments' correlation functions in the same separation bins. Give stars
+    that none of the models was fitted on (reserved stars), otherwise the models that saw
+    them are favoured. Stars that cannot be compared (every pixel masked, an
     infinite pixel, or no positive flux: a crowded or empty stamp) are left out and counted
     by reason (:data:`UNUSABLE_STAR_REASONS`) in ``table.meta["left_out"]``.
 

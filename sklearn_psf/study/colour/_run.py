@@ -157,10 +157,11 @@ class ColourStudyResult:
     scores : astropy.table.Table
         One row per simulation: ``slope_truth`` (slope of the relative change of the
         galaxies' true PSF size from the control field to the chromatic one against their
-        g-i, per magnitude: what a model must follow), ``slope_position``, ``slope_colour`` (slope of the relative
-        size residual at the galaxies against their g-i, per magnitude, on the chromatic
-        field), the same ``_paired`` (minus the position-only model's residual on the control
-        field: the interpolation error both models share removed), ``colour_rms_position``,
+        g-i, per magnitude: what a model must follow), ``slope_position``, ``slope_colour``
+        (slope of the relative size residual at the galaxies against their g-i, per
+        magnitude, on the chromatic field), the same ``_paired`` (minus the position-only
+        model's residual on the control field: the interpolation error both models share
+        removed), ``colour_rms_position``,
         ``colour_rms_colour`` (rms of the relative size residual's change from the control
         field to the chromatic one, each model against itself: what colour adds),
         ``size_rms_position``, ``size_rms_colour`` (rms of the relative size residual on the
