@@ -34,7 +34,7 @@ Usage::
 
     python benchmarks/bench_extra_dimensions.py [--n-sims 10] [--n-stars 600]
                                                 [--n-galaxies 2000] [--repeat 3]
-                                                [--extra-drifts linear]
+                                                [--extra-drifts linear] [--first-seed 0]
 """
 
 from __future__ import annotations
@@ -119,6 +119,8 @@ def one_simulation(seed, n_stars, n_galaxies, repeat, drift=None):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n-sims", type=int, default=10)
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="random_state of the first simulation [0]")
     parser.add_argument("--n-stars", type=int, default=600)
     parser.add_argument("--n-galaxies", type=int, default=2000)
     parser.add_argument("--repeat", type=int, default=3)
@@ -135,7 +137,7 @@ def report(args, drift):
     rows = []
     warnings.simplefilter("ignore")
     with threadpool_limits(limits=1, user_api="blas"):
-        for seed in range(args.n_sims):
+        for seed in range(args.first_seed, args.first_seed + args.n_sims):
             r = one_simulation(seed, args.n_stars, args.n_galaxies, args.repeat, drift)
             rows.append(r)
             print(f"sim {seed}: size slope vs g-i pos {r['slope_pos']:+.2e} colour "
