@@ -73,3 +73,28 @@ def test_reserved_star_residuals_carry_the_fourth_moment_diagnostics():
     xi = np.asarray(summary["rho_M22"]["xi"])
     np.testing.assert_allclose(xi[np.isfinite(xi)], expected**2, rtol=4e-3)
     assert np.nanmax(np.abs(summary["rho_M4"]["xi"])) < 1e-10
+
+
+def test_verdict_fourth_moment_residuals_are_their_noise_for_a_constant_psf():
+    """Stars of one Gaussian PSF with white noise of known variance: the model (fitted on the
+    others) is the PSF up to its small fitting error, so the reserved stars' fourth-moment
+    residuals are their noise, and their rms over the Monte Carlo noise rms is ~1, as the
+    ellipticity's (measured 0.86 and 1.01, e 1.02, on 60 reserved stars)."""
+    import warnings
+
+    from sklearn_psf.validation import fit_and_validate
+
+    rng = np.random.default_rng(5)
+    n, s = 300, 21
+    yy, xx = np.mgrid[0:s, 0:s] - (s - 1) / 2
+    psf = np.exp(-0.5 * (xx**2 / 2.2**2 + yy**2 / 1.9**2))
+    psf /= psf.sum()
+    X = rng.uniform(0, 3000, (n, 2))
+    noise = 2.0
+    stars = 4000.0 * psf + rng.normal(0.0, noise, (n, s, s))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        _, _, summary = fit_and_validate(X, stars, weights=np.full((n, s, s), noise**-2),
+                                         reserve=0.2, random_state=0)
+    for key in ("e_resid_over_noise", "dM22_resid_over_noise", "dM4_resid_over_noise"):
+        assert 0.75 < summary[key] < 1.35, (key, summary[key])

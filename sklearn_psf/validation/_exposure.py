@@ -655,7 +655,10 @@ def _report(summary):
             f"fourth moments, same stars (residual star - model over the star's sigma^4; a "
             f"Gaussian's M22 is 2): spin-0 dM22 mean {summary['dM22_rel_mean']:+.2e} rms "
             f"{summary['dM22_rel_rms']:.2e}, spin-2 |dM31 + i dM13| rms "
-            f"{summary['dM4_rel_rms']:.2e}")
+            f"{summary['dM4_rel_rms']:.2e}"
+            + (f"; residual rms over noise rms {summary['dM22_resid_over_noise']:.2f} "
+               f"(spin 0), {summary['dM4_resid_over_noise']:.2f} (spin 2)"
+               if np.isfinite(summary.get("dM22_resid_over_noise", np.nan)) else ""))
     if summary.get("rho_M4"):
         means = []
         for name in ("rho_M4", "rho_eM4", "rho_M22", "rho_TM22"):

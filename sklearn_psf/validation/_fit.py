@@ -194,7 +194,10 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
         ``chi2_total_constant`` (summed over the stars), ``e_noise`` (rms ellipticity noise
         per component), ``e_resid_over_noise`` / ``e_resid_over_noise_constant`` (rms of the
         e residuals over the rms e noise), ``e_model_error`` (the residuals' rms per component
-        of e with the noise removed in quadrature: the model's own error), ``kriging_range``
+        of e with the noise removed in quadrature: the model's own error),
+        ``dM22_resid_over_noise`` / ``dM4_resid_over_noise`` (rms of the spin-0 / spin-2
+        fourth moments' residuals over the rms of their noise, from the same draws; NaN for
+        undersampled stars), ``kriging_range``
         and ``star_spacing`` (median nearest-star distance, in the Kriging's coordinates;
         None without Kriging) and ``warnings`` (list of texts).
 

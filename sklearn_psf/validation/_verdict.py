@@ -16,7 +16,7 @@ import warnings
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..measure import adaptive_moments
+from ..measure import adaptive_moments, fourth_moments
 from ..preprocessing import estimate_pixel_weights
 from ._residuals import _chi2, shape_moments
 
@@ -46,8 +46,9 @@ class PSFQualityWarning(UserWarning):
     """
 
 
-def _e_noise(model, w, rng, measure=adaptive_moments):
-    """Per-star noise of e1 and e2: std over noise draws around the model star."""
+def _e_noise(model, w, rng, measure=adaptive_moments, fourth=False):
+    """Per-star noise of e1 and e2: std over noise draws around the model star; with
+    ``fourth`` also that of the fourth moments M22, M31, M13 (pixels^4), else None."""
     n, p = model.shape
     s = int(round(np.sqrt(p)))
     sigma = np.where(w > 0, 1.0 / np.sqrt(np.where(w > 0, w, 1.0)), 0.0)
@@ -55,13 +56,18 @@ def _e_noise(model, w, rng, measure=adaptive_moments):
     mask = np.broadcast_to((w > 0)[:, None, :], draws.shape).astype(np.float64)
     mom = measure(draws.reshape(-1, s, s), weights=mask.reshape(-1, s, s))
     ok = (np.asarray(mom["flag"]) == 0).reshape(n, _DRAWS)
-    out = []
-    for q in ("e1", "e2"):
-        e = np.where(ok, np.asarray(mom[q], dtype=np.float64).reshape(n, _DRAWS), np.nan)
+    values = {q: mom[q] for q in ("e1", "e2")}
+    if fourth:
+        values.update(fourth_moments(np.where(mask > 0, draws, np.nan).reshape(-1, s, s),
+                                     mom))
+    out = {}
+    for q in ("e1", "e2") + (("M22", "M31", "M13") if fourth else ()):
+        v = np.where(ok, np.asarray(values[q], dtype=np.float64).reshape(n, _DRAWS), np.nan)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            out.append(np.where(ok.sum(axis=1) >= 4, np.nanstd(e, axis=1, ddof=1), np.nan))
-    return np.column_stack(out)
+            out[q] = np.where(ok.sum(axis=1) >= 4, np.nanstd(v, axis=1, ddof=1), np.nan)
+    e = np.column_stack([out["e1"], out["e2"]])
+    return e, (np.column_stack([out["M22"], out["M31"], out["M13"]]) if fourth else None)
 
 
 def _constant_psf(model, offsets=None):
@@ -133,7 +139,8 @@ def model_verdict(model, X, stamps, weights, reserved, residuals, random_state=0
     out = {"n_components": k, "components_reason": reason, "chi2_dof_median": np.nan,
            "chi2_dof_median_constant": np.nan, "e_noise": np.nan,
            "e_resid_over_noise": np.nan,
-           "e_resid_over_noise_constant": np.nan, "e_model_error": np.nan, "n_verdict": 0,
+           "e_resid_over_noise_constant": np.nan, "e_model_error": np.nan,
+           "dM22_resid_over_noise": np.nan, "dM4_resid_over_noise": np.nan, "n_verdict": 0,
            "kriging_range": None,
            "star_spacing": None, "warnings": []}
     found = _kriging_range(model)
@@ -172,7 +179,7 @@ def model_verdict(model, X, stamps, weights, reserved, residuals, random_state=0
     dof = np.maximum(np.asarray(residuals["dof"], dtype=np.float64)[ok], 1)
     chi2, chi2_c = chi2 / dof, chi2_c / dof
     rng = np.random.default_rng(random_state)
-    noise = _e_noise(fitted, w, rng, measure)
+    noise, noise4 = _e_noise(fitted, w, rng, measure, fourth=sigma is None)
     e_const = measure(const.reshape(n, s, s))
     de = np.column_stack([residuals["de1"], residuals["de2"]])[ok]
     de_c = np.column_stack([residuals["e1_star"], residuals["e2_star"]])[ok] - np.column_stack(
@@ -191,6 +198,14 @@ def model_verdict(model, X, stamps, weights, reserved, residuals, random_state=0
         out["e_resid_over_noise"] = float(np.sqrt(np.mean(de[good] ** 2) / var))
         out["e_resid_over_noise_constant"] = float(np.sqrt(np.mean(de_c[good] ** 2) / var))
         out["e_model_error"] = float(np.sqrt(max(np.mean(de[good] ** 2) - var, 0.0)))
+    if noise4 is not None:  # the fourth moments' residuals against their noise
+        d4 = np.column_stack([residuals[q] for q in ("dM22", "dM31", "dM13")])[ok]
+        fine = np.isfinite(noise4).all(axis=1) & np.isfinite(d4).all(axis=1)
+        if fine.sum() >= 5:
+            out["dM22_resid_over_noise"] = float(np.sqrt(
+                np.mean(d4[fine, 0] ** 2) / np.mean(noise4[fine, 0] ** 2)))
+            out["dM4_resid_over_noise"] = float(np.sqrt(
+                np.mean(d4[fine, 1:] ** 2) / np.mean(noise4[fine, 1:] ** 2)))
     if out["chi2_total"] >= out["chi2_total_constant"]:
         out["warnings"].append(
             f"the model fits its {n} reserved stars no better than a constant PSF fitted on "
