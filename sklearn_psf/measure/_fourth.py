@@ -70,11 +70,13 @@ def fourth_moments(stamps, moments=None) -> Table:
     cols = {name: np.asarray(moments[name], dtype=np.float64)[:, None, None]
             for name in ("x0", "y0", "Mxx", "Mxy", "Myy")}
     grid = np.arange(s, dtype=np.float64)
-    u = grid[None, None, :] - cols["x0"]
-    v = grid[:, None][None] - cols["y0"]
+    u = grid[None, :] - cols["x0"][:, 0]  # (n, s): along columns
+    v = grid[None, :] - cols["y0"][:, 0]  # (n, s): along rows
     det = cols["Mxx"] * cols["Myy"] - cols["Mxy"] ** 2
-    rho2 = (cols["Myy"] * u * u - 2 * cols["Mxy"] * u * v + cols["Mxx"] * v * v) / det
     with np.errstate(invalid="ignore", divide="ignore"):
+        rho2 = ((cols["Myy"] / det) * (u * u)[:, None, :]
+                - (2 * cols["Mxy"] / det) * (v[:, :, None] * u[:, None, :])
+                + (cols["Mxx"] / det) * (v * v)[:, :, None])
         weight = np.exp(-0.5 * rho2) / (2 * np.pi * np.sqrt(det))
         masked = np.isnan(cube)
         if masked.any():
@@ -82,11 +84,15 @@ def fourth_moments(stamps, moments=None) -> Table:
             scale = data.sum(axis=(1, 2)) / np.where(masked, 0.0, weight).sum(axis=(1, 2))
             cube = np.where(masked, weight * scale[:, None, None], data)
         wi = weight * cube
-        wi = wi / wi.sum(axis=(1, 2), keepdims=True)
-        uu, vv, uv = u * u, v * v, u * v
-        r2, diff = uu + vv, uu - vv
-        terms = {"M22": r2 * r2, "M31": r2 * diff, "M13": 2 * r2 * uv,
-                 "M40": diff * diff - 4 * uv * uv, "M04": 4 * uv * diff}
+        wi /= wi.sum(axis=(1, 2), keepdims=True)
+        # the monomial moments m_ab = sum wi u^a v^b (a + b = 4), rows v, columns u
+        along_u = wi @ np.stack([u**a for a in range(5)], axis=2)  # (n, s rows, 5)
+        m = {(a, 4 - a): np.einsum("ni,ni->n", v ** (4 - a), along_u[:, :, a])
+             for a in range(5)}
+        terms = {"M22": m[4, 0] + 2 * m[2, 2] + m[0, 4],          # r^4
+                 "M31": m[4, 0] - m[0, 4],                         # r^2 (u^2 - v^2)
+                 "M13": 2 * (m[3, 1] + m[1, 3]),                   # r^2 2uv
+                 "M40": m[4, 0] - 6 * m[2, 2] + m[0, 4],           # u^4 - 6u^2v^2 + v^4
+                 "M04": 4 * (m[3, 1] - m[1, 3])}                   # 4uv (u^2 - v^2)
         good = np.asarray(moments["flag"]) == 0
-        return Table({name: np.where(good, (wi * f).sum(axis=(1, 2)), np.nan)
-                      for name, f in terms.items()})
+        return Table({name: np.where(good, f, np.nan) for name, f in terms.items()})

@@ -59,8 +59,8 @@ def _evaluate(model, X_gal, gal, theta_bins, pixel_scale, same_basis=True):
               for q in ("M22", "M31", "M13")}
         fourth = {"dM22_rel_rms": _rms(dm["M22"]),
                   "dM4_rel_rms": _rms(np.hypot(dm["M31"], dm["M13"]))}
-    else:
-        fourth = {}
+    else:  # not measured in this configuration
+        fourth = {"dM22_rel_rms": np.nan, "dM4_rel_rms": np.nan}
     scores = {
         "e_rms": _rms(np.hypot(de1, de2)),
         "e1_rms": _rms(de1),

@@ -37,7 +37,8 @@ METRICS = (
      "size ratio 1.5, Hankel-transformed to C_l and integrated over l(l+1) C_l / 2 pi dln l"),
     ("dM22_rel_rms", "dimensionless", "rms over galaxy-PSFs of the spin-0 fourth moment's "
      "residual (M22 of the model - of the truth) over the true sigma^4; M22 = <r^4> under the "
-     "adaptive Gaussian weight (PIFF's definition), 2 sigma^4 for a Gaussian"),
+     "adaptive Gaussian weight (PIFF's definition), 2 sigma^4 for a Gaussian; the main "
+     "comparison's configuration only"),
     ("dM4_rel_rms", "dimensionless", "the same for the spin-2 fourth moment, |dM31 + i dM13|, "
      "M31 = <r^2 (u^2 - v^2)>, M13 = <2 r^2 u v>"),
     ("theta", "arcmin", "separation of the correlation bins (log-spaced)"),
