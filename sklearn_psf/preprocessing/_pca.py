@@ -7,6 +7,7 @@ import warnings
 from typing import NamedTuple
 
 import numpy as np
+import scipy.fft
 from scipy.linalg import eigh
 from scipy.optimize import minimize_scalar
 from sklearn.base import BaseEstimator, ClassNamePrefixFeaturesOutMixin, TransformerMixin
@@ -66,10 +67,17 @@ class StampFit(NamedTuple):
     coefficient_cov: np.ndarray | None = None
 
 
+def _irfft2(spectra, s):
+    """Real s x s images of half-plane spectra, computed in single precision (a relative
+    rounding of ~1e-7, far below the stamps' noise; 2.5x faster) and returned in double."""
+    return scipy.fft.irfft2(spectra.astype(np.complex64), s=(s, s),
+                            workers=1).astype(np.float64)
+
+
 def _shifted(images_fft, phase):
     """Images (m, s, s) given by their rfft2, shifted by each star's phase: (n, m, s*s)."""
     n, s = phase.shape[0], phase.shape[1]
-    out = np.fft.irfft2(images_fft[None, :, :, :] * phase[:, None, :, :], s=(s, s))
+    out = _irfft2(images_fft[None, :, :, :] * phase[:, None, :, :], s)
     return out.reshape(n, images_fft.shape[0], s * s)
 
 
@@ -463,8 +471,8 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
             for _ in range(_REFINE_STEPS * bool(sub.any())):
                 # d(model)/d(offset): minus the spatial derivative of the shifted model
                 mfft = np.einsum("bi,iyx->byx", a[rows], basis_fft)[:, None] * phase[:, None]
-                grad = -np.fft.irfft2(np.concatenate([mfft * kx, mfft * ky], axis=1),
-                                      s=(s, s)).reshape(-1, 2, p)
+                grad = -_irfft2(np.concatenate([mfft * kx, mfft * ky], axis=1),
+                                s).reshape(-1, 2, p)
                 G = np.concatenate([A, grad], axis=1)
                 Gw = G * w[rows, None, :]
                 resid = d[rows] - model[rows] - level[rows, None]
