@@ -119,7 +119,10 @@ def test_masked_pixels_are_left_out_not_zero_filled():
     # weight 0 and NaN are the same mask
     w = np.where(np.isnan(masked), 0.0, estimate_pixel_weights(noisy[:40]))
     again = basis.project(np.nan_to_num(masked, nan=1e30), w)
-    np.testing.assert_allclose(again.coefficients, fit.coefficients, rtol=1e-9, atol=1e-12)
+    # the same fit to the single-precision FFTs of the shifted basis (~1e-7 relative): far
+    # below the coefficients' noise
+    dz_same = (again.coefficients - fit.coefficients) / np.sqrt(fit.coefficient_var)
+    assert np.abs(dz_same).max() < 1e-4
     assert np.isnan(masked).sum() == 40 * (S + 1)  # input untouched
 
 

@@ -65,6 +65,20 @@ def dask_backend(scheduler):
             yield
 
 
+def _worker_start():
+    """Start of a worker process of :func:`map_ordered`: tqdm's lock a thread lock.
+
+    A worker draws no progress bar, but tqdm creates its lock with each bar (even disabled):
+    by default a multiprocessing lock, a named semaphore that the worker, stopped once the
+    results are in, would leave to Python's resource tracker ("leaked semaphore objects").
+    """
+    import threading
+
+    from tqdm import tqdm
+
+    tqdm.set_lock(threading.RLock())
+
+
 def map_ordered(func, items, n_jobs):
     """Yield ``func(item)`` for each of ``items`` in their order, computed by this process
     and ``n_jobs - 1`` worker processes, each taking the next item when it is free.
@@ -110,7 +124,7 @@ def map_ordered(func, items, n_jobs):
             if failed:
                 return
 
-    executor = ProcessPoolExecutor(max_workers=n_workers)
+    executor = ProcessPoolExecutor(max_workers=n_workers, initializer=_worker_start)
     for _ in range(n_workers):
         threading.Thread(target=feed, args=(executor,), daemon=True).start()
     try:

@@ -161,6 +161,13 @@ def neighbour_masks(catalog, rows, stamp_size: int):
         r = _mask_radius(alpha[near], flux[near], alpha[i], flux[i])
         px = np.floor(x[i] + 0.5) + offsets   # image pixel of each stamp column
         py = np.floor(y[i] + 0.5) + offsets
+        # only the discs that reach the stamp's box of pixel centres
+        gap = np.hypot(np.clip(x[near], px[0], px[-1]) - x[near],
+                       np.clip(y[near], py[0], py[-1]) - y[near])
+        reach_box = gap < r + 0.5
+        if not reach_box.any():
+            continue
+        near, r = near[reach_box], r[reach_box]
         dx = px[None, None, :] - x[near][:, None, None]
         dy = py[None, :, None] - y[near][:, None, None]
         # every pixel the disc reaches (its centre within r + half a pixel)

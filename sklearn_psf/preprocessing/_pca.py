@@ -7,6 +7,7 @@ import warnings
 from typing import NamedTuple
 
 import numpy as np
+import scipy.fft
 from scipy.linalg import eigh
 from scipy.optimize import minimize_scalar
 from sklearn.base import BaseEstimator, ClassNamePrefixFeaturesOutMixin, TransformerMixin
@@ -66,10 +67,17 @@ class StampFit(NamedTuple):
     coefficient_cov: np.ndarray | None = None
 
 
+def _irfft2(spectra, s):
+    """Real s x s images of half-plane spectra, computed in single precision (a relative
+    rounding of ~1e-7, far below the stamps' noise; 2.5x faster) and returned in double."""
+    return scipy.fft.irfft2(spectra.astype(np.complex64), s=(s, s),
+                            workers=1).astype(np.float64)
+
+
 def _shifted(images_fft, phase):
     """Images (m, s, s) given by their rfft2, shifted by each star's phase: (n, m, s*s)."""
     n, s = phase.shape[0], phase.shape[1]
-    out = np.fft.irfft2(images_fft[None, :, :, :] * phase[:, None, :, :], s=(s, s))
+    out = _irfft2(images_fft[None, :, :, :] * phase[:, None, :, :], s)
     return out.reshape(n, images_fft.shape[0], s * s)
 
 
@@ -428,7 +436,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         """
         n, p = d.shape
         basis = np.vstack([mean[None, :], comps]).reshape(-1, s, s)
-        basis_fft = np.fft.rfft2(basis)
+        basis_fft = np.fft.rfft2(basis)  # once: each star's design is a phase ramp of it
         ky = 2j * np.pi * np.fft.fftfreq(s)[None, None, :, None]
         kx = 2j * np.pi * np.fft.rfftfreq(s)[None, None, None, :]
         m = basis.shape[0]
@@ -438,39 +446,44 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         cov = np.full((n, m, m), np.nan)
         level = np.zeros(n)
         model = np.zeros((n, p))
+
+        def solve(rows, A):
+            """Weighted least squares of the stamps ``rows`` on their design images A."""
+            Aw = A * w[rows, None, :]
+            # batched matrix products (BLAS), 1.5-2x faster than the equivalent einsums
+            inv = np.linalg.pinv(Aw @ A.transpose(0, 2, 1), hermitian=True)
+            sol = (inv @ (Aw @ d[rows, :, None]))[:, :, 0]
+            a[rows], cov[rows] = sol[:, :m], inv[:, :m, :m]
+            if extra:
+                level[rows] = sol[:, m]
+            model[rows] = (a[rows, None, :] @ A[:, :m])[:, 0]
+
+        # Gauss-Newton steps refine the offsets of the stars with masked pixels only (the
+        # others' offsets would not move), their design images carried over
         masked = (w == 0).any(axis=1)
         for start in range(0, n, _CHUNK):
-            sl = slice(start, min(start + _CHUNK, n))
-            refine = masked[sl]
-            for step in range(1 + _REFINE_STEPS * bool(refine.any())):
-                phase = phase_ramp(s, offsets[sl, 0], offsets[sl, 1])
-                A = _with_constant(_shifted(basis_fft, phase), extra)  # (b, m + extra, p)
-                if step > 0:
-                    # d(model)/d(offset): minus the spatial derivative of the shifted model
-                    mfft = np.einsum("bi,iyx->byx", a[sl], basis_fft)[:, None] * phase[:, None]
-                    grad = -np.fft.irfft2(np.concatenate([mfft * kx, mfft * ky], axis=1),
-                                          s=(s, s)).reshape(-1, 2, p)
-                    G = np.concatenate([A, grad], axis=1)
-                    Gw = G * w[sl, None, :]
-                    resid = d[sl] - model[sl] - level[sl, None]
-                    sol = np.einsum("bij,bj->bi",
-                                    np.linalg.pinv(np.einsum("bip,bjp->bij", Gw, G),
-                                                   hermitian=True),
-                                    np.einsum("bip,bp->bi", Gw, resid))
-                    move = np.clip(sol[:, m + extra:], -0.5, 0.5) * refine[:, None]
-                    offsets[sl] += move
-                    phase = phase_ramp(s, offsets[sl, 0], offsets[sl, 1])
-                    A = _with_constant(_shifted(basis_fft, phase), extra)
-                Aw = A * w[sl, None, :]
-                # batched matrix products (BLAS), 1.5-2x faster than the equivalent einsums
-                normal = Aw @ A.transpose(0, 2, 1)
-                rhs = (Aw @ d[sl, :, None])[:, :, 0]
-                inv = np.linalg.pinv(normal, hermitian=True)
-                sol = (inv @ rhs[:, :, None])[:, :, 0]
-                a[sl], cov[sl] = sol[:, :m], inv[:, :m, :m]
-                if extra:
-                    level[sl] = sol[:, m]
-                model[sl] = (a[sl, None, :] @ A[:, :m])[:, 0]
+            rows = np.arange(start, min(start + _CHUNK, n))
+            phase = phase_ramp(s, offsets[rows, 0], offsets[rows, 1])
+            A = _with_constant(_shifted(basis_fft, phase), extra)  # (b, m + extra, p)
+            solve(rows, A)
+            sub = masked[rows]
+            rows, phase, A = rows[sub], phase[sub], A[sub]
+            for _ in range(_REFINE_STEPS * bool(sub.any())):
+                # d(model)/d(offset): minus the spatial derivative of the shifted model
+                mfft = np.einsum("bi,iyx->byx", a[rows], basis_fft)[:, None] * phase[:, None]
+                grad = -_irfft2(np.concatenate([mfft * kx, mfft * ky], axis=1),
+                                s).reshape(-1, 2, p)
+                G = np.concatenate([A, grad], axis=1)
+                Gw = G * w[rows, None, :]
+                resid = d[rows] - model[rows] - level[rows, None]
+                sol = np.einsum("bij,bj->bi",
+                                np.linalg.pinv(np.einsum("bip,bjp->bij", Gw, G),
+                                               hermitian=True),
+                                np.einsum("bip,bp->bi", Gw, resid))
+                offsets[rows] += np.clip(sol[:, m + extra:], -0.5, 0.5)
+                phase = phase_ramp(s, offsets[rows, 0], offsets[rows, 1])
+                A = _with_constant(_shifted(basis_fft, phase), extra)
+                solve(rows, A)
         return a, cov, model, offsets, level
 
     @staticmethod
