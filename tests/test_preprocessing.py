@@ -1,7 +1,6 @@
 """Tests of sklearn_psf.preprocessing: cut_stamps, StampNormalizer, FixedBasis, IQR detector."""
 
 import pickle
-import time
 import warnings
 
 import numpy as np
@@ -97,14 +96,17 @@ def test_cut_stamps_errors_and_no_copy():
     np.testing.assert_array_equal(st[0], big[4:7, 4:7].astype(float))
 
 
-def test_cut_stamps_is_fast():
+def test_cut_stamps_many_sources_match_slicing():
+    # Many sources on a large float32 image: each interior stamp is the image's slice around
+    # the rounded position (its speed is measured in benchmarks/, not here).
     rng = np.random.default_rng(1)
     image = rng.normal(size=(2000, 1500)).astype(np.float32)
-    pos = rng.uniform(0, 1500, (5000, 2))
-    t0 = time.perf_counter()
+    pos = rng.uniform(20, 1480, (5000, 2))
     stamps, flags = cut_stamps(image, pos, 31, weight=np.ones(image.shape, np.float32))
-    assert time.perf_counter() - t0 < 2.0
     assert stamps.shape == (5000, 31, 31)
+    for k in rng.choice(5000, 20, replace=False):
+        ix, iy = (int(np.floor(c + 0.5)) for c in pos[k])
+        np.testing.assert_array_equal(stamps[k], image[iy - 15:iy + 16, ix - 15:ix + 16])
 
 
 # -------------------------------------------------------------------------- StampNormalizer
