@@ -95,7 +95,7 @@ def test_format_versions(tmp_path, star_data):
     model = PSFModel(interpolator=KNeighborsRegressor(4), outliers=None).fit(X, stamps)
     path = tmp_path / "m.fits"
     model.save(path)
-    assert fits.getheader(path)["FORMAT"] == MODEL_FORMAT_VERSION == 4
+    assert fits.getheader(path)["FORMAT"] == MODEL_FORMAT_VERSION == 5
     # the oldest known version (1) loads
     _restamp(path, tmp_path / "v1.fits", FORMAT=1)
     assert_allclose(load_model(tmp_path / "v1.fits").predict(X[:4]), model.predict(X[:4]),

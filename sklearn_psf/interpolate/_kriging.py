@@ -50,6 +50,10 @@ _AUTO_EXACT_STARS = 1000
 _AUTO_NEIGHBORS = 30
 
 _NAME = "KrigingRegressor"
+#: what _fit_hyperparameters sets: drift="auto" keeps the chosen drift's
+_ML_STATE = ("log_likelihood_", "likelihood_", "range_floor_", "range_at_floor_", "range_",
+             "nugget_", "sill_", "noise_scale_", "anisotropy_scaling_", "anisotropy_angle_",
+             "extra_scaling_", "_extra", "_aniso", "_ml_size")
 
 
 def _spacing(P):
@@ -105,10 +109,17 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         Factor on the ``noise_var`` given to :meth:`fit` (pixel-noise estimates are often
         off by a factor). ``"auto"``: fitted by maximum likelihood along with the other
         hyperparameters when ``noise_var`` is given (1 otherwise).
-    drift : {None, "linear", "quadratic"}, default=None
+    drift : {None, "linear", "quadratic", "auto"}, default=None
         ``None``: ordinary Kriging (constant unknown mean). ``"linear"`` / ``"quadratic"``:
         universal Kriging with an unknown polynomial mean of that degree in the
-        positions (PyKrige's ``regional_linear`` drift for ``"linear"``).
+        positions (PyKrige's ``regional_linear`` drift for ``"linear"``; with
+        ``extra_drift="linear"``, the degree is that of the first two features, the
+        features beyond them linear). ``"auto"``: the one of the three whose maximum
+        likelihood has the smallest Bayesian information criterion,
+        ``-2 log L + (drift terms x targets) log(stars)`` (needs a hyperparameter fitted
+        by maximum likelihood): a smooth trend over the field (a PSF's optics) goes to the
+        drift instead of stretching the range of a stationary field, which would then
+        follow the stars' noise; a field without one keeps the constant mean.
     anisotropy_scaling : float or "auto", default=1.0
         Geometric anisotropy, PyKrige's convention (2 features only): positions are
         rotated by ``-anisotropy_angle`` and their second coordinate multiplied by
@@ -158,6 +169,8 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     ----------
     range_ : float
         Range used (fitted with ``range="auto"``).
+    drift_ : {None, "linear", "quadratic"}
+        Drift used (chosen with ``drift="auto"``).
     nugget_ : float
         Nugget used, as a fraction of the sill.
     sill_ : ndarray of shape (n_targets,)
@@ -343,9 +356,14 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         return X
 
     def _drift_powers_for(self, d):
-        """Drift exponents: ``drift``'s polynomial in all features, plus with
-        ``extra_drift="linear"`` the linear terms of the features beyond the first two."""
-        powers = _exponents(d, _DRIFT_DEGREE[self.drift])
+        """Drift exponents: ``drift_``'s polynomial in all features, plus with
+        ``extra_drift="linear"`` the linear terms of the features beyond the first two (and
+        a quadratic drift in the first two only)."""
+        degree = _DRIFT_DEGREE[self.drift_]
+        if self.extra_drift == "linear" and d > 2 and degree > 1:
+            powers = np.pad(_exponents(2, degree), ((0, 0), (0, d - 2)))
+        else:
+            powers = _exponents(d, degree)
         if self.extra_drift == "linear" and d > 2:
             units = np.eye(d, dtype=int)[2:]
             new = [u for u in units if not (powers == u).all(axis=1).any()]
@@ -368,10 +386,17 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         _check_param(self.noise_scale, "noise_scale", 0, np.inf, lo_open=True)
         _check_param(self.anisotropy_scaling, "anisotropy_scaling", 0, np.inf, lo_open=True)
         _check_param(self.anisotropy_angle, "anisotropy_angle", -np.inf, np.inf)
-        if self.drift not in _DRIFT_DEGREE:
+        if self.drift not in _DRIFT_DEGREE and not (isinstance(self.drift, str)
+                                                     and self.drift == "auto"):
             raise ValueError(
-                f"{_NAME}: drift must be None, 'linear' or 'quadratic', got {self.drift!r}."
+                f"{_NAME}: drift must be None, 'linear', 'quadratic' or 'auto', got "
+                f"{self.drift!r}."
             )
+        ml = any(isinstance(v, str) for v in (self.range, self.nugget, self.noise_scale,
+                                               self.anisotropy_scaling, self.anisotropy_angle))
+        if self.drift == "auto" and not ml:
+            raise ValueError(f"{_NAME}: drift='auto' is chosen by the maximum likelihood: set "
+                             "range (or nugget, noise_scale, the anisotropy) to 'auto'.")
         if self.extra_drift not in (None, "linear"):
             raise ValueError(f"{_NAME}: extra_drift must be None or 'linear', got "
                              f"{self.extra_drift!r}.")
@@ -441,6 +466,19 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             )
             noise_cov = cov[0] if cov else None
         n, d = X.shape
+        lo, hi = X.min(axis=0), X.max(axis=0)
+        self._drift_center, half = (lo + hi) / 2.0, (hi - lo) / 2.0
+        self._drift_half_width = np.where(half > 0, half, 1.0)
+        # co-Kriging: the targets are solved in the frame z = y A where they are nearly
+        # independent (see _kriging_co); otherwise that frame is the identity
+        self._frame, Z, noise_z = None, Y, None
+        if noise_cov is not None:
+            A, A_inv, noise_z = coregionalization_frame(Y, noise_cov)
+            self._frame, Z = (A, A_inv), Y @ A
+            noise = np.einsum("itt->it", noise_z).copy()
+        self.drift_, chosen = self.drift, None
+        if self.drift == "auto":
+            self.drift_, chosen = self._choose_drift(X, Z, noise)
         self._drift_powers = self._drift_powers_for(d)
         n_drift = self._drift_powers.shape[0]
         _check_n_samples(_NAME, n, max(2, n_drift + 1), "(distinct positions)")
@@ -457,18 +495,14 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         if k is not None and k >= n:
             k = None  # neighbourhoods of all the stars: exact Kriging (the same system)
         self.n_neighbors_ = k
-        lo, hi = X.min(axis=0), X.max(axis=0)
-        self._drift_center, half = (lo + hi) / 2.0, (hi - lo) / 2.0
-        self._drift_half_width = np.where(half > 0, half, 1.0)
         F = self._drift_design(X)
-        # co-Kriging: the targets are solved in the frame z = y A where they are nearly
-        # independent (see _kriging_co); otherwise that frame is the identity
-        self._frame, Z, noise_z = None, Y, None
-        if noise_cov is not None:
-            A, A_inv, noise_z = coregionalization_frame(Y, noise_cov)
-            self._frame, Z = (A, A_inv), Y @ A
-            noise = np.einsum("itt->it", noise_z).copy()
-        self._fit_hyperparameters(X, Z, F, noise)
+        if chosen is None:
+            self._fit_hyperparameters(X, Z, F, noise)
+        else:  # the chosen drift's fit, and its warnings
+            state, caught = chosen
+            self.__dict__.update(state)
+            for w in caught:
+                warnings.warn(w.message, w.category, stacklevel=3)
         if self._frame is not None and self.log_likelihood_ is not None:
             # the likelihood of y = z A^-1: the Jacobian of the frame, n log |det A|
             self.log_likelihood_ += n * np.linalg.slogdet(self._frame[0])[1]
@@ -491,13 +525,39 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             if self._k < n_drift:
                 raise ValueError(
                     f"{_NAME}: n_neighbors must be at least {n_drift} for "
-                    f"drift={self.drift!r}, got {k}."
+                    f"drift={self.drift_!r}, got {k}."
                 )
             self._tree = cKDTree(U)
             return
         C0 = fit_exact(self, U, Z, F, keep_covariance=noise_cov is not None)
         if noise_cov is not None:
             fit_coupled(self, C0, Z, F, noise_z * self.noise_scale_)
+
+    def _choose_drift(self, X, Y, noise):
+        """``drift="auto"``: the drift (None, "linear", "quadratic") of the smallest Bayesian
+        information criterion of the maximum likelihood, each candidate's hyperparameters
+        fitted in turn by Vecchia's likelihood (cheap; the chosen drift's are fitted again as
+        ``likelihood`` says, unless that is the same fit). Returns the chosen drift and
+        (its fitted state, its warnings) or None (to be fitted by the caller)."""
+        n, best = X.shape[0], (np.inf, None, None)
+        self._quick_ml = True
+        try:
+            for drift in _DRIFT_DEGREE:
+                self.drift_ = drift
+                self._drift_powers = self._drift_powers_for(X.shape[1])
+                m = self._drift_powers.shape[0]
+                if n < max(_MIN_ML_STARS, 2 * m + 1):
+                    break
+                with warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("always")
+                    self._fit_hyperparameters(X, Y, self._drift_design(X), noise)
+                bic = m * Y.shape[1] * np.log(self._ml_size) - 2.0 * self.log_likelihood_
+                if bic < best[0]:
+                    best = (bic, drift, ({k: self.__dict__[k] for k in _ML_STATE}, caught))
+            same = self._quick_ml is True  # the candidates' fits are the caller's
+        finally:
+            self._quick_ml = False
+        return best[1], best[2] if same else None
 
     def _fit_hyperparameters(self, X, Y, F, noise):
         params = {"range_": self.range, "nugget": self.nugget, "noise_scale": self.noise_scale,
@@ -536,6 +596,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             self._set_anisotropy(self.anisotropy_scaling, self.anisotropy_angle, fixed_extra)
         P = X[sub] if geometry_free else self._transform(X[sub])
         noise_sub = None if noise is None else noise[sub]
+        self._ml_size = len(sub)
         if "range_" in auto:  # (with the extra factors fitted: the positions' spacing)
             self.range_floor_ = _spacing(X[:, :2] if extra_free else
                                          X if geometry_free else self._transform(X))
@@ -612,6 +673,9 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         if not isinstance(self.likelihood, str):
             return int(self.likelihood), size
         if n_factors * float(size) ** 3 <= _EXACT_ML_COST:
+            if getattr(self, "_quick_ml", False) and not geometry_free:
+                self._quick_ml = "used"  # drift="auto"'s candidates: Vecchia's, cheaper
+                return _VECCHIA_NEIGHBORS, size
             return None, size
         if geometry_free:  # exact on the largest subset that keeps it cheap
             return None, max(_MIN_ML_STARS, int((_EXACT_ML_COST / n_factors) ** (1 / 3)))
