@@ -130,6 +130,9 @@ def one_ccd(seed, args, folder):
     for name, path in files.items():
         acc[f"{name} (.psf, DES_PSFEx)"] = errors(
             shapes(PSFExModel(path, side).predict(X), side), truth)
+    ours_h = fits.getheader(os.path.join(folder, "ours.psf"), "PSF_DATA")
+    written = {k: ours_h.get(k) for k in ("POLDEG1", "APXCV", "APXMODEL", "APXPIX", "APXE",
+                                          "APXSIZE")}
     h = fits.getheader(files["PSFEx d2"], "PSF_DATA")
     print(f"CCD seed {seed}: {len(ccd.stars)} stars, {len(ccd.galaxies)} galaxies "
           f"(rendered in {t_render:.0f} s, truth at {len(X)} positions in {t_truth:.0f} s); "
@@ -137,7 +140,14 @@ def one_ccd(seed, args, folder):
     print(f"  ours: {line}")
     for name, text in variants.items():
         print(f"  {name}: {text}")
-    return acc, cpu
+    return acc, cpu, written
+
+
+def degree_text(w):
+    """The written .psf's degree and its approximation error (from its header)."""
+    model = "" if w["APXMODEL"] is None else f" (model's own {w['APXMODEL']:.2e})"
+    return (f"degree {w['POLDEG1']}, approximation error {w['APXCV']:.2e} of the peak"
+            f"{model}, e {w['APXE']:.4f}, size {w['APXSIZE']:.4f} px against the full model")
 
 
 def main(argv=None):
@@ -156,14 +166,16 @@ def main(argv=None):
     for program in ("source-extractor", "psfex"):
         if find_program(program) is None:
             sys.exit(f"{program} is not installed (apt-get install source-extractor psfex)")
-    accs, cpus = [], []
+    accs, cpus, degrees = [], [], []
     with tempfile.TemporaryDirectory(prefix="bench_psfex_") as tmp:
         for i in range(args.n_ccds):
             folder = os.path.join(args.keep or tmp, f"ccd{i}")
             os.makedirs(folder, exist_ok=True)
-            acc, cpu = one_ccd(args.seed + i, args, folder)
+            acc, cpu, written = one_ccd(args.seed + i, args, folder)
             accs.append(acc)
             cpus.append(cpu)
+            degrees.append(written)
+            print(f"  written .psf: {degree_text(written)}")
             for name, (e, s, nf) in acc.items():
                 print(f"  {name:40s} e rms {e:.4f}  size rms {s:.4f} px"
                       + (f"  ({nf} moments failed)" if nf else ""))
@@ -175,6 +187,8 @@ def main(argv=None):
         e = np.mean([a[name][0] for a in accs])
         s = np.mean([a[name][1] for a in accs])
         print(f"  {name:40s} e rms {e:.4f}  size rms {s:.4f}")
+    for i, w in enumerate(degrees):
+        print(f"  CCD seed {args.seed + i}: written .psf {degree_text(w)}")
     ref = {k: np.mean([a[k][:2] for a in accs], axis=0) for k in accs[0]}
     for d in (2, 3):
         p = ref[f"PSFEx d{d} (.psf, DES_PSFEx)"]
