@@ -181,9 +181,11 @@ def test_auto_drift_is_the_smallest_bic(trend):
     assert auto.range_ == fixed.range_
 
 
-def test_auto_drift_needs_maximum_likelihood():
+def test_auto_drift_without_maximum_likelihood_is_ordinary_kriging():
     X = np.random.default_rng(0).uniform(size=(30, 2))
-    with pytest.raises(ValueError, match="drift='auto'"):
-        KrigingRegressor(range=0.5, drift="auto").fit(X, X[:, 0])
+    auto = KrigingRegressor(range=0.5, drift="auto").fit(X, X[:, 0] ** 2)
+    assert auto.drift_ is None
+    np.testing.assert_array_equal(auto.predict(X[:5] + 0.01), KrigingRegressor(range=0.5).fit(
+        X, X[:, 0] ** 2).predict(X[:5] + 0.01))
     with pytest.raises(ValueError, match="drift must be"):
         KrigingRegressor(range="auto", drift="cubic").fit(X, X[:, 0])

@@ -116,8 +116,8 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         ``extra_drift="linear"``, the degree is that of the first two features, the
         features beyond them linear). ``"auto"``: the one of the three whose maximum
         likelihood has the smallest Bayesian information criterion,
-        ``-2 log L + (drift terms x targets) log(stars)`` (needs a hyperparameter fitted
-        by maximum likelihood): a smooth trend over the field (a PSF's optics) goes to the
+        ``-2 log L + (drift terms x targets) log(stars)``, or ``None`` when no
+        hyperparameter is fitted by maximum likelihood: a smooth trend over the field (a PSF's optics) goes to the
         drift instead of stretching the range of a stationary field, which would then
         follow the stars' noise; a field without one keeps the constant mean.
     anisotropy_scaling : float or "auto", default=1.0
@@ -392,11 +392,6 @@ class KrigingRegressor(_NoiseAwareInterpolator):
                 f"{_NAME}: drift must be None, 'linear', 'quadratic' or 'auto', got "
                 f"{self.drift!r}."
             )
-        ml = any(isinstance(v, str) for v in (self.range, self.nugget, self.noise_scale,
-                                               self.anisotropy_scaling, self.anisotropy_angle))
-        if self.drift == "auto" and not ml:
-            raise ValueError(f"{_NAME}: drift='auto' is chosen by the maximum likelihood: set "
-                             "range (or nugget, noise_scale, the anisotropy) to 'auto'.")
         if self.extra_drift not in (None, "linear"):
             raise ValueError(f"{_NAME}: extra_drift must be None or 'linear', got "
                              f"{self.extra_drift!r}.")
@@ -477,7 +472,11 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             self._frame, Z = (A, A_inv), Y @ A
             noise = np.einsum("itt->it", noise_z).copy()
         self.drift_, chosen = self.drift, None
-        if self.drift == "auto":
+        ml = any(isinstance(v, str) for v in (self.range, self.nugget, self.noise_scale,
+                                               self.anisotropy_scaling, self.anisotropy_angle))
+        if self.drift == "auto" and not ml:  # nothing fitted: ordinary Kriging
+            self.drift_ = None
+        elif self.drift == "auto":
             self.drift_, chosen = self._choose_drift(X, Z, noise)
         self._drift_powers = self._drift_powers_for(d)
         n_drift = self._drift_powers.shape[0]
