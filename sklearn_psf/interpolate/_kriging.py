@@ -50,10 +50,8 @@ _AUTO_EXACT_STARS = 1000
 _AUTO_NEIGHBORS = 30
 
 _NAME = "KrigingRegressor"
-#: what _fit_hyperparameters sets: drift="auto" keeps the chosen drift's
-_ML_STATE = ("log_likelihood_", "likelihood_", "range_floor_", "range_at_floor_", "range_",
-             "nugget_", "sill_", "noise_scale_", "anisotropy_scaling_", "anisotropy_angle_",
-             "extra_scaling_", "_extra", "_aniso", "_ml_size")
+#: drift="auto" compares the drifts by Vecchia's likelihood of at most this many stars
+_DRIFT_ML_STARS = 400
 
 
 def _spacing(P):
@@ -471,13 +469,13 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             A, A_inv, noise_z = coregionalization_frame(Y, noise_cov)
             self._frame, Z = (A, A_inv), Y @ A
             noise = np.einsum("itt->it", noise_z).copy()
-        self.drift_, chosen = self.drift, None
+        self.drift_ = self.drift
         ml = any(isinstance(v, str) for v in (self.range, self.nugget, self.noise_scale,
                                                self.anisotropy_scaling, self.anisotropy_angle))
         if self.drift == "auto" and not ml:  # nothing fitted: ordinary Kriging
             self.drift_ = None
         elif self.drift == "auto":
-            self.drift_, chosen = self._choose_drift(X, Z, noise)
+            self.drift_ = self._choose_drift(X, Z, noise)
         self._drift_powers = self._drift_powers_for(d)
         n_drift = self._drift_powers.shape[0]
         _check_n_samples(_NAME, n, max(2, n_drift + 1), "(distinct positions)")
@@ -495,13 +493,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             k = None  # neighbourhoods of all the stars: exact Kriging (the same system)
         self.n_neighbors_ = k
         F = self._drift_design(X)
-        if chosen is None:
-            self._fit_hyperparameters(X, Z, F, noise)
-        else:  # the chosen drift's fit, and its warnings
-            state, caught = chosen
-            self.__dict__.update(state)
-            for w in caught:
-                warnings.warn(w.message, w.category, stacklevel=3)
+        self._fit_hyperparameters(X, Z, F, noise)
         if self._frame is not None and self.log_likelihood_ is not None:
             # the likelihood of y = z A^-1: the Jacobian of the frame, n log |det A|
             self.log_likelihood_ += n * np.linalg.slogdet(self._frame[0])[1]
@@ -535,10 +527,9 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     def _choose_drift(self, X, Y, noise):
         """``drift="auto"``: the drift (None, "linear", "quadratic") of the smallest Bayesian
         information criterion of the maximum likelihood, each candidate's hyperparameters
-        fitted in turn by Vecchia's likelihood (cheap; the chosen drift's are fitted again as
-        ``likelihood`` says, unless that is the same fit). Returns the chosen drift and
-        (its fitted state, its warnings) or None (to be fitted by the caller)."""
-        n, best = X.shape[0], (np.inf, None, None)
+        fitted in turn by Vecchia's likelihood on at most ``_DRIFT_ML_STARS`` stars (cheap;
+        the caller then fits the chosen drift's as ``likelihood`` says)."""
+        n, best = X.shape[0], (np.inf, None)
         self._quick_ml = True
         try:
             for drift in _DRIFT_DEGREE:
@@ -547,16 +538,15 @@ class KrigingRegressor(_NoiseAwareInterpolator):
                 m = self._drift_powers.shape[0]
                 if n < max(_MIN_ML_STARS, 2 * m + 1):
                     break
-                with warnings.catch_warnings(record=True) as caught:
-                    warnings.simplefilter("always")
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")  # the chosen drift's fit warns again
                     self._fit_hyperparameters(X, Y, self._drift_design(X), noise)
                 bic = m * Y.shape[1] * np.log(self._ml_size) - 2.0 * self.log_likelihood_
                 if bic < best[0]:
-                    best = (bic, drift, ({k: self.__dict__[k] for k in _ML_STATE}, caught))
-            same = self._quick_ml is True  # the candidates' fits are the caller's
+                    best = (bic, drift)
         finally:
             self._quick_ml = False
-        return best[1], best[2] if same else None
+        return best[1]
 
     def _fit_hyperparameters(self, X, Y, F, noise):
         params = {"range_": self.range, "nugget": self.nugget, "noise_scale": self.noise_scale,
@@ -667,14 +657,15 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     def _ml_plan(self, n, n_factors, geometry_free):
         """Vecchia neighbours (None: exact likelihood) and the number of stars to use."""
         size = min(n, int(self.max_ml_samples))
+        if getattr(self, "_quick_ml", False) and not geometry_free:
+            size = min(size, _DRIFT_ML_STARS)  # drift="auto"'s candidates
         if self.likelihood == "exact":
             return None, size
         if not isinstance(self.likelihood, str):
             return int(self.likelihood), size
         if n_factors * float(size) ** 3 <= _EXACT_ML_COST:
             if getattr(self, "_quick_ml", False) and not geometry_free:
-                self._quick_ml = "used"  # drift="auto"'s candidates: Vecchia's, cheaper
-                return _VECCHIA_NEIGHBORS, size
+                return _VECCHIA_NEIGHBORS, size  # drift="auto"'s candidates: cheaper
             return None, size
         if geometry_free:  # exact on the largest subset that keeps it cheap
             return None, max(_MIN_ML_STARS, int((_EXACT_ML_COST / n_factors) ** (1 / 3)))
