@@ -27,7 +27,9 @@ unit sum, centred). Shapes are the package's adaptive moments
 ``size rms`` = rms of ``sigma_model - sigma_true`` (pixels). The CPU seconds of each command
 are those of the child processes (``resource.getrusage(RUSAGE_CHILDREN)``), one thread each
 (``OMP_NUM_THREADS=1`` and the BLAS libraries' equivalents for ours, ``NTHREADS 1`` for
-PSFEx and Source Extractor); ratios are ours over PSFEx's in the same run.
+PSFEx and Source Extractor); ratios are ours over PSFEx's in the same run. For each CCD and
+at the end, the written ``.psf``'s degree and its approximation error (its header's
+``APXCV``, against the model's own uncertainty ``APXMODEL``, and ``APXE``, ``APXSIZE``).
 """
 
 from __future__ import annotations
