@@ -54,8 +54,11 @@ def test_galsim_draws_the_written_model(fitted, tmp_path):
     assert h["ACCEPTED"] == model.inlier_mask_.sum() and h["PSF_SAMP"] == 1.0
     assert h["APXCV"] == pytest.approx(out.cv_error[out.degree])
     assert h["APXMODEL"] == pytest.approx(out.model_error)
-    # the smallest degree within half the model's own uncertainty
+    # the smallest degree within half the model's own uncertainty, else (this field's
+    # small-scale variations: none up to 8) the smallest within 5% of the best
     within = out.cv_error <= 0.5 * out.model_error
+    if not within.any():
+        within = out.cv_error <= 1.05 * out.cv_error.min()
     assert 0 <= out.degree <= 8 and within[out.degree] and not within[:out.degree].any()
 
     s = model.stamp_size_
