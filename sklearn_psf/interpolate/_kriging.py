@@ -117,7 +117,9 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         ``-2 log L + (drift terms x targets) log(stars)``, or ``None`` when no
         hyperparameter is fitted by maximum likelihood: a smooth trend over the field (a PSF's optics) goes to the
         drift instead of stretching the range of a stationary field, which would then
-        follow the stars' noise; a field without one keeps the constant mean.
+        follow the stars' noise; a field without one keeps the constant mean. A linear or
+        quadratic drift so chosen that leaves no correlation the stars resolve (the range at
+        its floor, see Notes) is the model, without a :class:`ShortRangeWarning`.
     anisotropy_scaling : float or "auto", default=1.0
         Geometric anisotropy, PyKrige's convention (2 features only): positions are
         rotated by ``-anisotropy_angle`` and their second coordinate multiplied by
@@ -606,13 +608,16 @@ class KrigingRegressor(_NoiseAwareInterpolator):
                 # still no correlation beyond the spacing: all the signal is white, the
                 # field is its (generalised-least-squares) mean
                 fit["nugget"] = 1.0
-            warnings.warn(
-                f"{_NAME}: maximum likelihood finds no spatial correlation at the stars' "
-                f"spacing (the range fell to its floor, the median distance to the nearest "
-                f"star, {self.range_floor_:.3g}); with the nugget fitted ({fit['nugget']:.2f} "
-                f"of the sill, range {fit['range']:.3g}) the field is predicted smooth, close "
-                "to its mean. More stars, or a constant model, may serve as well.",
-                ShortRangeWarning, stacklevel=4)
+            if not (self.drift == "auto" and self.drift_ is not None):
+                # (a drift chosen by the likelihood that leaves only white noise: the field
+                # is that polynomial, a model in its own right, not a warning)
+                warnings.warn(
+                    f"{_NAME}: maximum likelihood finds no spatial correlation at the stars' "
+                    f"spacing (the range fell to its floor, the median distance to the nearest "
+                    f"star, {self.range_floor_:.3g}); with the nugget fitted "
+                    f"({fit['nugget']:.2f} of the sill, range {fit['range']:.3g}) the field is "
+                    "predicted smooth, close to its mean. More stars, or a constant model, may "
+                    "serve as well.", ShortRangeWarning, stacklevel=4)
         self.likelihood_ = "exact" if neighbors is None else "vecchia"
         self._set_anisotropy(fit["scaling"], fit["angle"],
                              fit["extra"] if extra_free else fixed_extra)

@@ -319,7 +319,7 @@ def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = F
     >>> path = os.path.join(tempfile.mkdtemp(), "psf.fits")
     >>> save_model(model, path)
     >>> fits.getheader(path)["FORMAT"], [h.name for h in fits.open(path)][1:3]
-    (4, ['SPEC', 'BASIS_MEAN'])
+    (5, ['SPEC', 'BASIS_MEAN'])
     """
     primary = fits.PrimaryHDU()
     h = primary.header
