@@ -114,10 +114,11 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         ``extra_drift="linear"``, the degree is that of the first two features, the
         features beyond them linear). ``"auto"``: the one of the three whose maximum
         likelihood has the smallest Bayesian information criterion,
-        ``-2 log L + (drift terms x targets) log(stars)``, or ``None`` when no
-        hyperparameter is fitted by maximum likelihood: a smooth trend over the field (a PSF's optics) goes to the
-        drift instead of stretching the range of a stationary field, which would then
-        follow the stars' noise; a field without one keeps the constant mean. A linear or
+        ``-2 log L + (drift terms x targets) log(stars)`` (or ``None`` when no
+        hyperparameter is fitted by maximum likelihood): a smooth trend over the field (a
+        PSF's optics) goes to the drift instead of stretching the range of a stationary
+        field, which would then follow the stars' noise; a field without one keeps the
+        constant mean. A linear or
         quadratic drift so chosen that leaves no correlation the stars resolve (the range at
         its floor, see Notes) is the model, without a :class:`ShortRangeWarning`.
     anisotropy_scaling : float or "auto", default=1.0
