@@ -90,6 +90,8 @@ def _gaussian_stars(X, strength):
     return (p / p.sum(axis=(1, 2), keepdims=True)).reshape(len(X), -1)
 
 
+# a constant PSF: the Kriging finds no spatial correlation and says so
+@pytest.mark.filterwarnings("ignore::sklearn_psf.interpolate.ShortRangeWarning")
 @pytest.mark.parametrize("strength", [0.0, 1.0])
 def test_degree_follows_the_model_uncertainty(strength, tmp_path):
     """A constant PSF is written with degree 0 or 1, a strong quadratic variation with 2 or
