@@ -18,7 +18,7 @@ from sklearn_psf.io import (  # noqa: E402
     run_sextractor,
     select_stars,
 )
-from sklearn_psf.model import PSFModel  # noqa: E402
+from sklearn_psf.model import PSFModel, make_interpolator  # noqa: E402
 from sklearn_psf.validation import PSFExModel, psfex_terms, to_psfex, write_psfex  # noqa: E402
 
 REAL = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "realdata",
@@ -128,6 +128,13 @@ def test_even_stamps_padded_to_psfex_centre(tmp_path):
         .drawImage(nx=17, ny=17, scale=1.0, method="no_pixel").array
     pred = model.predict([[250.0, 250.0]]).reshape(16, 16)
     np.testing.assert_allclose(img[:16, :16], pred, atol=2e-3 * pred.max())
+    # an interpolator without a predicted standard deviation: the degree within 5% of the best
+    poly = PSFModel(interpolator=make_interpolator("polynomial")).fit(
+        X, stamps, weights=np.full(stamps.shape, 1 / 25.0))
+    alt = to_psfex(poly, tmp_path / "poly.psf", extent=(0, 500, 0, 500), max_degree=2,
+                   grid_size=12)
+    assert alt.model_error is None and "APXMODEL" not in fits.getheader(alt.path, 1)
+    assert alt.degree == np.flatnonzero(alt.cv_error <= 1.05 * alt.cv_error.min())[0]
     with pytest.raises(FileExistsError):
         to_psfex(model, out.path, extent=(0, 500, 0, 500))
     with pytest.raises(ValueError, match="extent"):
