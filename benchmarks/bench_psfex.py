@@ -173,10 +173,20 @@ def single(seed, ccd, catalog, files, args, folder):
         psf_files[f"{name} (.psf)"] = os.path.join(folder, f"ours{k}.psf")
     psf_files.update({f"{name} (.psf, DES_PSFEx)": path for name, path in files.items()})
     acc = accuracy(ccd, seed, args, models, psf_files)
+    ours_h = fits.getheader(os.path.join(folder, "ours_psf.psf"), "PSF_DATA")
+    written = {k: ours_h.get(k) for k in ("POLDEG1", "APXCV", "APXMODEL", "APXPIX", "APXE",
+                                          "APXSIZE")}
     print(f"  ours: {line}")
     for name, text in variants.items():
         print(f"  {name}: {text}")
-    return acc, cpu
+    return acc, cpu, written
+
+
+def degree_text(w):
+    """The written .psf's degree and its approximation error (from its header)."""
+    model = "" if w["APXMODEL"] is None else f" (model's own {w['APXMODEL']:.2e})"
+    return (f"degree {w['POLDEG1']}, approximation error {w['APXCV']:.2e} of the peak"
+            f"{model}, e {w['APXE']:.4f}, size {w['APXSIZE']:.4f} px against the full model")
 
 
 def print_accuracy(acc, indent="  "):
@@ -226,7 +236,7 @@ def main(argv=None):
             sys.exit(f"{program} is not installed (apt-get install source-extractor psfex)")
     print(f"load average at start {os.getloadavg()[0]:.2f}")
     status = 0
-    accs, cpus, prepared = [], [], []
+    accs, cpus, prepared, degrees = [], [], [], []
     with tempfile.TemporaryDirectory(prefix="bench_psfex_") as tmp:
         root = args.keep or tmp
         for i in range(args.n_ccds):
@@ -236,8 +246,10 @@ def main(argv=None):
             ccd, catalog, files, cpu = prepare(seed, args, folder)
             prepared.append((seed, ccd, catalog, files))
             if i < args.single:
-                acc, cpu["ours"] = single(seed, ccd, catalog, files, args, folder)
+                acc, cpu["ours"], written = single(seed, ccd, catalog, files, args, folder)
                 accs.append(acc)
+                degrees.append((seed, written))
+                print(f"  written .psf: {degree_text(written)}")
                 print_accuracy(acc)
             cpus.append(cpu)
             print("  CPU s: " + ", ".join(f"{k} {v:.2f}" for k, v in cpu.items()), flush=True)
@@ -249,6 +261,8 @@ def main(argv=None):
                       f", size rms x{ref['ours (.psf, DES_PSFEx)'][1] / p[1]:.2f}; full model / "
                       f"PSFEx d{d}: e rms x{ref['ours (full model)'][0] / p[0]:.2f}, size rms "
                       f"x{ref['ours (full model)'][1] / p[1]:.2f}")
+            for seed, written in degrees:
+                print(f"  CCD seed {seed}: written .psf {degree_text(written)}")
             first = cpus[:args.single]
             mean_cpu = {k: np.mean([c[k] for c in first]) for k in first[0]}
             print(f"CPU seconds per CCD over the {len(first)} single-CCD command(s) (one thread "

@@ -107,7 +107,7 @@ def test_position_only_default_unchanged():
     Y = Y + rng.normal(0, 0.01, Y.shape)
     noise = np.full(Y.shape, 1e-4)
     new = make_default_interpolator().fit(X, Y, krigingregressor__noise_var=noise)
-    old = KrigingRegressor(range="auto", n_neighbors="auto").fit(
+    old = KrigingRegressor(range="auto", drift="auto", n_neighbors="auto").fit(
         IsotropicScaler().fit_transform(X), Y, noise_var=noise)
     Q = rng.uniform(0, 1400, (50, 2))
     np.testing.assert_array_equal(new.predict(Q),

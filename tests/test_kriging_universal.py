@@ -145,3 +145,47 @@ def test_ml_with_drift_and_anisotropy():
     # the linear trend is in the drift, not in the field
     iso = KrigingRegressor(range="auto", nugget="auto").fit(X, y)
     assert reg.sill_[0] < iso.sill_[0]
+
+
+def _gp_draw(X, length, rng):
+    """A zero-mean Gaussian field of exponential covariance (range ``length``) at X."""
+    d = np.sqrt(((X[:, None] - X[None]) ** 2).sum(-1))
+    return np.linalg.cholesky(np.exp(-d / length) + 1e-10 * np.eye(len(X))) @ \
+        rng.normal(size=len(X))
+
+
+@pytest.mark.parametrize("trend", [0.0, 1.0])
+def test_auto_drift_is_the_smallest_bic(trend):
+    """drift="auto": the drift of the smallest BIC, -2 log L + (terms x targets) log n, of
+    the three fits by Vecchia's likelihood; then the fit with that drift. A quadratic trend
+    (a PSF's optics over a CCD) gets the quadratic drift, a stationary field the constant
+    mean."""
+    rng = np.random.default_rng(3)
+    X = rng.uniform(0, 1, (300, 2))
+    u, v = X[:, 0] - 0.5, X[:, 1] - 0.5
+    Y = np.column_stack([0.1 * _gp_draw(X, 0.1, rng) + trend * (u**2 + 2 * u * v),
+                         0.1 * _gp_draw(X, 0.1, rng) + trend * (v**2 - u)])
+    noise = np.full(Y.shape, 0.02**2)
+    Y = Y + rng.normal(scale=0.02, size=Y.shape)
+    bic = {}
+    for drift, terms in ((None, 1), ("linear", 3), ("quadratic", 6)):
+        ref = KrigingRegressor(range="auto", drift=drift, likelihood=10).fit(
+            X, Y, noise_var=noise)
+        bic[drift] = terms * 2 * np.log(300) - 2 * ref.log_likelihood_
+    expected = min(bic, key=bic.get)
+    assert expected == ("quadratic" if trend else None)
+    auto = KrigingRegressor(range="auto", drift="auto").fit(X, Y, noise_var=noise)
+    assert auto.drift_ == expected
+    fixed = KrigingRegressor(range="auto", drift=expected).fit(X, Y, noise_var=noise)
+    np.testing.assert_array_equal(auto.predict(X[:20]), fixed.predict(X[:20]))
+    assert auto.range_ == fixed.range_
+
+
+def test_auto_drift_without_maximum_likelihood_is_ordinary_kriging():
+    X = np.random.default_rng(0).uniform(size=(30, 2))
+    auto = KrigingRegressor(range=0.5, drift="auto").fit(X, X[:, 0] ** 2)
+    assert auto.drift_ is None
+    np.testing.assert_array_equal(auto.predict(X[:5] + 0.01), KrigingRegressor(range=0.5).fit(
+        X, X[:, 0] ** 2).predict(X[:5] + 0.01))
+    with pytest.raises(ValueError, match="drift must be"):
+        KrigingRegressor(range="auto", drift="cubic").fit(X, X[:, 0])

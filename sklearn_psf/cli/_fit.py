@@ -466,9 +466,12 @@ def _write_psfex(args, fit, lines):
     chi2 = fit.summary.get("chi2_dof")
     out = to_psfex(fit.model, args.psfex, image_shape=fit.image_shape, overwrite=args.overwrite,
                    chi2=chi2 if chi2 is not None and np.isfinite(chi2) else None)
-    lines.append(f"PSFEx file: polynomial of degree {out.degree} (cross-validated on a grid, "
-                 f"up to 8); its error against the model: pixel rms {out.pixel_rms:.2e} of the "
-                 f"peak, e rms {out.e_rms:.4f}, size rms {out.size_rms:.4f} pixels")
+    why = "within 5% of the best degree's" if out.model_error is None else \
+        f"the model's own uncertainty {out.model_error:.2e}"
+    lines.append(f"PSFEx file: polynomial of degree {out.degree} (up to 8; cross-validated "
+                 f"error on a grid {out.cv_error[out.degree]:.2e} of the peak, {why}); its "
+                 f"error against the model: pixel rms {out.pixel_rms:.2e} of the peak, e rms "
+                 f"{out.e_rms:.4f}, size rms {out.size_rms:.4f} pixels")
     return args.psfex
 
 

@@ -50,6 +50,8 @@ _AUTO_EXACT_STARS = 1000
 _AUTO_NEIGHBORS = 30
 
 _NAME = "KrigingRegressor"
+#: drift="auto" compares the drifts by Vecchia's likelihood of at most this many stars
+_DRIFT_ML_STARS = 400
 
 
 def _spacing(P):
@@ -105,10 +107,20 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         Factor on the ``noise_var`` given to :meth:`fit` (pixel-noise estimates are often
         off by a factor). ``"auto"``: fitted by maximum likelihood along with the other
         hyperparameters when ``noise_var`` is given (1 otherwise).
-    drift : {None, "linear", "quadratic"}, default=None
+    drift : {None, "linear", "quadratic", "auto"}, default=None
         ``None``: ordinary Kriging (constant unknown mean). ``"linear"`` / ``"quadratic"``:
         universal Kriging with an unknown polynomial mean of that degree in the
-        positions (PyKrige's ``regional_linear`` drift for ``"linear"``).
+        positions (PyKrige's ``regional_linear`` drift for ``"linear"``; with
+        ``extra_drift="linear"``, the degree is that of the first two features, the
+        features beyond them linear). ``"auto"``: the one of the three whose maximum
+        likelihood has the smallest Bayesian information criterion,
+        ``-2 log L + (drift terms x targets) log(stars)`` (or ``None`` when no
+        hyperparameter is fitted by maximum likelihood): a smooth trend over the field (a
+        PSF's optics) goes to the drift instead of stretching the range of a stationary
+        field, which would then follow the stars' noise; a field without one keeps the
+        constant mean. A linear or
+        quadratic drift so chosen that leaves no correlation the stars resolve (the range at
+        its floor, see Notes) is the model, without a :class:`ShortRangeWarning`.
     anisotropy_scaling : float or "auto", default=1.0
         Geometric anisotropy, PyKrige's convention (2 features only): positions are
         rotated by ``-anisotropy_angle`` and their second coordinate multiplied by
@@ -159,6 +171,8 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     ----------
     range_ : float
         Range used (fitted with ``range="auto"``).
+    drift_ : {None, "linear", "quadratic"}
+        Drift used (chosen with ``drift="auto"``).
     nugget_ : float
         Nugget used, as a fraction of the sill.
     sill_ : ndarray of shape (n_targets,)
@@ -344,10 +358,14 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         return X
 
     def _drift_powers_for(self, d):
-        """Drift exponents: ``drift``'s polynomial in all features, plus with
-        ``extra_drift`` the linear (and squared) terms of the features beyond the first
-        two."""
-        powers = _exponents(d, _DRIFT_DEGREE[self.drift])
+        """Drift exponents: ``drift_``'s polynomial in all features, plus with
+        ``extra_drift`` the linear (``"quadratic"``: and squared) terms of the features beyond
+        the first two (and then a quadratic drift in the first two only)."""
+        degree = _DRIFT_DEGREE[self.drift_]
+        if self.extra_drift in ("linear", "quadratic") and d > 2 and degree > 1:
+            powers = np.pad(_exponents(2, degree), ((0, 0), (0, d - 2)))
+        else:
+            powers = _exponents(d, degree)
         if self.extra_drift in ("linear", "quadratic") and d > 2:
             units = np.eye(d, dtype=int)[2:]
             if self.extra_drift == "quadratic":
@@ -372,9 +390,11 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         _check_param(self.noise_scale, "noise_scale", 0, np.inf, lo_open=True)
         _check_param(self.anisotropy_scaling, "anisotropy_scaling", 0, np.inf, lo_open=True)
         _check_param(self.anisotropy_angle, "anisotropy_angle", -np.inf, np.inf)
-        if self.drift not in _DRIFT_DEGREE:
+        if self.drift not in _DRIFT_DEGREE and not (isinstance(self.drift, str)
+                                                     and self.drift == "auto"):
             raise ValueError(
-                f"{_NAME}: drift must be None, 'linear' or 'quadratic', got {self.drift!r}."
+                f"{_NAME}: drift must be None, 'linear', 'quadratic' or 'auto', got "
+                f"{self.drift!r}."
             )
         if self.extra_drift not in (None, "linear", "quadratic"):
             raise ValueError(f"{_NAME}: extra_drift must be None, 'linear' or 'quadratic', "
@@ -445,6 +465,23 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             )
             noise_cov = cov[0] if cov else None
         n, d = X.shape
+        lo, hi = X.min(axis=0), X.max(axis=0)
+        self._drift_center, half = (lo + hi) / 2.0, (hi - lo) / 2.0
+        self._drift_half_width = np.where(half > 0, half, 1.0)
+        # co-Kriging: the targets are solved in the frame z = y A where they are nearly
+        # independent (see _kriging_co); otherwise that frame is the identity
+        self._frame, Z, noise_z = None, Y, None
+        if noise_cov is not None:
+            A, A_inv, noise_z = coregionalization_frame(Y, noise_cov)
+            self._frame, Z = (A, A_inv), Y @ A
+            noise = np.einsum("itt->it", noise_z).copy()
+        self.drift_ = self.drift
+        ml = any(isinstance(v, str) for v in (self.range, self.nugget, self.noise_scale,
+                                               self.anisotropy_scaling, self.anisotropy_angle))
+        if self.drift == "auto" and not ml:  # nothing fitted: ordinary Kriging
+            self.drift_ = None
+        elif self.drift == "auto":
+            self.drift_ = self._choose_drift(X, Z, noise)
         self._drift_powers = self._drift_powers_for(d)
         n_drift = self._drift_powers.shape[0]
         _check_n_samples(_NAME, n, max(2, n_drift + 1), "(distinct positions)")
@@ -461,17 +498,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         if k is not None and k >= n:
             k = None  # neighbourhoods of all the stars: exact Kriging (the same system)
         self.n_neighbors_ = k
-        lo, hi = X.min(axis=0), X.max(axis=0)
-        self._drift_center, half = (lo + hi) / 2.0, (hi - lo) / 2.0
-        self._drift_half_width = np.where(half > 0, half, 1.0)
         F = self._drift_design(X)
-        # co-Kriging: the targets are solved in the frame z = y A where they are nearly
-        # independent (see _kriging_co); otherwise that frame is the identity
-        self._frame, Z, noise_z = None, Y, None
-        if noise_cov is not None:
-            A, A_inv, noise_z = coregionalization_frame(Y, noise_cov)
-            self._frame, Z = (A, A_inv), Y @ A
-            noise = np.einsum("itt->it", noise_z).copy()
         self._fit_hyperparameters(X, Z, F, noise)
         if self._frame is not None and self.log_likelihood_ is not None:
             # the likelihood of y = z A^-1: the Jacobian of the frame, n log |det A|
@@ -495,13 +522,37 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             if self._k < n_drift:
                 raise ValueError(
                     f"{_NAME}: n_neighbors must be at least {n_drift} for "
-                    f"drift={self.drift!r}, got {k}."
+                    f"drift={self.drift_!r}, got {k}."
                 )
             self._tree = cKDTree(U)
             return
         C0 = fit_exact(self, U, Z, F, keep_covariance=noise_cov is not None)
         if noise_cov is not None:
             fit_coupled(self, C0, Z, F, noise_z * self.noise_scale_)
+
+    def _choose_drift(self, X, Y, noise):
+        """``drift="auto"``: the drift (None, "linear", "quadratic") of the smallest Bayesian
+        information criterion of the maximum likelihood, each candidate's hyperparameters
+        fitted in turn by Vecchia's likelihood on at most ``_DRIFT_ML_STARS`` stars (cheap;
+        the caller then fits the chosen drift's as ``likelihood`` says)."""
+        n, best = X.shape[0], (np.inf, None)
+        self._quick_ml = True
+        try:
+            for drift in _DRIFT_DEGREE:
+                self.drift_ = drift
+                self._drift_powers = self._drift_powers_for(X.shape[1])
+                m = self._drift_powers.shape[0]
+                if n < max(_MIN_ML_STARS, 2 * m + 1):
+                    break
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")  # the chosen drift's fit warns again
+                    self._fit_hyperparameters(X, Y, self._drift_design(X), noise)
+                bic = m * Y.shape[1] * np.log(self._ml_size) - 2.0 * self.log_likelihood_
+                if bic < best[0]:
+                    best = (bic, drift)
+        finally:
+            self._quick_ml = False
+        return best[1]
 
     def _fit_hyperparameters(self, X, Y, F, noise):
         params = {"range_": self.range, "nugget": self.nugget, "noise_scale": self.noise_scale,
@@ -540,6 +591,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             self._set_anisotropy(self.anisotropy_scaling, self.anisotropy_angle, fixed_extra)
         P = X[sub] if geometry_free else self._transform(X[sub])
         noise_sub = None if noise is None else noise[sub]
+        self._ml_size = len(sub)
         if "range_" in auto:  # (with the extra factors fitted: the positions' spacing)
             self.range_floor_ = _spacing(X[:, :2] if extra_free else
                                          X if geometry_free else self._transform(X))
@@ -560,13 +612,16 @@ class KrigingRegressor(_NoiseAwareInterpolator):
                 # still no correlation beyond the spacing: all the signal is white, the
                 # field is its (generalised-least-squares) mean
                 fit["nugget"] = 1.0
-            warnings.warn(
-                f"{_NAME}: maximum likelihood finds no spatial correlation at the stars' "
-                f"spacing (the range fell to its floor, the median distance to the nearest "
-                f"star, {self.range_floor_:.3g}); with the nugget fitted ({fit['nugget']:.2f} "
-                f"of the sill, range {fit['range']:.3g}) the field is predicted smooth, close "
-                "to its mean. More stars, or a constant model, may serve as well.",
-                ShortRangeWarning, stacklevel=4)
+            if not (self.drift == "auto" and self.drift_ is not None):
+                # (a drift chosen by the likelihood that leaves only white noise: the field
+                # is that polynomial, a model in its own right, not a warning)
+                warnings.warn(
+                    f"{_NAME}: maximum likelihood finds no spatial correlation at the stars' "
+                    f"spacing (the range fell to its floor, the median distance to the nearest "
+                    f"star, {self.range_floor_:.3g}); with the nugget fitted "
+                    f"({fit['nugget']:.2f} of the sill, range {fit['range']:.3g}) the field is "
+                    "predicted smooth, close to its mean. More stars, or a constant model, may "
+                    "serve as well.", ShortRangeWarning, stacklevel=4)
         self.likelihood_ = "exact" if neighbors is None else "vecchia"
         self._set_anisotropy(fit["scaling"], fit["angle"],
                              fit["extra"] if extra_free else fixed_extra)
@@ -611,11 +666,15 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     def _ml_plan(self, n, n_factors, geometry_free):
         """Vecchia neighbours (None: exact likelihood) and the number of stars to use."""
         size = min(n, int(self.max_ml_samples))
+        if getattr(self, "_quick_ml", False) and not geometry_free:
+            size = min(size, _DRIFT_ML_STARS)  # drift="auto"'s candidates
         if self.likelihood == "exact":
             return None, size
         if not isinstance(self.likelihood, str):
             return int(self.likelihood), size
         if n_factors * float(size) ** 3 <= _EXACT_ML_COST:
+            if getattr(self, "_quick_ml", False) and not geometry_free:
+                return _VECCHIA_NEIGHBORS, size  # drift="auto"'s candidates: cheaper
             return None, size
         if geometry_free:  # exact on the largest subset that keeps it cheap
             return None, max(_MIN_ML_STARS, int((_EXACT_ML_COST / n_factors) ** (1 / 3)))

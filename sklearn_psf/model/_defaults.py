@@ -66,7 +66,7 @@ def make_default_interpolator():
     range and sills are fitted to the data, with each star's coefficient noise.
 
     ``make_pipeline(IsotropicScaler(n_positions=2), KrigingRegressor(range="auto",
-    n_neighbors="auto", extra_scaling="auto", extra_drift="linear"))``:
+    drift="auto", n_neighbors="auto", extra_scaling="auto", extra_drift="linear"))``:
     the same factor on x and y (:class:`~sklearn_psf.interpolate.IsotropicScaler`), so that
     the isotropic variogram sees the field's own distances (``MinMaxScaler`` stretches the
     shorter side of a rectangular field to the longer one's length: on the package's default
@@ -82,7 +82,16 @@ def make_default_interpolator():
     stars. The nugget stays 0 and the noise is taken as propagated (``noise_scale=1``):
     on the package's simulations (400 stars, S/N 100 or the realistic 20-1000 mix) fitting
     them as well (``nugget="auto", noise_scale="auto"``) gave a 1-3% larger ellipticity
-    error at the galaxies; both remain available. Pass the pipeline explicitly to
+    error at the galaxies; both remain available. The mean over the field (the drift) is
+    constant, linear or quadratic in the positions, whichever the likelihood's Bayesian
+    information criterion prefers (``drift="auto"``): a smooth variation over the field, such
+    as a CCD's optics give, is then a quadratic mean, and the Kriging only models what is left
+    (with a constant mean the likelihood stretches the range far beyond the field to follow the
+    trend: on GalSim-rendered DECam CCDs, range 3-7 field widths, and the predicted PSF size
+    follows the stars' noise, size error at the truth 2-3 times PSFEx's; with the quadratic
+    drift the range is 0.07-0.15 and the size error 0.8 times PSFEx's, see
+    ``benchmarks/README.md``); on stationary fields (the package's simulations) it keeps the
+    constant mean. Pass the pipeline explicitly to
     ``PSFModel(interpolator=...)`` to tune nested parameters
     (``interpolator__krigingregressor__range``).
 
@@ -102,11 +111,11 @@ def make_default_interpolator():
     --------
     >>> from sklearn_psf.model import make_default_interpolator
     >>> make_default_interpolator()[-1]
-    KrigingRegressor(extra_drift='linear', extra_scaling='auto', n_neighbors='auto',
-                     range='auto')
+    KrigingRegressor(drift='auto', extra_drift='linear', extra_scaling='auto',
+                     n_neighbors='auto', range='auto')
     """
     return make_pipeline(IsotropicScaler(n_positions=2),
-                         KrigingRegressor(range="auto", n_neighbors="auto",
+                         KrigingRegressor(range="auto", drift="auto", n_neighbors="auto",
                                           extra_scaling="auto", extra_drift="linear"))
 
 

@@ -51,6 +51,10 @@ scaled to [0, 1]. A model with extra dimensions (``X`` columns beyond (x, y): a 
 magnitude) stores them as the ``STARS`` column ``extra`` (one value per extra column and star,
 in ``fit``'s order); older readers do not know it.
 
+Format 5 changes no HDU: the default interpolator's drift is chosen by the likelihood
+(``drift="auto"``); files of formats 1-4 are refitted with the constant mean they were fitted
+with.
+
 Loading rebuilds the basis (``StampNormalizer`` steps + a fitted :class:`FixedBasis` of the
 stored mean and components, or the ``StampPCA``) and refits the interpolator (with the
 stored hyperparameters and coefficient noise) and the outlier detector on the stored stars:
@@ -89,7 +93,7 @@ MODEL_FORMAT = "SKPSF-MODEL"
 #: Format version written by this version of the package (``FORMAT`` keyword), for PSF
 #: model files and multi-exposure model files alike (the PSF model reader refuses the latter,
 #: which carry ``MULTIEXP``).
-MODEL_FORMAT_VERSION = 4
+MODEL_FORMAT_VERSION = 5
 _ALLOWED_MODULES = ("sklearn", "sklearn_psf")
 
 
@@ -315,7 +319,7 @@ def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = F
     >>> path = os.path.join(tempfile.mkdtemp(), "psf.fits")
     >>> save_model(model, path)
     >>> fits.getheader(path)["FORMAT"], [h.name for h in fits.open(path)][1:3]
-    (4, ['SPEC', 'BASIS_MEAN'])
+    (5, ['SPEC', 'BASIS_MEAN'])
     """
     primary = fits.PrimaryHDU()
     h = primary.header
@@ -494,10 +498,13 @@ def _check_format(header, path):
 
 def _default_interpolator(version):
     """The default interpolator that a file of format ``version`` was fitted with."""
+    interp = make_default_interpolator()
+    if version < 5:  # formats 1-4: a constant mean (drift=None)
+        interp.set_params(krigingregressor__drift=None)
     if version >= 4:
-        return make_default_interpolator()
+        return interp
     # formats 1-3: the same Kriging on positions scaled by MinMaxScaler
-    return make_pipeline(MinMaxScaler(), make_default_interpolator()[-1])
+    return make_pipeline(MinMaxScaler(), interp[-1])
 
 
 def _read(header, content, path, model_class, version):
@@ -560,7 +567,7 @@ def _read(header, content, path, model_class, version):
     return model
 
 
-_READERS = {v: functools.partial(_read, version=v) for v in (1, 2, 3, 4)}
+_READERS = {v: functools.partial(_read, version=v) for v in (1, 2, 3, 4, 5)}
 
 
 def read_model(path, model_class):

@@ -175,9 +175,35 @@ def _shape_rms(a, b):
     return float(np.sqrt(np.mean(de**2))), float(np.sqrt(np.mean(ds**2)))
 
 
+def _model_error(model, nodes, peak):
+    """The model's own uncertainty over the nodes: rms pixel standard deviation of its
+    stamps (relative to ``peak``) from the interpolator's predicted standard deviation of
+    each coefficient (Kriging's), propagated through the basis; None when the model gives
+    none."""
+    basis, interp = getattr(model, "basis_", None), getattr(model, "interpolator_", None)
+    if basis is None or interp is None or not hasattr(basis, "inverse_transform"):
+        return None
+    try:
+        coef, std = interp.predict(nodes, return_std=True)
+    except TypeError:  # an interpolator without a predicted standard deviation
+        return None
+    coef = np.asarray(coef, dtype=np.float64).reshape(len(nodes), -1)
+    std = np.asarray(std, dtype=np.float64).reshape(coef.shape)
+    if not np.isfinite(std).all():
+        return None
+    base = np.asarray(basis.inverse_transform(coef), dtype=np.float64)
+    var = np.zeros_like(base)
+    for k in range(coef.shape[1]):  # one standard deviation of each coefficient in turn
+        step = coef.copy()
+        step[:, k] += std[:, k]
+        var += (np.asarray(basis.inverse_transform(step), dtype=np.float64) - base) ** 2
+    return float(np.sqrt(np.mean(var)) / peak)
+
+
 def to_psfex(model, path, *, image_shape=None, extent=None, max_degree: int = 8,
-             grid_size: int = 32, n_splits: int = 5, tolerance: float = 0.05,
-             names=("XWIN_IMAGE", "YWIN_IMAGE"), chi2=None, overwrite: bool = False):
+             grid_size: int = 32, n_splits: int = 5, accuracy: float = 0.5,
+             tolerance: float = 0.05, names=("XWIN_IMAGE", "YWIN_IMAGE"), chi2=None,
+             overwrite: bool = False):
     """Write a fitted PSF model as a PSFEx ``.psf`` file, its variation as a polynomial.
 
     PSFEx's format holds a PSF whose pixels are polynomials of the position. The model's
@@ -185,13 +211,27 @@ def to_psfex(model, path, *, image_shape=None, extent=None, max_degree: int = 8,
     field are fitted by least squares with polynomials of each degree up to ``max_degree`` in
     PSFEx's scaled positions; since the stamps are the model's basis (mean and components)
     weighted by the interpolated coefficients, the ``PSF_MASK`` planes are that basis
-    weighted by polynomials approximating the coefficients. The degree is the smallest whose
-    K-fold cross-validated error on the grid (rms pixel difference from the full model) is
-    within ``tolerance`` of the best degree's. The approximation's error is then measured
+    weighted by polynomials approximating the coefficients.
+
+    The degree follows the model's own uncertainty: the approximation error of each degree
+    is its K-fold cross-validated rms pixel difference from the full model on the grid
+    (relative to the mean peak), the model's uncertainty the rms pixel standard deviation of
+    its stamps on the grid (the interpolator's predicted standard deviation of each
+    coefficient, e.g. Kriging's, propagated through the basis; same units), and the degree
+    is the smallest whose approximation error is at most ``accuracy`` times that
+    uncertainty: an error added in quadrature to the model's own raises it by at most
+    ``sqrt(1 + accuracy**2)`` (1.12 for 0.5), and a higher degree would only follow the
+    model's noise more closely. A model that follows the field no better than a constant
+    gets degree 0, a smooth variation the degree it needs. When no degree up to
+    ``max_degree`` reaches that, or the model gives no uncertainty (an interpolator whose
+    ``predict`` has no ``return_std``), the degree is the smallest whose error is within
+    ``tolerance`` of the best degree's. The approximation's error is then measured
     at the centres of the grid's cells (positions not fitted): rms pixel difference relative
     to the mean peak, rms of the ellipticity difference ``|e_psfex - e_model|`` and of the
     size difference (adaptive moments' sigma, pixels); it is returned and written in the
-    header (``APXPIX``, ``APXE``, ``APXSIZE``), with ``APXDMAX`` the largest degree tried.
+    header (``APXPIX``, ``APXE``, ``APXSIZE``), with the chosen degree's cross-validated
+    error (``APXCV``), the model's uncertainty (``APXMODEL``, when known) and ``APXDMAX``
+    the largest degree tried.
 
     Positions: the model's are 0-based pixels (x = column), PSFEx's 1-based
     (``XWIN_IMAGE = x + 1``); ``POLZERO`` is the centre of the field and ``POLSCAL`` its
@@ -221,8 +261,11 @@ def to_psfex(model, path, *, image_shape=None, extent=None, max_degree: int = 8,
         Nodes per side of the grid the polynomial is fitted on.
     n_splits : int, default=5
         Folds of the cross-validation on the grid.
+    accuracy : float, default=0.5
+        Largest approximation error allowed, as a fraction of the model's uncertainty.
     tolerance : float, default=0.05
-        Relative excess of cross-validated error allowed for a lower degree.
+        Without the model's uncertainty (or when no degree reaches ``accuracy``): relative
+        excess of cross-validated error allowed for a lower degree than the best.
     names : pair of str, default=("XWIN_IMAGE", "YWIN_IMAGE")
         ``POLNAME1/2``, PSFEx's usual position columns.
     chi2 : float, optional
@@ -234,7 +277,8 @@ def to_psfex(model, path, *, image_shape=None, extent=None, max_degree: int = 8,
     -------
     result : sklearn.utils.Bunch
         ``path``, ``degree``, ``cv_error`` (per degree 0..max_degree, rms pixel difference
-        relative to the mean peak), ``pixel_rms`` (relative to the peak), ``e_rms``,
+        relative to the mean peak), ``model_error`` (the model's uncertainty in the same
+        units, None when unknown), ``pixel_rms`` (relative to the peak), ``e_rms``,
         ``size_rms`` (pixels), ``polzero``, ``polscal`` (1-based, as written).
 
     Examples
@@ -270,6 +314,8 @@ def to_psfex(model, path, *, image_shape=None, extent=None, max_degree: int = 8,
                          f"give at least {int(np.ceil(np.sqrt(3 * n_terms_max)))}.")
     if not tolerance >= 0:
         raise ValueError(f"tolerance must be >= 0, got {tolerance!r}.")
+    if not accuracy > 0:
+        raise ValueError(f"accuracy must be > 0, got {accuracy!r}.")
     xmin, xmax, ymin, ymax = _extent(model, image_shape, extent)
     polzero = ((xmin + xmax) / 2 + 1.0, (ymin + ymax) / 2 + 1.0)
     polscal = (xmax - xmin, ymax - ymin)
@@ -290,7 +336,10 @@ def to_psfex(model, path, *, image_shape=None, extent=None, max_degree: int = 8,
         for train, test in folds:
             sq += np.sum((T[test] @ _lstsq(T[train], Y[train]) - Y[test]) ** 2)
         cv_error[d] = np.sqrt(sq / Y.size) / peak
-    degree = int(np.flatnonzero(cv_error <= (1 + tolerance) * cv_error.min())[0])
+    model_error = _model_error(model, nodes, peak)
+    good = [] if model_error is None else np.flatnonzero(cv_error <= accuracy * model_error)
+    degree = int(good[0]) if len(good) else \
+        int(np.flatnonzero(cv_error <= (1 + tolerance) * cv_error.min())[0])
 
     planes = _lstsq(psfex_terms(nodes + 1.0, degree, polzero, polscal), Y)
     full = np.asarray(model.predict(check), dtype=np.float64)
@@ -312,14 +361,18 @@ def to_psfex(model, path, *, image_shape=None, extent=None, max_degree: int = 8,
     header = {"LOADED": n_fit, "ACCEPTED": n_fit if inliers is None else int(np.sum(inliers)),
               "PSF_FWHM": fwhm if np.isfinite(fwhm) else 3.0,
               "APXDMAX": (max_degree, "largest polynomial degree tried"),
+              "APXCV": (float(cv_error[degree]), "cross-validated rms pixel error / peak"),
               "APXPIX": (pixel_rms, "rms pixel error of the polynomial / peak"),
               "APXE": (e_rms, "rms |e| error of the polynomial"),
               "APXSIZE": (size_rms, "rms size (sigma, px) error of the polynomial"),
               "COMMENT": "written by sklearn_psf.validation.to_psfex: a model's basis times a "
                          "polynomial fitted on a grid"}
+    if model_error is not None:
+        header["APXMODEL"] = (model_error, "the model's own rms pixel uncertainty / peak")
     if chi2 is not None:
         header["CHI2"] = float(chi2)
     write_psfex(path, planes, polzero, polscal, psf_samp=1.0, names=names, header=header,
                 overwrite=overwrite)
-    return Bunch(path=path, degree=degree, cv_error=cv_error, pixel_rms=pixel_rms,
-                 e_rms=e_rms, size_rms=size_rms, polzero=polzero, polscal=polscal)
+    return Bunch(path=path, degree=degree, cv_error=cv_error, model_error=model_error,
+                 pixel_rms=pixel_rms, e_rms=e_rms, size_rms=size_rms, polzero=polzero,
+                 polscal=polscal)
