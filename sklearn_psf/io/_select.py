@@ -382,9 +382,9 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
     - ``off_locus``, the primary point-source criterion: the size-magnitude locus. The size is
       the adaptive-moment sigma of the ``VIGNET`` (fixed-weight moments where these fail, on
       undersampled stars: see :func:`~sklearn_psf.preprocessing.stamp_fwhm`) with the
-      neighbours masked (the default
-      crowding cut and VIGNETs), else ``flux_radius`` (SExtractor ``FLUX_RADIUS``, which a
-      neighbour's light inflates), else the adaptive-moment sigma of the ``VIGNET``; the locus is found as the densest size among the brighter half of the
+      neighbours masked (the default crowding cut and VIGNETs), else ``flux_radius``
+      (SExtractor ``FLUX_RADIUS``, which a neighbour's light inflates), else that sigma of the
+      whole ``VIGNET``; the locus is found as the densest size among the brighter half of the
       sources, follows the PSF's size over the field (a polynomial in x, y) and widens at low
       S/N by the measured scatter of the sources below it (galaxies lie only above it). With
       ``locus_width="auto"``, a source is a point source from 3 times that scatter at its
