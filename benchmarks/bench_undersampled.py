@@ -206,8 +206,10 @@ def main(argv=None):
     for sampling in (0.0, 0.5):
         cpu = _cpu()
         folder = work / f"psfex_{sampling}"
+        # SAMPLE_FWHMRANGE from 0.5 px: PSFEx's default (2-10 px) drops undersampled stars
         path = run_psfex(cat, folder, config={"PSF_SAMPLING": sampling, "PSF_SIZE": "41,41",
-                                              "PSFVAR_DEGREES": 2, "NTHREADS": 1},
+                                              "PSFVAR_DEGREES": 2, "NTHREADS": 1,
+                                              "SAMPLE_FWHMRANGE": "0.5,10.0"},
                          overwrite=True)
         cpu = _cpu() - cpu
         with fits.open(path) as hdul:
