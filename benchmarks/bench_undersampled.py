@@ -1,21 +1,29 @@
-"""Undersampled stars: `sklearn-psf fit` against PSFEx on a Euclid-VIS-like GalSim CCD.
+"""Undersampled stars: `sklearn-psf fit` against PSFEx and PIFF on a Euclid-VIS-like (or
+Roman-like) GalSim CCD.
 
 The CCD (:func:`sklearn_psf.simulate.render_galsim_ccd`): 2048 x 2048 pixels of 0.1",
 ``galsim.OpticalPSF`` at 700 nm through 1.2 m (obscuration 0.3) with defocus, astigmatism,
 coma and trefoil varying over the chip (constant on a 6 x 6 grid of cells), 0.025" jitter:
 pixel-convolved FWHM ~1.5 px; stars at random sub-pixel positions, S/N 30-1000, galaxies,
-saturated stars. Source Extractor catalogues it (25 x 25 VIGNETs); each tool fits the same
-catalogue: ``sklearn-psf fit --stars cat.ldac --no-plots`` (its defaults: the super-resolved
-basis for these stars) and PSFEx 3.21 with ``PSF_SAMPLING`` automatic and 0.5 (degree 2).
+saturated stars. ``--field roman``: 0.11" pixels, 1.06 um through 2.4 m (obscuration 0.31),
+0.012" jitter, FWHM ~1.3 px. Source Extractor catalogues it (25 x 25 VIGNETs); each tool
+fits the same catalogue: ``sklearn-psf fit --stars cat.ldac --no-plots`` (its defaults: the
+super-resolved basis for these stars), PSFEx 3.21 with ``PSF_SAMPLING`` automatic and 0.5
+(degree 2, ``SAMPLE_FWHMRANGE`` from 0.5 px) and PIFF's ``piffify`` on the image and the
+stars fit selects (PixelGrid at half the pixel scale, 25 samples, BasisPolynomial of order 2,
+Chisq outliers; skipped, with the reason, when PIFF is not installed or with ``--no-piff``).
 
-Accuracy at the truth: 2000 random positions, each model's stamp and the true PSF at native
-sampling, phase 0 (the true PSF's adaptive centroid, measured on its pixel-convolved profile
-sampled every half pixel, on the centre pixel; each model at its own centre), measured with
-fixed-weight moments (:func:`sklearn_psf.measure.fixed_moments`, sigma 1.5 px): e rms
-(sqrt <de1^2 + de2^2>), size rms and size bias (relative, of det(M)^(1/4)). CPU: user + system
-time of each command (child processes), one thread each.
+Accuracy at the truth: random positions, each model's stamp and the true PSF at native
+sampling, phase 0: every profile (the truth, PSFEx's and PIFF's; ours by its own convention,
+the same) drawn with its adaptive centroid, measured on the pixel-convolved profile sampled
+every half pixel, on the centre pixel; measured with fixed-weight moments
+(:func:`sklearn_psf.measure.fixed_moments`, sigma 1.5 px): e rms (sqrt <de1^2 + de2^2>),
+size rms and size bias (relative, of det(M)^(1/4)). CPU: user + system time of each command
+(child processes), one thread each. Clean stars: unsaturated true stars with a catalogue
+source within 1 px and FLAGS 0.
 
-Run: ``python benchmarks/bench_undersampled.py [--seed 3] [--n-stars 600]`` (~5 min).
+Run: ``python benchmarks/bench_undersampled.py [--seed 3] [--n-stars 600] [--field roman]``
+(~10 min with PIFF).
 """
 
 from __future__ import annotations
