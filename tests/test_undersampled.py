@@ -237,3 +237,31 @@ def test_stamp_pca_and_residuals_measure_undersampled_stars(optical):
     assert adaptive["moments"] == "adaptive" and adaptive["n_measured"] < 20  # measured 0
     with pytest.raises(ValueError, match="moments"):
         measure_residuals(X, stars, pred, moments="hsm")
+
+
+def test_star_selection_keeps_undersampled_stars(optical):
+    # the size-magnitude locus measures undersampled stars (where adaptive moments fail) with
+    # fixed-weight moments: the stars are kept, the galaxies (larger) rejected
+    from astropy.table import Table
+
+    from sklearn_psf.io import select_stars
+
+    rng = np.random.default_rng(6)
+    n_stars, n_gal = 60, 20
+    xy = np.column_stack([np.repeat(np.arange(10), 8), np.tile(np.arange(8), 10)])[
+        :n_stars + n_gal] * 100.0 + 50.0
+    snr = rng.uniform(50, 1000, n_stars + n_gal)
+    stamps = []
+    for k in range(n_stars + n_gal):
+        prof = optical if k < n_stars else galsim.Convolve(
+            optical, galsim.Exponential(half_light_radius=rng.uniform(0.15, 0.4)))
+        img = _draw(prof, rng.uniform(-0.5, 0.5, 2))
+        stamps.append(img * snr[k] / np.sqrt((img**2).sum()) + rng.normal(0, 1, img.shape))
+    cat = Table({"x": xy[:, 0], "y": xy[:, 1], "snr": snr,
+                 "flux": [s.sum() for s in stamps], "VIGNET": np.array(stamps)})
+    assert (np.asarray(adaptive_moments(cat["VIGNET"][:n_stars])["flag"]) != 0).mean() > 0.5
+    keep, counts = select_stars(cat, stamp_size=SIDE, min_stars=0)
+    assert keep[:n_stars].mean() >= 0.9, counts  # measured 1.0
+    # measured 0.98 (adaptive moments alone would keep at most half)
+    assert keep[:n_stars].mean() >= 0.9, counts
+    assert keep[n_stars:].mean() <= 0.2, counts  # measured 0

@@ -212,9 +212,9 @@ def _peak(table):
 
 
 def _size(table, rows=None):
-    """(size, name) of each source: with ``rows`` and ``VIGNET``s, the adaptive-moment sigma
+    """(size, name) of each source: with ``rows`` and ``VIGNET``s, the sigma (:func:`_sigma`)
     of those rows' VIGNETs with their neighbours masked (:func:`neighbour_masks`; NaN
-    elsewhere); else ``flux_radius``; else the adaptive-moment sigma of the ``VIGNET``."""
+    elsewhere); else ``flux_radius``; else the sigma of the ``VIGNET``."""
     vig = _vignettes(table)
     radius = _column(table, "flux_radius")
     if vig is not None and len(vig) and rows is not None and vig.shape[1] == vig.shape[2]:
@@ -228,22 +228,30 @@ def _size(table, rows=None):
         ok = (valid.sum(axis=(1, 2)) >= 9) & (data.sum(axis=(1, 2)) > 0)
         sigma = np.full(len(table), np.nan)
         if ok.any():
-            mom = adaptive_moments(data[ok], weights=valid[ok].astype(np.float64),
-                                   guess_sigma=max(1.0, vig.shape[1] / 10))
-            sigma[np.asarray(rows)[ok]] = np.where(np.asarray(mom["flag"]) == 0,
-                                                   np.asarray(mom["sigma"], float), np.nan)
+            sigma[np.asarray(rows)[ok]] = _sigma(data[ok], valid[ok], vig.shape[1])
         return sigma, "adaptive_sigma_masked"
     if radius is not None:
         return radius, "flux_radius"
     if vig is None or len(vig) == 0:
         return None, None
-    from ..measure import adaptive_moments
-
     valid = np.isfinite(vig) & (vig > -1e29)
-    mom = adaptive_moments(np.where(valid, vig, 0.0), weights=valid.astype(np.float64),
-                           guess_sigma=max(1.0, vig.shape[1] / 10))
+    return _sigma(np.where(valid, vig, 0.0), valid, vig.shape[1]), "adaptive_sigma"
+
+
+def _sigma(data, valid, side):
+    """Adaptive-moment sigma of the stamps; where adaptive moments fail (undersampled stars:
+    "object too small"), the FWHM / 2.355 of :func:`~sklearn_psf.preprocessing.stamp_fwhm`
+    (fixed-weight moments corrected for the weight); NaN where neither is measurable."""
+    from ..measure import adaptive_moments
+    from ..preprocessing import stamp_fwhm
+
+    weights = valid.astype(np.float64)
+    mom = adaptive_moments(data, weights=weights, guess_sigma=max(1.0, side / 10))
     sigma = np.where(np.asarray(mom["flag"]) == 0, np.asarray(mom["sigma"], float), np.nan)
-    return sigma, "adaptive_sigma"
+    bad = np.flatnonzero(~np.isfinite(sigma))
+    if bad.size:
+        sigma[bad] = stamp_fwhm(data[bad], weights[bad]) / (2.0 * np.sqrt(2.0 * np.log(2.0)))
+    return sigma
 
 
 def _on_field(x, y, image_shape, header):
@@ -379,9 +387,11 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
       them too), and a fixed distance would grow with the stamp. With ``isolation`` given,
       the old rule instead: another source closer than ``isolation`` pixels along x and y;
     - ``off_locus``, the primary point-source criterion: the size-magnitude locus. The size is
-      the adaptive-moment sigma of the ``VIGNET`` with the neighbours masked (the default
-      crowding cut and VIGNETs), else ``flux_radius`` (SExtractor ``FLUX_RADIUS``, which a
-      neighbour's light inflates), else the adaptive-moment sigma of the ``VIGNET``; the locus is found as the densest size among the brighter half of the
+      the adaptive-moment sigma of the ``VIGNET`` (fixed-weight moments where these fail, on
+      undersampled stars: see :func:`~sklearn_psf.preprocessing.stamp_fwhm`) with the
+      neighbours masked (the default crowding cut and VIGNETs), else ``flux_radius``
+      (SExtractor ``FLUX_RADIUS``, which a neighbour's light inflates), else that sigma of the
+      whole ``VIGNET``; the locus is found as the densest size among the brighter half of the
       sources, follows the PSF's size over the field (a polynomial in x, y) and widens at low
       S/N by the measured scatter of the sources below it (galaxies lie only above it). With
       ``locus_width="auto"``, a source is a point source from 3 times that scatter at its
