@@ -480,8 +480,9 @@ class KrigingRegressor(_NoiseAwareInterpolator):
                                                self.anisotropy_scaling, self.anisotropy_angle))
         if self.drift == "auto" and not ml:  # nothing fitted: ordinary Kriging
             self.drift_ = None
-        elif self.drift == "auto":
-            self.drift_ = self._choose_drift(X, Z, noise)
+        held = None
+        if self.drift == "auto" and ml:
+            self.drift_, held = self._choose_drift(X, Z, noise)
         self._drift_powers = self._drift_powers_for(d)
         n_drift = self._drift_powers.shape[0]
         _check_n_samples(_NAME, n, max(2, n_drift + 1), "(distinct positions)")
@@ -499,7 +500,11 @@ class KrigingRegressor(_NoiseAwareInterpolator):
             k = None  # neighbourhoods of all the stars: exact Kriging (the same system)
         self.n_neighbors_ = k
         F = self._drift_design(X)
-        self._fit_hyperparameters(X, Z, F, noise)
+        self._held_extra = held  # the first candidate drift's factors, when it is chosen
+        try:
+            self._fit_hyperparameters(X, Z, F, noise)
+        finally:
+            self._held_extra = None
         if self._frame is not None and self.log_likelihood_ is not None:
             # the likelihood of y = z A^-1: the Jacobian of the frame, n log |det A|
             self.log_likelihood_ += n * np.linalg.slogdet(self._frame[0])[1]
@@ -534,11 +539,14 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         """``drift="auto"``: the drift (None, "linear", "quadratic") of the smallest Bayesian
         information criterion of the maximum likelihood, each candidate's hyperparameters
         fitted in turn by Vecchia's likelihood on at most ``_DRIFT_ML_STARS`` stars (cheap;
-        the caller then fits the chosen drift's as ``likelihood`` says)."""
-        n, best = X.shape[0], (np.inf, None)
+        the caller then fits the chosen drift's as ``likelihood`` says). Factors on extra
+        features fitted by the first candidate are held by the others (their fit is the
+        costly one); those factors are returned with the drift when it is that candidate
+        (else None)."""
+        n, best, first = X.shape[0], (np.inf, None), None
         self._quick_ml = True
         try:
-            for drift in _DRIFT_DEGREE:
+            for k, drift in enumerate(_DRIFT_DEGREE):
                 self.drift_ = drift
                 self._drift_powers = self._drift_powers_for(X.shape[1])
                 m = self._drift_powers.shape[0]
@@ -550,14 +558,18 @@ class KrigingRegressor(_NoiseAwareInterpolator):
                 bic = m * Y.shape[1] * np.log(self._ml_size) - 2.0 * self.log_likelihood_
                 if bic < best[0]:
                     best = (bic, drift)
+                if k == 0 and X.shape[1] > 2:
+                    first = self._held_extra = self.extra_scaling_.copy()
         finally:
-            self._quick_ml = False
-        return best[1]
+            self._quick_ml, self._held_extra = False, None
+        return best[1], (first if best[1] == next(iter(_DRIFT_DEGREE)) else None)
 
     def _fit_hyperparameters(self, X, Y, F, noise):
         params = {"range_": self.range, "nugget": self.nugget, "noise_scale": self.noise_scale,
                   "scaling": self.anisotropy_scaling, "angle": self.anisotropy_angle}
-        extra = self._extra_factors(X.shape[1])
+        extra = getattr(self, "_held_extra", None)
+        if extra is None:
+            extra = self._extra_factors(X.shape[1])
         extra_free = isinstance(extra, str) and X.shape[1] > 2
         auto = [k for k, v in params.items() if isinstance(v, str)] + ["extra"] * extra_free
         if noise is None and "noise_scale" in auto:
