@@ -40,6 +40,20 @@ class UnusableStarsWarning(UserWarning):
     were left out; ``PSFModel.fit_flag_`` tells which."""
 
 
+
+def _pin_auto_drift(template, fitted):
+    """``template`` with each ``drift="auto"`` set to the drift ``fitted`` (its fit on the
+    first round's stars) chose, so that the later fits on nearly the same stars (the second
+    round's, the final one) do not compare the candidate drifts again."""
+    pinned = {}
+    for key, value in template.get_params(deep=True).items():
+        owner, _, name = key.rpartition("__")
+        if name == "drift" and isinstance(value, str) and value == "auto":
+            est = fitted.get_params(deep=True).get(owner) if owner else fitted
+            if hasattr(est, "drift_"):
+                pinned[key] = est.drift_
+    return clone(template).set_params(**pinned) if pinned else template
+
 class PSFModel(RegressorMixin, BaseEstimator):
     """A PSF model: a stamp basis, outlier rejection and an interpolator of coefficients.
 
@@ -285,6 +299,8 @@ class PSFModel(RegressorMixin, BaseEstimator):
             trusted = usable & keep
             inliers, score, fitted, fit_warnings = self._reject(
                 detector, X, y, coef, var, cov, trusted, usable, interp, stamp_fit, basis)
+            if round_ == 0 and fitted is not None:
+                interp = _pin_auto_drift(interp, fitted)
             mask = usable & inliers
             if round_ == 1 or not noise_aware or (mask == trusted).all():
                 break
