@@ -218,8 +218,6 @@ def _size(table, rows=None):
     vig = _vignettes(table)
     radius = _column(table, "flux_radius")
     if vig is not None and len(vig) and rows is not None and vig.shape[1] == vig.shape[2]:
-        from ..measure import adaptive_moments
-
         sub = vig[rows]
         valid = (np.isfinite(sub) & (sub > -1e29)
                  & ~neighbour_masks(table, rows, vig.shape[1]))

@@ -45,11 +45,11 @@ def _pin_auto_drift(template, fitted):
     """``template`` with each ``drift="auto"`` set to the drift ``fitted`` (its fit on the
     first round's stars) chose, so that the later fits on nearly the same stars (the second
     round's, the final one) do not compare the candidate drifts again."""
-    pinned = {}
+    pinned, steps = {}, fitted.get_params(deep=True)
     for key, value in template.get_params(deep=True).items():
         owner, _, name = key.rpartition("__")
         if name == "drift" and isinstance(value, str) and value == "auto":
-            est = fitted.get_params(deep=True).get(owner) if owner else fitted
+            est = steps.get(owner) if owner else fitted
             if hasattr(est, "drift_"):
                 pinned[key] = est.drift_
     return clone(template).set_params(**pinned) if pinned else template

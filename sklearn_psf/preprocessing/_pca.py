@@ -630,12 +630,18 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         d, w, s = self._stamps_and_weights(X, weights, reset=False)
         level = _border_level(d, w, s)[0] if self.background_ else np.zeros(len(d))
         offsets, ok = self._centroids(d - level[:, None], w, s)
-        a, cov, model, offsets, level = self._fit_stamps(d, w, offsets, self.mean_,
-                                                         self.components_, s)
+        a, cov, model, offsets, level, moved_ok = self._project_stars(d, w, offsets, s)
         flux, coef, var, ccov, good = self._coefficients(a, cov)
-        flag = np.where(ok, FIT_OK, FIT_NO_CENTROID)
+        flag = np.where(ok & moved_ok, FIT_OK, FIT_NO_CENTROID)
         flag[~good] = FIT_NO_FLUX
         return StampFit(coef, var, flux, offsets, model + level[:, None], w, flag, ccov)
+
+    def _project_stars(self, d, w, offsets, s):
+        """Each star's fit on the basis for :meth:`project`: (amplitudes, their covariance,
+        model, offsets, background level, whether the offset fit succeeded)."""
+        a, cov, model, offsets, level = self._fit_stamps(d, w, offsets, self.mean_,
+                                                         self.components_, s)
+        return a, cov, model, offsets, level, np.ones(len(d), dtype=bool)
 
     def render(self, coefficients, flux=1.0, offsets=None):
         """Model stamps in the stars' frame: ``flux * shift(mean + c @ components, offsets)``.

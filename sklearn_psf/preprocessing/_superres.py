@@ -11,10 +11,6 @@ from sklearn.utils.validation import check_is_fitted
 from ..measure import adaptive_moments, fixed_moments
 from ._pca import (
     FALLBACK_SIGMA,
-    FIT_NO_CENTROID,
-    FIT_NO_FLUX,
-    FIT_OK,
-    StampFit,
     StampPCA,
     _border_level,
     _has_background,
@@ -493,7 +489,6 @@ class SuperResolvedPCA(StampPCA):
 
         a = np.where(usable, flux, 0.0)[:, None]
         fine = np.zeros((1, size * size))
-        comps = np.zeros((0, size * size))
         lam, edge, noise = np.zeros(0), np.nan, np.nan
         def settle(fine, offsets):
             """Re-centred, normalised fine images and the stars' fits on them."""
@@ -593,33 +588,11 @@ class SuperResolvedPCA(StampPCA):
         coef = (resid - centre) @ axes[:k].T
         return k, lam, edge, noise, np.where(usable[:, None], coef, 0.0)
 
-    def project(self, X, weights=None) -> StampFit:
-        """Fit stamps on the basis: coefficients, their noise, flux, offsets and model.
-
-        Each star's flux, coefficients, background and sub-pixel offset are fitted on its
-        pixels (Gauss-Newton on the offset from the centroid of :class:`StampPCA`).
-
-        Parameters
-        ----------
-        X : array-like of shape (n, s*s)
-            Raw stamps, NaN for masked pixels. Not modified.
-        weights : array-like of shape (n, s*s), optional
-            Inverse variance per pixel (0 = masked); default estimated from the stamps.
-
-        Returns
-        -------
-        StampFit
-        """
-        check_is_fitted(self)
-        d, w, s = self._stamps_and_weights(X, weights, reset=False)
-        level = _border_level(d, w, s)[0] if self.background_ else np.zeros(len(d))
-        offsets, ok = self._centroids(d - level[:, None], w, s)
+    def _project_stars(self, d, w, offsets, s):
+        """Each star fitted through its own phase on the fine grid (Gauss-Newton on the
+        offset from :class:`StampPCA`'s centroid)."""
         fine = np.vstack([self.fine_mean_[None], self.fine_components_])
-        a, cov, model, offsets, level, moved_ok = self._fit_stars(d, w, offsets, fine)
-        flux, coef, var, ccov, good = self._coefficients(a, cov)
-        flag = np.where(ok & moved_ok, FIT_OK, FIT_NO_CENTROID)
-        flag[~good] = FIT_NO_FLUX
-        return StampFit(coef, var, flux, offsets, model + level[:, None], w, flag, ccov)
+        return self._fit_stars(d, w, offsets, fine)
 
     def render(self, coefficients, flux=1.0, offsets=None):
         """Model stamps at the pixels' sampling, the star at ``offsets`` from the centre.
