@@ -324,3 +324,32 @@ def test_correlated_field_keeps_its_range_without_warning():
     assert reg.nugget_ == 0.0
     fixed = KrigingRegressor(range=0.3).fit(X, Y)
     assert fixed.range_floor_ is None and not fixed.range_at_floor_
+
+
+@pytest.mark.parametrize("likelihood", ["exact", 10])
+def test_warm_start_refit_reaches_the_cold_optimum(likelihood):
+    # an outlier round's refit: the same stars but a few; from the previous fit's
+    # hyperparameters it reaches the optimum a fit from the grid reaches (the exact
+    # likelihood to its 1e-8-per-star gradient; Vecchia's to a tenth of the parameters'
+    # standard error), and keeps the drift chosen before
+    X, Y, _ = gp_field(260, 0.25, [1.0, 0.3], nugget=0.05, seed=4)
+    noise = np.full(Y.shape, 2e-3)
+    keep = np.ones(len(X), dtype=bool)
+    keep[::40] = False
+    params = {"range": "auto", "nugget": "auto", "drift": "auto", "likelihood": likelihood}
+    warm = KrigingRegressor(**params, warm_start=True).fit(X, Y, noise_var=noise)
+    first_drift = warm.drift_
+    warm.fit(X[keep], Y[keep], noise_var=noise[keep])
+    cold = KrigingRegressor(**params).fit(X[keep], Y[keep], noise_var=noise[keep])
+    assert warm.drift_ == first_drift == cold.drift_
+    rel = 1e-5 if likelihood == "exact" else 0.1
+    assert warm.range_ == pytest.approx(cold.range_, rel=rel)
+    assert warm.nugget_ == pytest.approx(cold.nugget_, rel=rel, abs=1e-3)
+    np.testing.assert_allclose(warm.sill_, cold.sill_, rtol=rel)
+    assert warm.log_likelihood_ == pytest.approx(cold.log_likelihood_, abs=0.05)
+    # without warm_start, the refit starts from the grid again: the cold fit exactly
+    again = KrigingRegressor(**params).fit(X, Y, noise_var=noise)
+    again.fit(X[keep], Y[keep], noise_var=noise[keep])
+    assert again.range_ == cold.range_
+    # what the warm fit started from (a model file stores it) is the first fit's optimum
+    assert warm._start_state()["drift"] == first_drift and again._start_state() is None

@@ -82,6 +82,9 @@ def test_rho_statistics_on_the_sky_use_great_circle_separations():
         assert_array_equal(rho[name].npairs, npairs, err_msg=name)
         # TreeCorr parallel-transports the shapes along the great circle: tiny on 0.3 degree
         assert_allclose(rho[name].xi, xi, rtol=2e-3, atol=1e-7, err_msg=name)
+    # the catalogues were built on one thread (num_threads), TreeCorr's setting restored
+    import treecorr.util
+    assert treecorr.util.max_omp_threads is None
 
 
 def test_rho_statistics_bad_input():

@@ -166,6 +166,14 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     random_state : int, RandomState instance or None, default=0
         Seed of that subset and of Vecchia's order (fixed by default, so that fits are
         reproducible).
+    warm_start : bool, default=False
+        When True and the regressor was fitted before on as many features, maximum
+        likelihood starts from the previous fit's hyperparameters instead of its grid of
+        starting points, and ``drift="auto"`` keeps the drift it chose then (scikit-learn's
+        ``warm_start``): a refit on nearly the same stars, such as
+        :class:`~sklearn_psf.model.PSFModel`'s outlier rounds, takes a few steps. The
+        optimum is the same to the convergence tolerance unless the likelihood has several
+        maxima.
 
     Attributes
     ----------
@@ -323,7 +331,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     def __init__(self, variogram="exponential", range=0.5, nugget=0.0, n_neighbors=None, *,
                  noise_scale=1.0, drift=None, anisotropy_scaling=1.0, anisotropy_angle=0.0,
                  extra_scaling=1.0, extra_drift=None, likelihood="auto",
-                 max_ml_samples=20000, random_state=0):
+                 max_ml_samples=20000, random_state=0, warm_start=False):
         self.variogram = variogram
         self.range = range
         self.nugget = nugget
@@ -337,6 +345,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         self.likelihood = likelihood
         self.max_ml_samples = max_ml_samples
         self.random_state = random_state
+        self.warm_start = warm_start
 
     # ------------------------------------------------------------------ geometry
     def _correlation(self, D):
@@ -453,6 +462,10 @@ class KrigingRegressor(_NoiseAwareInterpolator):
 
     def _fit(self, X, Y, noise, noise_cov=None):
         self._check_params(X.shape[1])
+        previous = getattr(self, "_warm", None) if self.warm_start else None
+        if previous is not None and previous["n_features"] != X.shape[1]:
+            previous = None
+        self._warm, self._started_from = None, previous
         # a previous fit's large arrays go first
         for attr in ("dual_coef_", "drift_coef_", "_factors", "_tree", "_k", "X_fit_",
                      "y_fit_", "_U_fit", "_F_fit", "_z_fit", "_dual_independent",
@@ -480,9 +493,12 @@ class KrigingRegressor(_NoiseAwareInterpolator):
                                                self.anisotropy_scaling, self.anisotropy_angle))
         if self.drift == "auto" and not ml:  # nothing fitted: ordinary Kriging
             self.drift_ = None
-        held = None
+        held, start = None, None if previous is None else previous["ml"]
         if self.drift == "auto" and ml:
-            self.drift_, held = self._choose_drift(X, Z, noise)
+            if previous is not None:
+                self.drift_ = previous["drift"]
+            else:
+                self.drift_, held, start = self._choose_drift(X, Z, noise)
         self._drift_powers = self._drift_powers_for(d)
         n_drift = self._drift_powers.shape[0]
         _check_n_samples(_NAME, n, max(2, n_drift + 1), "(distinct positions)")
@@ -502,9 +518,11 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         F = self._drift_design(X)
         self._held_extra = held  # the first candidate drift's factors, when it is chosen
         try:
-            self._fit_hyperparameters(X, Z, F, noise)
+            self._fit_hyperparameters(X, Z, F, noise, start)
         finally:
             self._held_extra = None
+        self._warm = {"n_features": d, "drift": self.drift_,
+                      "ml": None if self.log_likelihood_ is None else self._ml_result()}
         if self._frame is not None and self.log_likelihood_ is not None:
             # the likelihood of y = z A^-1: the Jacobian of the frame, n log |det A|
             self.log_likelihood_ += n * np.linalg.slogdet(self._frame[0])[1]
@@ -539,11 +557,11 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         """``drift="auto"``: the drift (None, "linear", "quadratic") of the smallest Bayesian
         information criterion of the maximum likelihood, each candidate's hyperparameters
         fitted in turn by Vecchia's likelihood on at most ``_DRIFT_ML_STARS`` stars (cheap;
-        the caller then fits the chosen drift's as ``likelihood`` says). Factors on extra
-        features fitted by the first candidate are held by the others (their fit is the
-        costly one); those factors are returned with the drift when it is that candidate
-        (else None)."""
-        n, best, first = X.shape[0], (np.inf, None), None
+        the caller then fits the chosen drift's as ``likelihood`` says, starting from the
+        candidate's hyperparameters, returned third). Factors on extra features fitted by
+        the first candidate are held by the others (their fit is the costly one); those
+        factors are returned with the drift when it is that candidate (else None)."""
+        n, best, first = X.shape[0], (np.inf, None, None), None
         self._quick_ml = True
         try:
             for k, drift in enumerate(_DRIFT_DEGREE):
@@ -557,14 +575,41 @@ class KrigingRegressor(_NoiseAwareInterpolator):
                     self._fit_hyperparameters(X, Y, self._drift_design(X), noise)
                 bic = m * Y.shape[1] * np.log(self._ml_size) - 2.0 * self.log_likelihood_
                 if bic < best[0]:
-                    best = (bic, drift)
+                    best = (bic, drift, self._ml_result())
                 if k == 0 and X.shape[1] > 2:
                     first = self._held_extra = self.extra_scaling_.copy()
         finally:
             self._quick_ml, self._held_extra = False, None
-        return best[1], (first if best[1] == next(iter(_DRIFT_DEGREE)) else None)
+        return (best[1], (first if best[1] == next(iter(_DRIFT_DEGREE)) else None),
+                best[2])
 
-    def _fit_hyperparameters(self, X, Y, F, noise):
+    def _start_state(self):
+        """What this fit started from with ``warm_start`` (JSON-able; None for a fit from
+        the grid): a model file stores it so that loading repeats the same fit exactly."""
+        state = getattr(self, "_started_from", None)
+        if state is None:
+            return None
+        ml = state["ml"]
+        return {"n_features": int(state["n_features"]), "drift": state["drift"],
+                "ml": None if ml is None else {
+                    key: (np.asarray(v, dtype=float).tolist() if key in ("sill", "extra")
+                          else float(v)) for key, v in ml.items()}}
+
+    def _set_start_state(self, state):
+        """Make the next fit start from ``state`` (of :meth:`_start_state`)."""
+        self._warm = dict(state)
+        if state.get("ml") is not None:
+            self._warm["ml"] = {**state["ml"], "sill": np.asarray(state["ml"]["sill"])}
+        self.warm_start = True
+
+    def _ml_result(self):
+        """The fitted hyperparameters as a ``start`` of :func:`fit_hyperparameters` (sills of
+        the targets the likelihood saw: the co-Kriging frame's)."""
+        return {"range": self.range_, "nugget": self.nugget_, "sill": self.sill_,
+                "noise_scale": self.noise_scale_, "scaling": self.anisotropy_scaling_,
+                "angle": self.anisotropy_angle_, "extra": list(self.extra_scaling_)}
+
+    def _fit_hyperparameters(self, X, Y, F, noise, start=None):
         params = {"range_": self.range, "nugget": self.nugget, "noise_scale": self.noise_scale,
                   "scaling": self.anisotropy_scaling, "angle": self.anisotropy_angle}
         extra = getattr(self, "_held_extra", None)
@@ -580,7 +625,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         if extra_free:  # the extra factors first, then the rest as with fixed factors
             _check_n_samples(_NAME, X.shape[0], _MIN_ML_STARS, "to fit hyperparameters by "
                              "maximum likelihood (distinct positions)")
-            fixed_extra = self._fit_extra_factors(X, Y, F, noise, params, auto)
+            fixed_extra = self._fit_extra_factors(X, Y, F, noise, params, auto, start)
             extra_free = False
             auto.remove("extra")
         if not auto:
@@ -609,15 +654,19 @@ class KrigingRegressor(_NoiseAwareInterpolator):
                                          X if geometry_free else self._transform(X))
         params["extra"] = "auto" if extra_free else None
         fit = fit_hyperparameters(P, Y[sub], F[sub], noise_sub, self.variogram,
-                                  neighbors=neighbors, rng=rng,
+                                  neighbors=neighbors, rng=rng, start=start,
                                   range_floor=self.range_floor_, **params)
         if self.range_floor_ is not None and fit["range"] <= self.range_floor_ * (1 + 1e-6):
             # no correlation the stars can resolve: the white part goes to a nugget, so that
             # the field between the stars is smooth (not spots of one spacing at each star)
             self.range_at_floor_ = True
             if not isinstance(self.nugget, str):
+                # the nugget from the previous fit's (warm start), else from 0.1: from 0 (its
+                # lower bound, where the likelihood is flat in its log) the steps stall
+                nugget0 = start["nugget"] if start and 0 < start["nugget"] < 1 else 0.1
                 fit = fit_hyperparameters(P, Y[sub], F[sub], noise_sub, self.variogram,
-                                          neighbors=neighbors, rng=rng, start=fit,
+                                          neighbors=neighbors, rng=rng,
+                                          start={**fit, "nugget": nugget0},
                                           range_floor=self.range_floor_,
                                           **{**params, "nugget": "auto"})
             if fit["range"] <= self.range_floor_ * (1 + 1e-6):
@@ -640,7 +689,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         self.range_, self.nugget_, self.sill_ = fit["range"], fit["nugget"], fit["sill"]
         self.noise_scale_, self.log_likelihood_ = fit["noise_scale"], fit["log_likelihood"]
 
-    def _fit_extra_factors(self, X, Y, F, noise, params, auto):
+    def _fit_extra_factors(self, X, Y, F, noise, params, auto, start=None):
         """The factors on the extra features by the exact likelihood of a subset of the stars
         (the other "auto" hyperparameters fitted along with them, then refitted on all the
         stars with the factors held)."""
@@ -655,7 +704,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         P, Ys, Fs = X[sub], Y[sub], F[sub]
         Ns = None if noise is None else noise[sub]
         fit = fit_hyperparameters(P, Ys, Fs, Ns, self.variogram, range_floor=floor,
-                                  gtol=_EXTRA_GTOL, **{**params, "extra": "auto"})
+                                  gtol=_EXTRA_GTOL, start=start, **{**params, "extra": "auto"})
         factors = np.asarray(fit["extra"])
         # a dimension whose correlation length the likelihood does not need (less than
         # _EXTRA_LR_MIN better than with no correlation along it) gets none: on a subset of

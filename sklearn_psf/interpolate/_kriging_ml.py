@@ -323,7 +323,8 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
     start : dict, optional
         A previous result of this function (``range``, ``nugget``, ``noise_scale``,
         ``scaling``, ``angle``, ``sill``): the optimisation starts there instead of from the
-        best point of a grid.
+        best point of a grid (the sills from their default start when ``sill`` is missing or
+        has another number of targets).
     range_floor : float, optional
         Lower bound of the range (default ``1e-3`` times the span of the positions).
     gtol : float, optional
@@ -404,7 +405,9 @@ def fit_hyperparameters(P, Y, F, noise, variogram, *, range_, nugget, noise_scal
                     "angle": np.deg2rad(start["angle"]), "nu": np.log(max(nu0, 1e-300)),
                     "kappa": np.log(start["noise_scale"]),
                     **{f"extra{j}": np.log(e) for j, e in enumerate(start.get("extra") or ())}}
-        p_start = np.log(np.maximum(start["sill"] / (1.0 + nu0) / scale**2, 1e-300))
+        sill = start.get("sill")
+        p_start = p0 if sill is None or np.size(sill) != T else np.log(
+            np.maximum(np.asarray(sill) / (1.0 + nu0) / scale**2, 1e-300))
         starts = [np.clip(np.concatenate([[previous[name] for name in names], p_start]),
                           *np.array(box).T)]
     # the exact likelihood's optimum to ~1e-8 (equal to GaussianProcessRegressor's) by

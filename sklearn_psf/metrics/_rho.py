@@ -97,7 +97,7 @@ def _scalar_correlation(X, a, b, options):
     :class:`CorrelationResult` (``xi_im`` zero)."""
     import treecorr
 
-    from ._correlation import _check_binning
+    from ._correlation import _catalog_threads, _check_binning
 
     min_sep, max_sep, nbins = _check_binning(options["min_sep"], options["max_sep"],
                                              options["nbins"])
@@ -112,8 +112,9 @@ def _scalar_correlation(X, a, b, options):
 
     def catalog(k):
         if sky:
-            return treecorr.Catalog(ra=X[:, 0], dec=X[:, 1], ra_units=x_units,
-                                    dec_units=x_units, k=k)
+            with _catalog_threads(options["num_threads"]):
+                return treecorr.Catalog(ra=X[:, 0], dec=X[:, 1], ra_units=x_units,
+                                        dec_units=x_units, k=k)
         units = {} if x_units is None else {"x_units": x_units, "y_units": x_units}
         return treecorr.Catalog(x=X[:, 0], y=X[:, 1], k=k, **units)
 

@@ -55,6 +55,12 @@ Format 5 changes no HDU: the default interpolator's drift is chosen by the likel
 (``drift="auto"``); files of formats 1-4 are refitted with the constant mean they were fitted
 with.
 
+Format 6 changes no HDU: ``PSFModel`` refits its interpolator in the second outlier round
+and the final fit from the previous round's hyperparameters (``warm_start``); ``SPEC``'s
+``warm_starts`` holds, for each Kriging step so fitted (by its parameter path, ``""`` for the
+interpolator itself), the drift and hyperparameters its fit started from, so that loading
+repeats that fit.
+
 Loading rebuilds the basis (``StampNormalizer`` steps + a fitted :class:`FixedBasis` of the
 stored mean and components, or the ``StampPCA``) and refits the interpolator (with the
 stored hyperparameters and coefficient noise) and the outlier detector on the stored stars:
@@ -80,7 +86,7 @@ from sklearn.pipeline import Pipeline, make_pipeline
 from sklearn.preprocessing import MinMaxScaler
 
 from .._files import one_line, write_fits_atomic
-from ..interpolate import ExposureKrigingRegressor
+from ..interpolate import ExposureKrigingRegressor, KrigingRegressor
 from .._version import __version__
 from ._defaults import make_default_interpolator
 from ._noise import fit_interpolator
@@ -93,7 +99,7 @@ MODEL_FORMAT = "SKPSF-MODEL"
 #: Format version written by this version of the package (``FORMAT`` keyword), for PSF
 #: model files and multi-exposure model files alike (the PSF model reader refuses the latter,
 #: which carry ``MULTIEXP``).
-MODEL_FORMAT_VERSION = 5
+MODEL_FORMAT_VERSION = 6
 _ALLOWED_MODULES = ("sklearn", "sklearn_psf")
 
 
@@ -319,7 +325,7 @@ def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = F
     >>> path = os.path.join(tempfile.mkdtemp(), "psf.fits")
     >>> save_model(model, path)
     >>> fits.getheader(path)["FORMAT"], [h.name for h in fits.open(path)][1:3]
-    (5, ['SPEC', 'BASIS_MEAN'])
+    (6, ['SPEC', 'BASIS_MEAN'])
     """
     primary = fits.PrimaryHDU()
     h = primary.header
@@ -385,6 +391,10 @@ def _model_hdus(model, *, summary=None, prefix="", exposure=False):
                         for p in normalizers],
         "versions": _versions(),
     }
+    starts = {key: step._start_state() for key, step in _kriging_steps(model.interpolator_)}
+    starts = {key: state for key, state in starts.items() if state is not None}
+    if starts:
+        spec["warm_starts"] = starts
     if summary is not None:
         spec["validation_summary"] = summary
     rows = [(key, json.dumps(value, default=_json_default, allow_nan=True))
@@ -496,6 +506,12 @@ def _check_format(header, path):
     return version
 
 
+def _kriging_steps(interpolator):
+    """(parameter path, step) of each KrigingRegressor in ``interpolator`` ("" for itself)."""
+    found = [("", interpolator)] + list(interpolator.get_params(deep=True).items())
+    return [(key, est) for key, est in found if isinstance(est, KrigingRegressor)]
+
+
 def _default_interpolator(version):
     """The default interpolator that a file of format ``version`` was fitted with."""
     interp = make_default_interpolator()
@@ -541,10 +557,18 @@ def _read(header, content, path, model_class, version):
     interp = _default_interpolator(version) if interpolator is None else clone(interpolator)
     if version < 4 and isinstance(interp, ExposureKrigingRegressor):
         interp._per_axis_scaling = True  # as fitted then: each axis scaled to [0, 1]
+    # (format 6: a fit that started from the previous outlier round's hyperparameters
+    # starts from them again)
+    steps = dict(_kriging_steps(interp))
+    given = {key: step.warm_start for key, step in steps.items()}
+    for key, state in spec.get("warm_starts", {}).items():
+        steps[key]._set_start_state(state)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # warnings were already shown when the model was fitted
         fit_interpolator(interp, X[mask], coef[mask], None if var is None else var[mask],
                          None if cov is None else cov[mask])
+    for key in spec.get("warm_starts", {}):
+        steps[key].warm_start = given[key]
     normalizers = [{key: _decode(v, arrays) for key, v in p.items()}
                    for p in spec["normalizers"]]
     model.basis_ = _rebuild_basis(spec.get("basis_kind", "linear"), normalizers, mean, comps,
@@ -567,7 +591,7 @@ def _read(header, content, path, model_class, version):
     return model
 
 
-_READERS = {v: functools.partial(_read, version=v) for v in (1, 2, 3, 4, 5)}
+_READERS = {v: functools.partial(_read, version=v) for v in (1, 2, 3, 4, 5, 6)}
 
 
 def read_model(path, model_class):

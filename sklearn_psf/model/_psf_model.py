@@ -10,6 +10,7 @@ from sklearn.base import BaseEstimator, RegressorMixin, clone
 from sklearn.metrics import r2_score
 from sklearn.utils.validation import check_is_fitted, validate_data
 
+from ..interpolate import KrigingRegressor
 from ..preprocessing import (
     FIT_OK,
     ChiSquareOutlierDetector,
@@ -41,18 +42,22 @@ class UnusableStarsWarning(UserWarning):
 
 
 
-def _pin_auto_drift(template, fitted):
-    """``template`` with each ``drift="auto"`` set to the drift ``fitted`` (its fit on the
-    first round's stars) chose, so that the later fits on nearly the same stars (the second
-    round's, the final one) do not compare the candidate drifts again."""
-    pinned, steps = {}, fitted.get_params(deep=True)
-    for key, value in template.get_params(deep=True).items():
-        owner, _, name = key.rpartition("__")
-        if name == "drift" and isinstance(value, str) and value == "auto":
-            est = steps.get(owner) if owner else fitted
-            if hasattr(est, "drift_"):
-                pinned[key] = est.drift_
-    return clone(template).set_params(**pinned) if pinned else template
+def _warm(template, fitted, on=True):
+    """``fitted``, to be refitted on nearly the same stars (the second outlier round's, the
+    final fit), with its Kriging steps' ``warm_start`` on: maximum likelihood starts from
+    the previous fit's hyperparameters and ``drift="auto"`` keeps its drift. A clone of
+    ``template`` (the user's interpolator) when there is no previous fit or no Kriging step
+    in it. ``on=False`` turns back off what the user's ``template`` does not turn on."""
+    if fitted is None:
+        return clone(template)
+    params, user = fitted.get_params(deep=True), template.get_params(deep=True)
+    keys = [key for key in params if key.rpartition("__")[2] == "warm_start"
+            and isinstance(params.get(key.rpartition("__")[0]) if "__" in key else fitted,
+                           KrigingRegressor) and not user.get(key)]
+    if not keys:
+        return clone(template) if on else fitted
+    return fitted.set_params(**dict.fromkeys(keys, on))
+
 
 class PSFModel(RegressorMixin, BaseEstimator):
     """A PSF model: a stamp basis, outlier rejection and an interpolator of coefficients.
@@ -297,16 +302,16 @@ class PSFModel(RegressorMixin, BaseEstimator):
                 raise ValueError(f"{int(usable.sum())} usable stars are too few for a basis of "
                                  f"{k} components: need at least {k + 2}.")
             trusted = usable & keep
+            # (the second round's fit starts from the first's: it is refitted in place)
             inliers, score, fitted, fit_warnings = self._reject(
-                detector, X, y, coef, var, cov, trusted, usable, interp, stamp_fit, basis)
-            if round_ == 0 and fitted is not None:
-                interp = _pin_auto_drift(interp, fitted)
+                detector, X, y, coef, var, cov, trusted, usable, interp, stamp_fit, basis,
+                previous=fitted)
             mask = usable & inliers
             if round_ == 1 or not noise_aware or (mask == trusted).all():
                 break
             keep = inliers  # fit the basis again without the rejected stars
-            # (this round's per-star arrays and interpolator go before the next round's)
-            coef = var = cov = stamp_fit = fitted = None
+            # (this round's per-star arrays go before the next round's)
+            coef = var = cov = stamp_fit = None
         if (~usable).any():
             warnings.warn(
                 f"{int((~usable).sum())} stars could not be fitted on the basis (no centroid "
@@ -325,9 +330,11 @@ class PSFModel(RegressorMixin, BaseEstimator):
             for w in fit_warnings:
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         else:
-            fitted = None  # (released before the refit)
-            fit_interpolator(interp, X[mask], coef[mask], None if var is None else var[mask],
-                             None if cov is None else cov[mask])
+            interp = fit_interpolator(_warm(interp, fitted), X[mask], coef[mask],
+                                      None if var is None else var[mask],
+                                      None if cov is None else cov[mask])
+        interp = _warm(self.interpolator if self.interpolator is not None else
+                       make_default_interpolator(), interp, on=False)
 
         self.basis_ = basis
         self.outliers_ = detector
@@ -392,10 +399,11 @@ class PSFModel(RegressorMixin, BaseEstimator):
         return coef, None, None, np.zeros(len(y), dtype=np.int64), None
 
     def _reject(self, detector, X, y, coef, var, cov, trusted, usable, interp, stamp_fit,
-                basis=None):
+                basis=None, previous=None):
         """Inlier mask over all stars, the detector's score (NaN where unusable), the
         interpolator fitted on the trusted stars (None unless the test is chi^2) and the
-        warnings of that fit.
+        warnings of that fit (``previous``, the previous round's, refitted from its
+        hyperparameters when given).
 
         The chi^2 test's references (leave-one-out or cross-predictions, model-error floors)
         come from the ``trusted`` stars only (the inliers of the previous round); every
@@ -420,7 +428,8 @@ class PSFModel(RegressorMixin, BaseEstimator):
         # the interpolator's warnings are kept for when this fit becomes the final model
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            full = fit_interpolator(clone(interp), X[train], coef[train], noise, noise_cov)
+            full = fit_interpolator(_warm(interp, previous), X[train], coef[train], noise,
+                                    noise_cov)
 
         # the trusted stars are judged from the others (leave-one-out), the rest from all
         predicted = np.empty((len(idx), coef.shape[1]))
