@@ -42,6 +42,13 @@ class UnusableStarsWarning(UserWarning):
 
 
 
+def _rows(keep, a, b):
+    """An array of ``a``'s rows where ``keep``, ``b``'s elsewhere."""
+    out = np.empty((len(keep),) + np.shape(a)[1:], dtype=np.result_type(a, b))
+    out[keep], out[~keep] = a, b
+    return out
+
+
 def _warm(template, fitted, on=True):
     """``fitted``, to be refitted on nearly the same stars (the second outlier round's, the
     final fit), with its Kriging steps' ``warm_start`` on: maximum likelihood starts from
@@ -294,8 +301,9 @@ class PSFModel(RegressorMixin, BaseEstimator):
         keep = np.ones(n, dtype=bool)
         fitted, fit_warnings = None, []  # the chi^2 test's interpolator and its warnings
         for round_ in range(2):
-            basis = clone(basis).fit(*self._basis_data(basis, y[keep], weights, keep))
-            coef, var, cov, flag, stamp_fit = self._project(basis, y, weights)
+            basis, fitted_stars = self._fit_basis(clone(basis), y, weights, keep)
+            coef, var, cov, flag, stamp_fit = self._project(basis, y, weights, keep,
+                                                            fitted_stars)
             usable = flag == FIT_OK
             k = coef.shape[1]
             if usable.sum() < k + 2:
@@ -381,17 +389,32 @@ class PSFModel(RegressorMixin, BaseEstimator):
             )
 
     @staticmethod
-    def _basis_data(basis, y, weights, keep):
-        if "weights" in inspect.signature(basis.fit).parameters and weights is not None:
-            return y, None, weights[keep]
-        return (y,)
+    def _fit_basis(basis, y, weights, keep):
+        """The basis fitted on the stars ``keep``, and their StampFit on it when the basis
+        gives it with the fit (``StampPCA``: its last iteration's), else None."""
+        takes_weights = "weights" in inspect.signature(basis.fit).parameters
+        if hasattr(basis, "_fit_project") and (weights is not None or keep.all()):
+            return basis, basis._fit_project(y[keep],
+                                             None if weights is None else weights[keep])
+        if takes_weights and weights is not None:
+            return basis.fit(y[keep], None, weights[keep]), None
+        return basis.fit(y[keep]), None
 
     @staticmethod
-    def _project(basis, y, weights):
+    def _project(basis, y, weights, keep, fitted_stars=None):
         """Coefficients, their noise variance and covariance, fit flags and the StampFit
-        (None for what a basis that knows no noise does not give) of every star."""
+        (None for what a basis that knows no noise does not give) of every star; the stars
+        ``keep`` from ``fitted_stars`` (their fit with the basis's) when given."""
         if hasattr(basis, "project"):
-            fit = basis.project(y, weights)
+            if fitted_stars is None:
+                fit = basis.project(y, weights)
+            elif keep.all():
+                fit = fitted_stars
+            else:  # the stars left out of the basis fit: projected on it
+                rest = basis.project(y[~keep], None if weights is None else weights[~keep])
+                fit = type(fitted_stars)(*[
+                    None if a is None else _rows(keep, a, b)
+                    for a, b in zip(fitted_stars, rest)])
             cov = getattr(fit, "coefficient_cov", None)
             return fit.coefficients, fit.coefficient_var, cov, np.asarray(fit.flag), fit
         coef = np.asarray(basis.transform(y), dtype=np.float64)

@@ -542,6 +542,19 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         -------
         self : StampPCA
         """
+        self._fit(X, weights)
+        return self
+
+    def _fit_project(self, X, weights=None):
+        """``fit(X, weights=weights)`` and the :class:`StampFit` of X on the basis, from the
+        fit's last iteration: what :meth:`project` gives, except for the offsets of stars
+        with masked pixels, refined from that iteration's instead of from their centroids
+        (a subclass with its own ``fit`` projects again)."""
+        if type(self).fit is not StampPCA.fit:
+            return self.fit(X, weights=weights).project(X, weights)
+        return self._fit(X, weights)
+
+    def _fit(self, X, weights):
         self._check_params()
         d, w, s = self._stamps_and_weights(X, weights, reset=True)
         n, p = d.shape
@@ -594,14 +607,14 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
             mean = mean / mean.sum()
             comps = _sum_zero(axes[:k], mean)
             a, cov, model, offsets, fitted = self._fit_stamps(d, w, offsets, mean, comps, s)
-            flux_new, _, _, _, good = self._coefficients(a, cov)
+            flux_new, coef, var, ccov, good = self._coefficients(a, cov)
             level = np.where(good, fitted, level)
             usable = ok & good
             if usable.sum() < 2:
                 raise ValueError("Fewer than 2 stamps keep a positive flux on the basis: these "
                                  "are not star stamps.")
             flux = np.where(good, flux_new, flux)
-        norm = mean.sum()
+        norm = mean.sum()  # 1 (the mean was normalised before the last fit of the stars)
         self.mean_ = mean / norm
         self.components_ = comps
         self.explained_variance_ = lam / norm**2
@@ -610,7 +623,9 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         self.n_components_ = int(k)
         self.stamp_size_ = s
         self._n_features_out = self.n_components_
-        return self
+        flag = np.where(ok, FIT_OK, FIT_NO_CENTROID)
+        flag[~good] = FIT_NO_FLUX
+        return StampFit(coef, var, flux_new, offsets, model + fitted[:, None], w, flag, ccov)
 
     def project(self, X, weights=None) -> StampFit:
         """Fit stamps on the basis: coefficients, their noise, flux, offsets and model.
