@@ -70,14 +70,16 @@ class StampFit(NamedTuple):
 def _irfft2(spectra, s):
     """Real s x s images of half-plane spectra, computed in single precision (a relative
     rounding of ~1e-7, far below the stamps' noise; 2.5x faster) and returned in double."""
-    return scipy.fft.irfft2(spectra.astype(np.complex64), s=(s, s),
+    return scipy.fft.irfft2(spectra.astype(np.complex64, copy=False), s=(s, s),
                             workers=1).astype(np.float64)
 
 
 def _shifted(images_fft, phase):
-    """Images (m, s, s) given by their rfft2, shifted by each star's phase: (n, m, s*s)."""
+    """Images (m, s, s) given by their rfft2, shifted by each star's phase: (n, m, s*s)
+    (the product of the spectra in single precision, as :func:`_irfft2` inverts them)."""
     n, s = phase.shape[0], phase.shape[1]
-    out = _irfft2(images_fft[None, :, :, :] * phase[:, None, :, :], s)
+    out = _irfft2(images_fft.astype(np.complex64, copy=False)[None, :, :, :]
+                  * phase.astype(np.complex64)[:, None, :, :], s)
     return out.reshape(n, images_fft.shape[0], s * s)
 
 
@@ -437,6 +439,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         n, p = d.shape
         basis = np.vstack([mean[None, :], comps]).reshape(-1, s, s)
         basis_fft = np.fft.rfft2(basis)  # once: each star's design is a phase ramp of it
+        basis_fft32 = basis_fft.astype(np.complex64)
         ky = 2j * np.pi * np.fft.fftfreq(s)[None, None, :, None]
         kx = 2j * np.pi * np.fft.rfftfreq(s)[None, None, None, :]
         m = basis.shape[0]
@@ -464,7 +467,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         for start in range(0, n, _CHUNK):
             rows = np.arange(start, min(start + _CHUNK, n))
             phase = phase_ramp(s, offsets[rows, 0], offsets[rows, 1])
-            A = _with_constant(_shifted(basis_fft, phase), extra)  # (b, m + extra, p)
+            A = _with_constant(_shifted(basis_fft32, phase), extra)  # (b, m + extra, p)
             solve(rows, A)
             sub = masked[rows]
             rows, phase, A = rows[sub], phase[sub], A[sub]
@@ -482,7 +485,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
                                 np.einsum("bip,bp->bi", Gw, resid))
                 offsets[rows] += np.clip(sol[:, m + extra:], -0.5, 0.5)
                 phase = phase_ramp(s, offsets[rows, 0], offsets[rows, 1])
-                A = _with_constant(_shifted(basis_fft, phase), extra)
+                A = _with_constant(_shifted(basis_fft32, phase), extra)
                 solve(rows, A)
         return a, cov, model, offsets, level
 
