@@ -27,12 +27,13 @@ def _border_noise(edge, design, n_iter=3):
     finite = np.isfinite(edge)
     data = np.where(finite, edge, 0.0)
     p = design.shape[1]
+    outer = (design[:, :, None] * design[:, None, :]).reshape(len(design), p * p)
     keep = finite
     sigma = None
     for it in range(n_iter + 1):
         k = keep.astype(np.float64)
-        normal = np.einsum("mi,nm,mj->nij", design, k, design)
-        rhs = np.einsum("mi,nm->ni", design, k * data)
+        normal = (k @ outer).reshape(-1, p, p)  # (matrix products: BLAS)
+        rhs = (k * data) @ design
         sol = np.einsum("nij,nj->ni", np.linalg.pinv(normal, hermitian=True), rhs)
         resid = np.where(finite, data - sol @ design.T, np.nan)
         with np.errstate(all="ignore"), warnings.catch_warnings():
