@@ -285,3 +285,27 @@ def test_default_model_file_roundtrip_is_exact_after_outlier_rounds(tmp_path):
     Xq = rng.uniform(0, 2000, (50, 2))
     np.testing.assert_allclose(back.predict(Xq), model.predict(Xq), rtol=1e-12, atol=0)
     np.testing.assert_array_equal(back.coefficient_cov_, model.coefficient_cov_)
+
+
+def test_a_frozen_fitted_basis_stays_as_fitted():
+    # FrozenEstimator passes attribute access through to the StampPCA it wraps: the model
+    # must neither refit that basis nor take the wrapper for the StampPCA itself (the
+    # exposure study shares one basis so)
+    from sklearn.frozen import FrozenEstimator
+
+    class Frozen(FrozenEstimator):
+        def fit(self, X, y=None, *args, **kwargs):
+            return self
+
+    rng = np.random.default_rng(2)
+    X = rng.uniform(0, FIELD, (80, 2))
+    yy, xx = np.mgrid[0:S, 0:S] - (S - 1) / 2
+    sig = (1.8 + X[:, 0] / 4000.0)[:, None, None]
+    stamps = (1e4 * np.exp(-0.5 * (xx**2 + yy**2) / sig**2)
+              + rng.normal(0.0, 5.0, (80, S, S))).reshape(80, -1)
+    basis = StampPCA().fit(stamps[40:])
+    before = basis.components_.copy()
+    model = PSFModel(basis=Frozen(basis)).fit(X[:40], stamps[:40])
+    np.testing.assert_array_equal(basis.components_, before)
+    assert model.coefficients_.shape[1] == before.shape[0]
+    assert model.predict(X[:3]).shape == (3, S * S)

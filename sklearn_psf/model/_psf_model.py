@@ -16,6 +16,7 @@ from ..preprocessing import (
     ChiSquareOutlierDetector,
     IQROutlierDetector,
     StampNormalizer,
+    StampPCA,
     SuperResolvedPCA,
     stamp_fwhm,
 )
@@ -393,7 +394,8 @@ class PSFModel(RegressorMixin, BaseEstimator):
         """The basis fitted on the stars ``keep``, and their StampFit on it when the basis
         gives it with the fit (``StampPCA``: its last iteration's), else None."""
         takes_weights = "weights" in inspect.signature(basis.fit).parameters
-        if hasattr(basis, "_fit_project") and (weights is not None or keep.all()):
+        # (a StampPCA itself: a wrapper such as FrozenEstimator passes attributes through)
+        if isinstance(basis, StampPCA) and (weights is not None or keep.all()):
             return basis, basis._fit_project(y[keep],
                                              None if weights is None else weights[keep])
         if takes_weights and weights is not None:
