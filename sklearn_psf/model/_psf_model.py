@@ -57,14 +57,15 @@ def _warm(template, fitted, on=True):
     ``template`` (the user's interpolator) when there is no previous fit or no Kriging step
     in it. ``on=False`` turns back off what the user's ``template`` does not turn on."""
     if fitted is None:
-        return clone(template)
-    params, user = fitted.get_params(deep=True), template.get_params(deep=True)
+        return clone(template) if on else None
+    params = fitted.get_params(deep=True)
     keys = [key for key in params if key.rpartition("__")[2] == "warm_start"
             and isinstance(params.get(key.rpartition("__")[0]) if "__" in key else fitted,
-                           KrigingRegressor) and not user.get(key)]
+                           KrigingRegressor)]
     if not keys:
         return clone(template) if on else fitted
-    return fitted.set_params(**dict.fromkeys(keys, on))
+    user = template.get_params(deep=True)
+    return fitted.set_params(**{key: on or bool(user.get(key, False)) for key in keys})
 
 
 class PSFModel(RegressorMixin, BaseEstimator):

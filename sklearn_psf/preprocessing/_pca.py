@@ -34,7 +34,8 @@ FIT_NO_FLUX = 2
 
 _CHUNK = 256  # stars per batch of shifted basis images
 _TRACY_WIDOM_99 = 2.0234  # 99th percentile of the Tracy-Widom law (real case, TW1)
-_REFINE_STEPS = 3  # Gauss-Newton steps on the offsets of stars with masked pixels
+#: Gauss-Newton steps on the offsets of stars with masked pixels, each with its template
+_REFINE = ("mean", "mean", "model", "model")
 
 
 class StampFitWarning(UserWarning):
@@ -432,11 +433,12 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
 
         With ``background``, each stamp's constant background is a parameter of the same
         weighted least-squares fit (marginalised in the covariance). Stars with masked pixels
-        get their offsets refined by Gauss-Newton steps fitting the mean PSF (its flux,
-        background and offset): adaptive moments of a stamp with a hole are biased towards
-        the side that is left, a fit of the mean PSF is not (nor is it degenerate, as the
-        whole basis is when the hole is in the core); every coefficient is then fitted at
-        those offsets.
+        get their offsets refined by Gauss-Newton steps fitting a template's flux, background
+        and offset, every coefficient then fitted at it: two steps with the mean PSF, two with
+        the star's own model. Adaptive moments of a stamp with a hole are biased towards the
+        side that is left, a template fit is not; the whole basis's fit of the offset is
+        nearly degenerate when the hole is in the core (a shift is then nearly a combination
+        of components).
         """
         n, p = d.shape
         basis = np.vstack([mean[None, :], comps]).reshape(-1, s, s)
@@ -473,29 +475,35 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
             solve(rows, A)
             sub = masked[rows]
             rows, phase, A = rows[sub], phase[sub], A[sub]
-            for _ in range(_REFINE_STEPS * bool(sub.any())):
-                # the offset of the mean PSF alone, with its flux and background: with
-                # pixels masked in the core a shift is nearly a combination of components,
-                # so that the whole model's best offset wanders (0.2-0.6 pixel off for a
-                # column masked 1-2 pixels from the centre, against < 0.02 this way)
-                G0 = np.concatenate([A[:, :1], A[:, m:]], axis=1)  # (b, 1 + extra, p)
+            for step in range(len(_REFINE) * bool(sub.any())):
+                # the offset of a template (with its flux and the background), every
+                # coefficient then fitted at it: first the mean PSF (with pixels masked in
+                # the core a shift is nearly a combination of components, so that the
+                # whole basis's best offset wanders off), then the star's own model (the
+                # mean alone is biased by the star's difference from it)
+                if _REFINE[step] == "mean":
+                    template = basis_fft[:1][None] * np.ones((len(rows), 1, 1, 1))
+                else:
+                    c = a[rows] / np.where(a[rows, :1] != 0, a[rows, :1], 1.0)
+                    template = np.einsum("bi,iyx->byx", c, basis_fft)[:, None]
+                G0 = _with_constant(_irfft2(template * phase[:, None], s).reshape(-1, 1, p),
+                                    extra)  # (b, 1 + extra, p)
                 Gw = G0 * w[rows, None, :]
                 lin = (np.linalg.pinv(Gw @ G0.transpose(0, 2, 1), hermitian=True)
                        @ (Gw @ d[rows, :, None]))[:, :, 0]
                 resid = d[rows] - (lin[:, None, :] @ G0)[:, 0]
-                # d(model)/d(offset): minus the spatial derivative of the shifted mean
-                mfft = basis_fft[0][None, None] * phase[:, None] * lin[:, :1, None, None]
+                # d(template)/d(offset): minus its spatial derivative
+                mfft = template * phase[:, None] * lin[:, :1, None, None]
                 grad = -_irfft2(np.concatenate([mfft * kx, mfft * ky], axis=1),
                                 s).reshape(-1, 2, p)
                 G = np.concatenate([G0, grad], axis=1)
                 Gw = G * w[rows, None, :]
                 sol = (np.linalg.pinv(Gw @ G.transpose(0, 2, 1), hermitian=True)
                        @ (Gw @ resid[:, :, None]))[:, :, 0]
-                offsets[rows] += np.clip(sol[:, G0.shape[1]:], -0.5, 0.5)
+                offsets[rows] += np.clip(sol[:, 1 + extra:], -0.5, 0.5)
                 phase = phase_ramp(s, offsets[rows, 0], offsets[rows, 1])
                 A = _with_constant(_shifted(basis_fft32, phase), extra)
-            if sub.any():
-                solve(rows, A)  # every coefficient at the refined offsets
+                solve(rows, A)
         return a, cov, model, offsets, level
 
     @staticmethod
