@@ -11,8 +11,9 @@ saturated stars. ``--field roman``: 0.11" pixels, 1.06 um through 2.4 m (obscura
 fits the same catalogue: ``sklearn-psf fit --stars cat.ldac --no-plots`` (its defaults: the
 super-resolved basis for these stars), PSFEx 3.21 with ``PSF_SAMPLING`` automatic and 0.5
 (degree 2, ``SAMPLE_FWHMRANGE`` from 0.5 px) and PIFF's ``piffify`` on the image and the
-stars fit selects (PixelGrid at half the pixel scale, 25 samples, BasisPolynomial of order 2,
-Chisq outliers; skipped, with the reason, when PIFF is not installed or with ``--no-piff``).
+stars fit selects (PixelGrid at half the pixel scale, 25 samples, on 13-pixel stamps: the
+grid's extent; BasisPolynomial of order 2, Chisq outliers; skipped, with the reason, when PIFF
+is not installed or with ``--no-piff``).
 
 Accuracy at the truth: random positions, each model's stamp and the true PSF at native
 sampling, phase 0: every profile (the truth, PSFEx's and PIFF's; ours by its own convention,
@@ -104,9 +105,13 @@ def _selected_stars(cat, side):
 
 
 def _run_piff(image, weight, stars, folder, side, scale, sky, gain, P, env):
-    """PIFF's ``piffify`` on the image and a catalogue of ``stars`` (0-based): PixelGrid at
-    half the pixel scale, BasisPolynomial of order 2, Chisq outliers; its profiles at ``P``
-    drawn at phase 0 (:func:`_phase_zero`). Returns (stamps, stars used, CPU s) or a reason."""
+    """PIFF's ``piffify`` on the image and a catalogue of ``stars`` (0-based): PixelGrid of
+    25 samples at half the pixel scale, on stamps of 13 pixels (the grid's extent, 12.5
+    pixels: on larger stamps the stars' wings beyond the grid are left unmodelled, PIFF's
+    outlier test drops the bright stars and its e rms at the truth triples),
+    BasisPolynomial of order 2, Chisq outliers; its profiles at ``P`` drawn at phase 0
+    (:func:`_phase_zero`) on ``side`` x ``side`` stamps. Returns (stamps, stars used, CPU s)
+    or a reason."""
     try:
         import piff
     except ImportError:
@@ -122,7 +127,7 @@ def _run_piff(image, weight, stars, folder, side, scale, sky, gain, P, env):
         "input": {"image_file_name": str(image), "weight_file_name": str(weight),
                   "weight_hdu": 0, "cat_file_name": str(folder / "stars.fits"),
                   "x_col": "x", "y_col": "y", "sky": float(sky), "gain": float(gain),
-                  "stamp_size": side},
+                  "stamp_size": 13},  # the PixelGrid's extent
         "select": {"reserve_frac": 0.0},
         "psf": {"type": "Simple",
                 "model": {"type": "PixelGrid", "scale": scale / 2, "size": 25},  # 1.25"
