@@ -144,8 +144,13 @@ class SuperResolvedPCA(StampPCA):
         As :class:`StampPCA`'s.
     max_components : int, default=10
         Upper bound for "noise" and float choices.
-    n_iter : int, default=3
-        Rounds of (fine-grid fit, star fits) after the mean's.
+    n_iter : int, default=6
+        Rounds of (fine-grid fit, star fits) after the mean's. The components converge
+        slowly: each star sees them at one phase, where they alias into one another, and
+        with too few rounds the stars' coefficients take the error (on noiseless Euclid-like
+        stars, e rms at the truth 0.0048 after 3 rounds, 0.0044 after 10, 0.0037 after 30);
+        on noisy stars more rounds fit the noise (size rms 0.0010, 0.0014, 0.0018 and 0.0025
+        after 3, 6, 10 and 30 rounds, e rms 0.0057, 0.0047, 0.0045, 0.0048).
     max_star_weight : float, default=10.0
         Cap of a star's weight in units of the median star weight.
     guess_sigma : float, default=3.0
@@ -196,7 +201,7 @@ class SuperResolvedPCA(StampPCA):
     """
 
     def __init__(self, oversampling="auto", n_components="noise", max_components: int = 10,
-                 n_iter: int = 3, max_star_weight: float = 10.0, guess_sigma: float = 3.0,
+                 n_iter: int = 6, max_star_weight: float = 10.0, guess_sigma: float = 3.0,
                  background="auto"):
         self.oversampling = oversampling
         super().__init__(n_components=n_components, max_components=max_components,
