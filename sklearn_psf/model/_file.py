@@ -86,10 +86,10 @@ from sklearn.pipeline import Pipeline, make_pipeline
 from sklearn.preprocessing import MinMaxScaler
 
 from .._files import one_line, write_fits_atomic
-from ..interpolate import ExposureKrigingRegressor, KrigingRegressor
+from ..interpolate import ExposureKrigingRegressor
 from .._version import __version__
 from ._defaults import make_default_interpolator
-from ._noise import fit_interpolator
+from ._noise import fit_interpolator, kriging_steps
 
 __all__ = ["save_model", "read_model", "read_model_validation", "MODEL_FORMAT",
            "MODEL_FORMAT_VERSION"]
@@ -391,7 +391,7 @@ def _model_hdus(model, *, summary=None, prefix="", exposure=False):
                         for p in normalizers],
         "versions": _versions(),
     }
-    starts = {key: step._start_state() for key, step in _kriging_steps(model.interpolator_)}
+    starts = {key: step._start_state() for key, step in kriging_steps(model.interpolator_)}
     starts = {key: state for key, state in starts.items() if state is not None}
     if starts:
         spec["warm_starts"] = starts
@@ -506,12 +506,6 @@ def _check_format(header, path):
     return version
 
 
-def _kriging_steps(interpolator):
-    """(parameter path, step) of each KrigingRegressor in ``interpolator`` ("" for itself)."""
-    found = [("", interpolator)] + list(interpolator.get_params(deep=True).items())
-    return [(key, est) for key, est in found if isinstance(est, KrigingRegressor)]
-
-
 def _default_interpolator(version):
     """The default interpolator that a file of format ``version`` was fitted with."""
     interp = make_default_interpolator()
@@ -559,7 +553,7 @@ def _read(header, content, path, model_class, version):
         interp._per_axis_scaling = True  # as fitted then: each axis scaled to [0, 1]
     # (format 6: a fit that started from the previous outlier round's hyperparameters
     # starts from them again)
-    steps = dict(_kriging_steps(interp))
+    steps = dict(kriging_steps(interp))
     given = {key: step.warm_start for key, step in steps.items()}
     for key, state in spec.get("warm_starts", {}).items():
         steps[key]._set_start_state(state)

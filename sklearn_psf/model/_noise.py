@@ -13,6 +13,8 @@ from sklearn.base import clone
 from sklearn.model_selection import KFold
 from sklearn.pipeline import Pipeline
 
+from ..interpolate import KrigingRegressor
+
 #: Quantile at which the model-error floors make residuals match pure noise: high enough
 #: that heavy-tailed interpolation errors do not reject clean stars, low enough that up to
 #: 20% of contaminated stars do not raise the floor.
@@ -23,6 +25,12 @@ def _final_step(estimator):
     while isinstance(estimator, Pipeline):
         estimator = estimator.steps[-1][1]
     return estimator
+
+
+def kriging_steps(interpolator):
+    """(parameter path, step) of each KrigingRegressor in ``interpolator`` ("" for itself)."""
+    found = [("", interpolator)] + list(interpolator.get_params(deep=True).items())
+    return [(key, est) for key, est in found if isinstance(est, KrigingRegressor)]
 
 
 def _step_path(estimator):

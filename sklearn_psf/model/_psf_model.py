@@ -10,7 +10,6 @@ from sklearn.base import BaseEstimator, RegressorMixin, clone
 from sklearn.metrics import r2_score
 from sklearn.utils.validation import check_is_fitted, validate_data
 
-from ..interpolate import KrigingRegressor
 from ..preprocessing import (
     FIT_OK,
     ChiSquareOutlierDetector,
@@ -29,6 +28,7 @@ from ._galsim import to_galsim
 from ._noise import (
     coefficient_residuals,
     fit_interpolator,
+    kriging_steps,
     leave_out_predict,
     pixel_inverse_variance,
     pixel_residuals,
@@ -54,18 +54,17 @@ def _warm(template, fitted, on=True):
     """``fitted``, to be refitted on nearly the same stars (the second outlier round's, the
     final fit), with its Kriging steps' ``warm_start`` on: maximum likelihood starts from
     the previous fit's hyperparameters and ``drift="auto"`` keeps its drift. A clone of
-    ``template`` (the user's interpolator) when there is no previous fit or no Kriging step
-    in it. ``on=False`` turns back off what the user's ``template`` does not turn on."""
+    ``template`` (the unfitted interpolator) when there is no previous fit or no Kriging step
+    in it. ``on=False`` puts back the template's ``warm_start``."""
     if fitted is None:
         return clone(template) if on else None
-    params = fitted.get_params(deep=True)
-    keys = [key for key in params if key.rpartition("__")[2] == "warm_start"
-            and isinstance(params.get(key.rpartition("__")[0]) if "__" in key else fitted,
-                           KrigingRegressor)]
-    if not keys:
+    steps = kriging_steps(fitted)
+    if not steps:
         return clone(template) if on else fitted
-    user = template.get_params(deep=True)
-    return fitted.set_params(**{key: on or bool(user.get(key, False)) for key in keys})
+    given = dict(kriging_steps(template))
+    for key, step in steps:
+        step.warm_start = on or bool(given[key].warm_start)
+    return fitted
 
 
 class PSFModel(RegressorMixin, BaseEstimator):
@@ -292,7 +291,8 @@ class PSFModel(RegressorMixin, BaseEstimator):
         if np.isnan(y_in).any():  # NaN pixels are masked pixels
             y = np.where(np.isnan(y_in.reshape(y.shape)), np.nan, y)
         basis = self._default_basis(y, weights) if self.basis is None else clone(self.basis)
-        interp = make_default_interpolator() if self.interpolator is None else clone(
+        # (unfitted: each fit clones it or warm-starts the previous round's)
+        template = make_default_interpolator() if self.interpolator is None else clone(
             self.interpolator)
         detector = self._make_outliers()
         noise_aware = hasattr(basis, "project")
@@ -314,7 +314,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
             trusted = usable & keep
             # (the second round's fit starts from the first's: it is refitted in place)
             inliers, score, fitted, fit_warnings = self._reject(
-                detector, X, y, coef, var, cov, trusted, usable, interp, stamp_fit, basis,
+                detector, X, y, coef, var, cov, trusted, usable, template, stamp_fit, basis,
                 previous=fitted)
             mask = usable & inliers
             if round_ == 1 or not noise_aware or (mask == trusted).all():
@@ -340,11 +340,10 @@ class PSFModel(RegressorMixin, BaseEstimator):
             for w in fit_warnings:
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         else:
-            interp = fit_interpolator(_warm(interp, fitted), X[mask], coef[mask],
+            interp = fit_interpolator(_warm(template, fitted), X[mask], coef[mask],
                                       None if var is None else var[mask],
                                       None if cov is None else cov[mask])
-        interp = _warm(self.interpolator if self.interpolator is not None else
-                       make_default_interpolator(), interp, on=False)
+        interp = _warm(template, interp, on=False)
 
         self.basis_ = basis
         self.outliers_ = detector

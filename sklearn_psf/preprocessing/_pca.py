@@ -482,7 +482,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
                 # whole basis's best offset wanders off), then the star's own model (the
                 # mean alone is biased by the star's difference from it)
                 if _REFINE[step] == "mean":
-                    template = basis_fft[:1][None] * np.ones((len(rows), 1, 1, 1))
+                    template = basis_fft[None, :1]  # (broadcast over the stars)
                 else:
                     c = a[rows] / np.where(a[rows, :1] != 0, a[rows, :1], 1.0)
                     template = np.einsum("bi,iyx->byx", c, basis_fft)[:, None]
