@@ -7,7 +7,7 @@ from dataclasses import replace
 from functools import partial
 
 from ._common import CLIInputError, _check_output, _n_jobs, _positive, _positive_int
-from ._parallel import dask_backend
+from ._parallel import dask_backend, local_pool
 
 #: Sizes of ``sklearn-psf compare``: ``"paper"`` (the default) and ``"quick"`` (``--quick``);
 #: explicit options override them.
@@ -169,6 +169,11 @@ def _check_earlier_run(folder, overwrite):
 TASK_MEMORY = 2 * 2**30
 
 
+# what the tasks import beyond this command's imports (workers forked after them import nothing)
+TASK_IMPORTS = ("sklearn_psf.simulate", "sklearn_psf.datasets", "sklearn_psf.study.colour",
+                "treecorr")
+
+
 def _default_n_jobs():
     """The cores this process may run on (CPU affinity, container quota), fewer when the free
     memory cannot hold one simulation task per core."""
@@ -253,37 +258,41 @@ def run_compare(args) -> int:
                                                        reference=reference, n_jobs=1))
     main_run = dict(configs=[base], schemes=schemes, n_simulations=n_sims, oracle=True)
     total = n_sims + sum(len(r["configs"]) * r["n_simulations"] for r in side) + len(others)
-    with dask_backend(args.scheduler), tqdm(total=total, desc="simulations", unit="task") as bar:
-        run = partial(compare.run_studies, random_state=args.seed, reference=reference,
-                      n_jobs=n_jobs, progress=bar.update)
-        if tune:
-            # the main comparison needs the tuned schemes: the side studies run with the tuning
-            results = run(side, other_tasks=others)
-            tuning, (stamps, positions), *exposures = results[len(side):]
-            schemes.update(compare.tuned_schemes(tuning))
-            _add_default_model(schemes, args)
-            results = [*run([main_run]), *results[:len(side)]]
-        else:
-            tuning = None
-            _add_default_model(schemes, args)
-            results = run([main_run, *side], other_tasks=others)
-            (stamps, positions), *exposures = results[len(side) + 1:]
-            results = results[:len(side) + 1]
-    result = compare.combine_results(results)
-    curves = requirement_curves(result.theta)
-    result.requirements = dict(zip(curves.levels, curves.d1_limit))
-    result.surveys = survey_table()
-    result.tuning = tuning
-    result.config["quick"] = bool(args.quick)
-    result.config["reference"] = args.reference
-    for path in earlier:  # no figure of the earlier run stays next to the new report
-        path.unlink(missing_ok=True)
-    paths = write_report(result, args.output, stamps=stamps, positions=positions,
-                         n_jobs=-1 if args.scheduler else n_jobs)  # figures drawn locally
-    if "exposures" in studies:
-        paths = [*paths, *_run_exposures(args, n_jobs, *exposures)]
-    if "colour" in studies:
-        paths = [*paths, *_run_colour(args, n_jobs)]
+    # the workers (forked on Linux) start with the tasks' imports, before the progress bars
+    with local_pool(None if args.scheduler else n_jobs, preload=TASK_IMPORTS):
+        with dask_backend(args.scheduler), \
+                tqdm(total=total, desc="simulations", unit="task") as bar:
+            run = partial(compare.run_studies, random_state=args.seed, reference=reference,
+                          n_jobs=n_jobs, progress=bar.update)
+            if tune:
+                # the main comparison needs the tuned schemes: the side studies run with the
+                # tuning
+                results = run(side, other_tasks=others)
+                tuning, (stamps, positions), *exposures = results[len(side):]
+                schemes.update(compare.tuned_schemes(tuning))
+                _add_default_model(schemes, args)
+                results = [*run([main_run]), *results[:len(side)]]
+            else:
+                tuning = None
+                _add_default_model(schemes, args)
+                results = run([main_run, *side], other_tasks=others)
+                (stamps, positions), *exposures = results[len(side) + 1:]
+                results = results[:len(side) + 1]
+        result = compare.combine_results(results)
+        curves = requirement_curves(result.theta)
+        result.requirements = dict(zip(curves.levels, curves.d1_limit))
+        result.surveys = survey_table()
+        result.tuning = tuning
+        result.config["quick"] = bool(args.quick)
+        result.config["reference"] = args.reference
+        for path in earlier:  # no figure of the earlier run stays next to the new report
+            path.unlink(missing_ok=True)
+        paths = write_report(result, args.output, stamps=stamps, positions=positions,
+                             n_jobs=-1 if args.scheduler else n_jobs)  # figures drawn locally
+        if "exposures" in studies:
+            paths = [*paths, *_run_exposures(args, n_jobs, *exposures)]
+        if "colour" in studies:
+            paths = [*paths, *_run_colour(args, n_jobs)]
     print(_summary_text(result))
     print(f"\nWrote {len(paths)} files to {args.output}/ (report: {args.output}/report.md)")
     return 0

@@ -65,8 +65,9 @@ def dask_backend(scheduler):
             yield
 
 
-def _worker_start():
-    """Start of a worker process of :func:`map_ordered`: tqdm's lock a thread lock.
+def _worker_start(blas_threads):
+    """Start of a worker process of :func:`process_pool`: tqdm's lock a thread lock, BLAS on
+    ``blas_threads`` threads (the cores shared among the workers, as joblib's loky does).
 
     A worker draws no progress bar, but tqdm creates its lock with each bar (even disabled):
     by default a multiprocessing lock, a named semaphore that the worker, stopped once the
@@ -74,9 +75,97 @@ def _worker_start():
     """
     import threading
 
+    from threadpoolctl import threadpool_limits
     from tqdm import tqdm
 
     tqdm.set_lock(threading.RLock())
+    threadpool_limits(blas_threads)
+
+
+def process_pool(n_workers):
+    """An executor of ``n_workers`` worker processes, forked from this one where the system
+    allows it (Linux), else fresh interpreters (loky's).
+
+    A forked worker starts with this process's imports (about 3 s of CPU for a fresh one:
+    scikit-learn, SciPy, Astropy, matplotlib), so an extra worker costs almost nothing to
+    start; import what the tasks need before calling this, and call it before starting
+    threads (a thread holding a lock at the fork would leave it held in the workers).
+    """
+    import multiprocessing
+
+    from joblib import cpu_count
+
+    args = dict(max_workers=n_workers, initializer=_worker_start,
+                initargs=(max(cpu_count() // n_workers, 1),))
+    if sys.platform == "linux":
+        from concurrent.futures import ProcessPoolExecutor
+
+        executor = ProcessPoolExecutor(mp_context=multiprocessing.get_context("fork"), **args)
+        executor.submit(int).result()  # forks them all now, before the caller starts threads
+        return executor
+    from joblib.externals.loky import ProcessPoolExecutor
+
+    return ProcessPoolExecutor(**args)
+
+
+def _stop(executor):
+    """Stop ``executor``'s workers now, not at the interpreter's exit (which would wait for
+    each to finish its task and tear itself down)."""
+    executor.shutdown(wait=False, cancel_futures=True)
+    if hasattr(executor, "_processes"):  # the standard library's (loky's kills them itself)
+        for process in list((executor._processes or {}).values()):
+            process.terminate()
+
+
+@contextlib.contextmanager
+def local_pool(n_jobs, preload=()):
+    """Run joblib's ``Parallel`` on :func:`process_pool`'s ``n_jobs`` workers (nothing when
+    ``n_jobs`` is None or 1), started here, after importing the modules ``preload``, and
+    kept until the end of the block."""
+    import importlib
+
+    import joblib
+    from joblib import cpu_count
+    from joblib._parallel_backends import (AutoBatchingMixin, FallbackToBackend,
+                                           ParallelBackendBase, SequentialBackend)
+
+    n_workers = 1 if n_jobs is None else joblib.effective_n_jobs(n_jobs)
+    if n_workers < 2:
+        yield
+        return
+    for name in preload:
+        importlib.import_module(name)
+
+    class PoolBackend(AutoBatchingMixin, ParallelBackendBase):  # joblib's backend interface
+        supports_retrieve_callback = True
+
+        def effective_n_jobs(self, n_jobs):
+            if n_jobs is None:
+                return 1
+            return min(n_jobs if n_jobs > 0 else max(cpu_count() + 1 + n_jobs, 1), n_workers)
+
+        def configure(self, n_jobs=1, parallel=None, **kwargs):
+            n_jobs = self.effective_n_jobs(n_jobs)
+            if n_jobs == 1:
+                raise FallbackToBackend(SequentialBackend(nesting_level=self.nesting_level))
+            self.parallel = parallel
+            return n_jobs
+
+        def submit(self, func, callback=None):
+            future = executor.submit(func)
+            if callback is not None:
+                future.add_done_callback(callback)
+            return future
+
+        def retrieve_result_callback(self, future):
+            return future.result()
+
+    executor = process_pool(n_workers)
+    try:
+        with joblib.parallel_config(backend=PoolBackend()):
+            yield
+    finally:
+        _stop(executor)
 
 
 def map_ordered(func, items, n_jobs):
@@ -93,7 +182,6 @@ def map_ordered(func, items, n_jobs):
     from concurrent.futures import Future
 
     from joblib import effective_n_jobs
-    from joblib.externals.loky import ProcessPoolExecutor
 
     items = list(items)
     n_workers = min(effective_n_jobs(n_jobs), len(items)) - 1
@@ -124,7 +212,7 @@ def map_ordered(func, items, n_jobs):
             if failed:
                 return
 
-    executor = ProcessPoolExecutor(max_workers=n_workers, initializer=_worker_start)
+    executor = process_pool(n_workers)
     for _ in range(n_workers):
         threading.Thread(target=feed, args=(executor,), daemon=True).start()
     try:
@@ -145,4 +233,4 @@ def map_ordered(func, items, n_jobs):
             pending.clear()  # the workers take nothing more
         # their results are in (or no longer wanted): stop them now, not at the interpreter's
         # exit, which would wait for each to tear its own down
-        executor.shutdown(wait=False, kill_workers=True)
+        _stop(executor)
