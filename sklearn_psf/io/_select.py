@@ -303,14 +303,16 @@ def _locus(log_size, bright, snr, x, y, width, fwhm_per_size=None):
        locus within 3 s(snr) (``width="auto"``) or within ``width`` (relative). When the
        seed's FWHM (``fwhm_per_size`` times its size) is under ``_PHASE_FWHM`` pixels the
        stars are undersampled: their measured size also depends on their sub-pixel phase
-       (0.025 in log size at FWHM 1.7 px, GalSim's Euclid-like ``OpticalPSF``), a scatter
-       the bins see only by chance, so they are weighted by the fitted variance
-       (``reweight``): with each bin weighted by its own variance the low-scatter bins win
-       and the width comes out low (Euclid-like CCD of ``benchmarks/bench_undersampled.py``,
-       seed 4: 3 s = 0.045 against stars spread over -0.077..+0.069, 82.6% of the clean
-       stars kept; reweighted 98.3%, no non-star). Well-sampled loci keep the own-variance
-       weights, whose narrower width rejects more compact galaxies (the GalSim CCD of
-       ``tests/test_sextractor_matrix.py``: 7 non-stars among 197 against 12 among 202).
+       (0.025 in log size at FWHM 1.7 px, GalSim's Euclid-like ``OpticalPSF``), a
+       non-Gaussian scatter that the 15-source bins sample unevenly (robust sigmas 0.011 to
+       0.061 at every S/N on the Euclid-like seed-4 CCD of
+       ``benchmarks/bench_undersampled.py``). With each bin weighted by its own variance the
+       luckiest bin sets the width (there 3 s = 0.045 against stars spread over -0.077 to
+       +0.069: 82.6% of the clean stars kept), so the bins are weighted by the fitted
+       variance instead (``reweight``: 98.3%, no non-star). Well-sampled loci keep the
+       own-variance weights, whose narrower width rejects more compact galaxies (the GalSim
+       CCD of ``tests/test_sextractor_matrix.py``: 7 non-stars among 197 kept, against 12
+       among 202 reweighted).
 
     Returns (centre, half_width) per source, in log size, or None when too few sources.
     """
@@ -420,8 +422,12 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
       ``locus_width="auto"``, a source is a point source from 3 times that scatter at its
       S/N below the locus to 2.5 times above it (galaxies, which lie above, are the danger: on
       GalSim-rendered CCDs the narrower upper side keeps 98% of the true stars and 60% of the
-      compact galaxies, ``benchmarks/bench_selection.py``); a float is a fixed relative
-      half-width below (five sixths of it above);
+      compact galaxies, ``benchmarks/bench_selection.py``). On an undersampled locus (FWHM
+      under 2.3 pixels) that scatter includes the stars' sub-pixel phase, which changes their
+      measured size, and is fitted without favouring the S/N bins that happen to scatter
+      least (see ``_locus``: 96-99% of the clean stars kept on the Euclid- and Roman-like
+      GalSim CCDs of ``benchmarks/bench_undersampled.py``);
+      a float is a fixed relative half-width below (five sixths of it above);
     - ``extended``, secondary: ``|spread_model|`` above ``max_spread_model`` (plus 2 times
       ``spreaderr_model`` when given) if that column exists. The cut is first checked against
       the locus: when it would reject more than half of the sources on the locus it is not
