@@ -288,7 +288,38 @@ def test_star_selection_keeps_undersampled_stars(optical):
                  "flux": [s.sum() for s in stamps], "VIGNET": np.array(stamps)})
     assert (np.asarray(adaptive_moments(cat["VIGNET"][:n_stars])["flag"]) != 0).mean() > 0.5
     keep, counts = select_stars(cat, stamp_size=SIDE, min_stars=0)
-    assert keep[:n_stars].mean() >= 0.9, counts  # measured 1.0
     # measured 0.98 (adaptive moments alone would keep at most half)
     assert keep[:n_stars].mean() >= 0.9, counts
     assert keep[n_stars:].mean() <= 0.2, counts  # measured 0
+
+
+def test_locus_width_covers_the_pixel_phase_scatter_of_undersampled_sizes(optical):
+    # an undersampled star's measured size depends on its sub-pixel phase (here 0.026 in log
+    # size, FWHM 1.8 px): the locus's width, fitted over S/N bins of the sources below it,
+    # must cover that scatter on every field. With each bin weighted by its own (noisy)
+    # variance it came out low on some fields (the Euclid-like seed-4 CCD of
+    # benchmarks/bench_undersampled.py: 82.6% of the clean stars kept)
+    from astropy.table import Table
+
+    from sklearn_psf.io import select_stars
+
+    rng = np.random.default_rng(0)
+    fwhm = stamp_fwhm(np.array([_draw(optical, o) for o in rng.uniform(-0.5, 0.5, (400, 2))]))
+    assert np.median(fwhm) < 2.0 and np.std(np.log(fwhm)) > 0.02
+    n, n_gal, n_fields = 500, 100, 20
+    kept, galaxies = [], 0
+    for _ in range(n_fields):
+        snr = np.exp(rng.uniform(np.log(20), np.log(1000), n + n_gal))
+        # half-light radii: GalSim's PSF at a random phase, with a noise of 1 / snr in log
+        radius = rng.choice(fwhm / 2, n + n_gal) * np.exp(rng.normal(0.0, 1.0 / snr))
+        radius[n:] *= np.exp(rng.uniform(0.15, 1.0, n_gal))  # galaxies: larger
+        cat = Table({"x": rng.uniform(0, 4000, n + n_gal), "y": rng.uniform(0, 4000, n + n_gal),
+                     "snr": snr, "flux": 10 * snr, "flux_radius": radius})
+        keep, _ = select_stars(cat, isolation=0, min_stars=0)
+        kept.append(keep[:n].mean())
+        galaxies += int(keep[n:].sum())
+    kept = np.array(kept)
+    # -3 to +2.5 sigma holds 99.2% of a Gaussian scatter. Measured: mean 0.987, worst field
+    # 0.974 (each bin weighted by its own variance: mean 0.950, worst 0.806, 3 fields < 0.93)
+    assert kept.min() >= 0.95 and kept.mean() >= 0.97, np.sort(kept)
+    assert galaxies <= 0.01 * n_fields * n_gal  # measured 1 of 2000
