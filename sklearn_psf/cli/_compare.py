@@ -169,9 +169,18 @@ def _check_earlier_run(folder, overwrite):
 TASK_MEMORY = 2 * 2**30
 
 
-# what the tasks import beyond this command's imports (workers forked after them import nothing)
-TASK_IMPORTS = ("sklearn_psf.simulate", "sklearn_psf.datasets", "sklearn_psf.study.colour",
-                "treecorr")
+def _prepare_workers():
+    """What the tasks import and load on their first call beyond this command's imports,
+    done once before the workers fork (each would pay ~1.5 s for it)."""
+    import numpy as np
+    import treecorr  # noqa: F401
+    from matplotlib import font_manager  # noqa: F401  (reads matplotlib's font list)
+
+    from .. import datasets, simulate  # noqa: F401
+    from ..measure import adaptive_moments
+    from ..study import colour  # noqa: F401
+
+    adaptive_moments(np.ones((1, 9, 9)))  # numba's first call: its compiler, the kernels
 
 
 def _default_n_jobs():
@@ -259,7 +268,7 @@ def run_compare(args) -> int:
     main_run = dict(configs=[base], schemes=schemes, n_simulations=n_sims, oracle=True)
     total = n_sims + sum(len(r["configs"]) * r["n_simulations"] for r in side) + len(others)
     # the workers (forked on Linux) start with the tasks' imports, before the progress bars
-    with local_pool(None if args.scheduler else n_jobs, preload=TASK_IMPORTS):
+    with local_pool(None if args.scheduler else n_jobs, prepare=_prepare_workers):
         with dask_backend(args.scheduler), \
                 tqdm(total=total, desc="simulations", unit="task") as bar:
             run = partial(compare.run_studies, random_state=args.seed, reference=reference,

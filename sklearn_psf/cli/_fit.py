@@ -289,11 +289,13 @@ def _fit_many(jobs, args):
             job.output, *(None if p is None else os.path.abspath(p)
                           for p in (job.image, job.stars, job.output)))
     failed, bugs, registry = [], [], {}
+    # the local workers start (fork) before the progress bar's thread
+    outcomes = map_ordered(_fit_of_many, jobs, args.n_jobs) if args.scheduler is None else None
     with dask_backend(args.scheduler), tqdm(total=len(jobs), desc="fitting",
                                             unit="model") as bar:
-        outcomes = (map_ordered(_fit_of_many, jobs, args.n_jobs) if args.scheduler is None
-                    else Parallel(n_jobs=args.n_jobs, return_as="generator")(
-                        delayed(_fit_of_many)(job) for job in jobs))
+        if outcomes is None:
+            outcomes = Parallel(n_jobs=args.n_jobs, return_as="generator")(
+                delayed(_fit_of_many)(job) for job in jobs)
         for job, outcome in zip(jobs, outcomes):
             with tqdm.external_write_mode():
                 print(f"{job.source} -> {job.shown}")

@@ -118,12 +118,13 @@ def _stop(executor):
 
 
 @contextlib.contextmanager
-def local_pool(n_jobs, preload=()):
+def local_pool(n_jobs, prepare=None):
     """Run joblib's ``Parallel`` on :func:`process_pool`'s ``n_jobs`` workers (nothing when
-    ``n_jobs`` is None or 1), started here, after importing the modules ``preload``, and
-    kept until the end of the block."""
-    import importlib
+    ``n_jobs`` is None or 1), started here and kept until the end of the block.
 
+    ``prepare()``, when given, runs first: the imports and first calls (numba's kernels,
+    matplotlib's fonts) that every worker would otherwise repeat on its first task.
+    """
     import joblib
     from joblib import cpu_count
     from joblib._parallel_backends import (AutoBatchingMixin, FallbackToBackend,
@@ -133,8 +134,8 @@ def local_pool(n_jobs, preload=()):
     if n_workers < 2:
         yield
         return
-    for name in preload:
-        importlib.import_module(name)
+    if prepare is not None:
+        prepare()
 
     class PoolBackend(AutoBatchingMixin, ParallelBackendBase):  # joblib's backend interface
         supports_retrieve_callback = True
@@ -169,25 +170,28 @@ def local_pool(n_jobs, preload=()):
 
 
 def map_ordered(func, items, n_jobs):
-    """Yield ``func(item)`` for each of ``items`` in their order, computed by this process
-    and ``n_jobs - 1`` worker processes, each taking the next item when it is free.
+    """``func(item)`` for each of ``items`` in their order (an iterator), computed by this
+    process and ``n_jobs - 1`` worker processes, each taking the next item when it is free.
 
-    This process computes too, so that one process fewer pays a fresh interpreter's start-up
-    (about 3 s before a first fit: importing the library, then that fit's own imports), and
-    the workers' start-up overlaps this process's first items. An exception of ``func`` is
-    raised at its item's turn; the items a dead worker did not take are left to this process.
+    The workers are started (forked) by this call, before the caller starts threads such as
+    its progress bar's. This process computes too, so that it is not idle beside them. An
+    exception of ``func`` is raised at its item's turn; the items a dead worker did not take
+    are left to this process.
     """
-    import threading
-    from collections import deque
-    from concurrent.futures import Future
-
     from joblib import effective_n_jobs
 
     items = list(items)
     n_workers = min(effective_n_jobs(n_jobs), len(items)) - 1
     if n_workers < 1:
-        yield from map(func, items)
-        return
+        return map(func, items)
+    return _map_on(process_pool(n_workers), n_workers, func, items)
+
+
+def _map_on(executor, n_workers, func, items):
+    import threading
+    from collections import deque
+    from concurrent.futures import Future
+
     pending, done, ready = deque(range(len(items))), {}, threading.Condition()
 
     def take():
@@ -199,7 +203,7 @@ def map_ordered(func, items, n_jobs):
             done[i] = future
             ready.notify_all()
 
-    def feed(executor):  # one thread per worker, handing it the next item when it is free
+    def feed():  # one thread per worker, handing it the next item when it is free
         while (i := take()) is not None:
             try:
                 future = executor.submit(func, items[i])
@@ -212,9 +216,8 @@ def map_ordered(func, items, n_jobs):
             if failed:
                 return
 
-    executor = process_pool(n_workers)
     for _ in range(n_workers):
-        threading.Thread(target=feed, args=(executor,), daemon=True).start()
+        threading.Thread(target=feed, daemon=True).start()
     try:
         for i in range(len(items)):
             while i not in done and (j := take()) is not None:
