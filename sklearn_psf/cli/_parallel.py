@@ -75,16 +75,18 @@ def _worker_start(blas_threads):
     """
     import threading
 
-    from threadpoolctl import threadpool_limits
+    from threadpoolctl import threadpool_info, threadpool_limits
     from tqdm import tqdm
 
     tqdm.set_lock(threading.RLock())
-    threadpool_limits(blas_threads)
+    inherited = max((p["num_threads"] for p in threadpool_info()), default=1)
+    threadpool_limits(min(blas_threads, inherited))  # never more than the user allowed
 
 
-def process_pool(n_workers):
+def process_pool(n_workers, n_processes=None):
     """An executor of ``n_workers`` worker processes, forked from this one where the system
-    allows it (Linux), else fresh interpreters (loky's).
+    allows it (Linux), else fresh interpreters (loky's). Each runs BLAS on the cores divided
+    by ``n_processes`` (the processes computing at once; ``n_workers`` when None).
 
     A forked worker starts with this process's imports (about 3 s of CPU for a fresh one:
     scikit-learn, SciPy, Astropy, matplotlib), so an extra worker costs almost nothing to
@@ -96,7 +98,7 @@ def process_pool(n_workers):
     from joblib import cpu_count
 
     args = dict(max_workers=n_workers, initializer=_worker_start,
-                initargs=(max(cpu_count() // n_workers, 1),))
+                initargs=(max(cpu_count() // (n_processes or n_workers), 1),))
     if sys.platform == "linux":
         from concurrent.futures import ProcessPoolExecutor
 
@@ -184,7 +186,7 @@ def map_ordered(func, items, n_jobs):
     n_workers = min(effective_n_jobs(n_jobs), len(items)) - 1
     if n_workers < 1:
         return map(func, items)
-    return _map_on(process_pool(n_workers), n_workers, func, items)
+    return _map_on(process_pool(n_workers, n_workers + 1), n_workers, func, items)
 
 
 def _map_on(executor, n_workers, func, items):
