@@ -7,7 +7,7 @@ from dataclasses import replace
 from functools import partial
 
 from ._common import CLIInputError, _check_output, _n_jobs, _positive, _positive_int
-from ._parallel import dask_backend, local_pool
+from ._parallel import dask_backend, local_pool, prepare_workers
 
 #: Sizes of ``sklearn-psf compare``: ``"paper"`` (the default) and ``"quick"`` (``--quick``);
 #: explicit options override them.
@@ -169,18 +169,9 @@ def _check_earlier_run(folder, overwrite):
 TASK_MEMORY = 2 * 2**30
 
 
-def _prepare_workers():
-    """What the tasks import and load on their first call beyond this command's imports,
-    done once before the workers fork (each would pay ~1.5 s for it)."""
-    import numpy as np
-    import treecorr  # noqa: F401
-    from matplotlib import font_manager  # noqa: F401  (reads matplotlib's font list)
-
-    from .. import datasets, simulate  # noqa: F401
-    from ..measure import adaptive_moments
-    from ..study import colour  # noqa: F401
-
-    adaptive_moments(np.ones((1, 9, 9)))  # numba's first call: its compiler, the kernels
+#: What the tasks import beyond this command's imports (once, before the workers fork).
+TASK_MODULES = ("sklearn_psf.datasets", "sklearn_psf.simulate", "sklearn_psf.study.colour",
+                "treecorr", "matplotlib.font_manager")
 
 
 def _default_n_jobs():
@@ -268,7 +259,8 @@ def run_compare(args) -> int:
     main_run = dict(configs=[base], schemes=schemes, n_simulations=n_sims, oracle=True)
     total = n_sims + sum(len(r["configs"]) * r["n_simulations"] for r in side) + len(others)
     # the workers (forked on Linux) start with the tasks' imports, before the progress bars
-    with local_pool(None if args.scheduler else n_jobs, prepare=_prepare_workers):
+    with local_pool(None if args.scheduler else n_jobs,
+                    prepare=partial(prepare_workers, *TASK_MODULES)):
         with dask_backend(args.scheduler), \
                 tqdm(total=total, desc="simulations", unit="task") as bar:
             run = partial(compare.run_studies, random_state=args.seed, reference=reference,

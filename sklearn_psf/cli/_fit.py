@@ -282,15 +282,19 @@ def _fit_many(jobs, args):
     from joblib import Parallel, delayed
     from tqdm.auto import tqdm
 
-    from ._parallel import dask_backend, map_ordered
+    from ._parallel import dask_backend, map_ordered, prepare_workers
 
     for job in jobs:  # the workers may run in another folder, or on another machine
         job.shown, job.image, job.stars, job.output = (
             job.output, *(None if p is None else os.path.abspath(p)
                           for p in (job.image, job.stars, job.output)))
     failed, bugs, registry = [], [], {}
-    # the local workers start (fork) before the progress bar's thread
-    outcomes = map_ordered(_fit_of_many, jobs, args.n_jobs) if args.scheduler is None else None
+    outcomes = None
+    if args.scheduler is None:  # the local workers fork before the progress bar's thread
+        prepare_workers("sklearn_psf.validation", "treecorr",
+                        *(() if args.no_plots else ("matplotlib.figure",
+                                                    "matplotlib.backends.backend_agg")))
+        outcomes = map_ordered(_fit_of_many, jobs, args.n_jobs)
     with dask_backend(args.scheduler), tqdm(total=len(jobs), desc="fitting",
                                             unit="model") as bar:
         if outcomes is None:

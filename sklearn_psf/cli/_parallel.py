@@ -83,6 +83,21 @@ def _worker_start(blas_threads):
     threadpool_limits(min(blas_threads, inherited))  # never more than the user allowed
 
 
+def prepare_workers(*modules):
+    """Import ``modules`` and make numba's first call (its compiler and the adaptive-moment
+    kernels, ~0.4 s in each process) here, once, before :func:`process_pool` forks workers
+    that would each repeat them on their first task."""
+    import importlib
+
+    import numpy as np
+
+    from ..measure import adaptive_moments
+
+    for name in modules:
+        importlib.import_module(name)
+    adaptive_moments(np.ones((1, 9, 9)))
+
+
 def process_pool(n_workers, n_processes=None):
     """An executor of ``n_workers`` worker processes, forked from this one where the system
     allows it (Linux), else fresh interpreters (loky's). Each runs BLAS on the cores divided
@@ -93,6 +108,7 @@ def process_pool(n_workers, n_processes=None):
     start; import what the tasks need before calling this, and call it before starting
     threads (a thread holding a lock at the fork would leave it held in the workers).
     """
+    import gc
     import multiprocessing
 
     from joblib import cpu_count
@@ -103,7 +119,14 @@ def process_pool(n_workers, n_processes=None):
         from concurrent.futures import ProcessPoolExecutor
 
         executor = ProcessPoolExecutor(mp_context=multiprocessing.get_context("fork"), **args)
-        executor.submit(int).result()  # forks them all now, before the caller starts threads
+        # the workers' garbage collector leaves the objects they inherit alone (else it
+        # touches, and so copies, every page holding one); fork them all now, before the
+        # caller starts threads
+        gc.freeze()
+        try:
+            executor.submit(int).result()
+        finally:
+            gc.unfreeze()
         return executor
     from joblib.externals.loky import ProcessPoolExecutor
 
