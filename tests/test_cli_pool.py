@@ -10,7 +10,7 @@ import pytest
 from joblib import Parallel, delayed
 
 from sklearn_psf.cli import _parallel
-from sklearn_psf.cli._parallel import local_pool
+from sklearn_psf.cli._parallel import local_pool, map_ordered
 
 
 def _state():
@@ -19,6 +19,10 @@ def _state():
 
     threads = [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
     return os.getpid(), getattr(_parallel, "_TEST_MARK", None), max(threads, default=1)
+
+
+def _pid_threads(_):
+    return _state()[0], _state()[2]
 
 
 def _nested(n):
@@ -72,3 +76,19 @@ def test_one_job_runs_in_this_process():
     assert pids == [os.getpid()] * 3
     with local_pool(None):  # no pool (the Dask scheduler's case): joblib's own backend
         assert Parallel(n_jobs=1)(delayed(math.sqrt)(4.0) for _ in range(2)) == [2.0, 2.0]
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="workers are forked on Linux only")
+def test_map_ordered_worker_shares_the_cores_with_this_process():
+    """fit's pool: this process computes beside the worker, so each has half the cores for
+    BLAS (a forked worker once kept all of them: 1.6-1.8x the CPU per fit), and never more
+    threads than this process had."""
+    from threadpoolctl import threadpool_limits
+
+    for limit in (None, 1):
+        with threadpool_limits(limit):
+            inherited = _state()[2]
+            out = list(map_ordered(_pid_threads, range(12), n_jobs=2))
+        workers = [threads for pid, threads in out if pid != os.getpid()]
+        assert workers, "no item ran in the worker"
+        assert max(workers) <= min(max(os.cpu_count() // 2, 1), inherited), (limit, out)
