@@ -9,8 +9,8 @@ seconds on these ~25-30 s commands, so every pair is printed with the median and
 alternating the runs keeps a drift from falling on one side only.
 
 - ``fit``: ``fit --stars CAT1 ... CATn --no-plots`` over ``--n-catalogues`` simulated VIGNET
-  catalogues (``write_example_ldac``: 300 stars, 300 galaxies, 3000 x 3000 pixels each), or
-  the catalogues given with ``--catalogues``;
+  catalogues (``write_example_ldac``: 600 stars, 600 galaxies, 4096 x 2048 pixels each, about
+  the DECam-like CCDs of ``bench_psfex.py``), or the catalogues given with ``--catalogues``;
 - ``compare``: ``compare --quick --n-simulations 2 --study-simulations 1 --studies none``.
 
 ``--baseline PATH`` runs the same pairs with the package at ``PATH`` (a checkout of another
@@ -89,7 +89,8 @@ def main(argv=None):
                 for k in range(args.n_catalogues):
                     sub = Path(folder, str(k))
                     sub.mkdir()
-                    made = write_example_ldac(sub, random_state=k)
+                    made = write_example_ldac(sub, n_stars=600, n_galaxies=600,
+                                              image_shape=(2048, 4096), random_state=k)
                     catalogues.append(str(Path(folder, f"ccd{k}.ldac")))
                     os.rename(made["catalog"], catalogues[-1])
             pairs(f"fit over {len(catalogues)} catalogues",

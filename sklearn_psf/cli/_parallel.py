@@ -110,6 +110,7 @@ def process_pool(n_workers, n_processes=None):
     """
     import gc
     import multiprocessing
+    import warnings
 
     from joblib import cpu_count
 
@@ -124,7 +125,12 @@ def process_pool(n_workers, n_processes=None):
         # caller starts threads
         gc.freeze()
         try:
-            executor.submit(int).result()
+            with warnings.catch_warnings():
+                # Python 3.12+ warns of any thread at a fork; here only the BLAS and OpenMP
+                # pools' idle threads run (none of ours yet), which hold no lock of Python's
+                warnings.filterwarnings("ignore", r".*multi-threaded.*fork",
+                                        DeprecationWarning)
+                executor.submit(int).result()
         finally:
             gc.unfreeze()
         return executor
