@@ -1,5 +1,6 @@
-"""Running the commands' tasks on a Dask cluster (``--scheduler ADDRESS``), shared by
-``compare`` and ``fit``.
+"""Running the commands' tasks in parallel, shared by ``compare`` and ``fit``: on local
+worker processes (forked from the command's process on Linux: :func:`process_pool`,
+:func:`local_pool`, :func:`map_ordered`) or on a Dask cluster (``--scheduler ADDRESS``).
 
 Dask's nannies start their workers with ``MALLOC_TRIM_THRESHOLD_=65536`` (the default of
 ``distributed.nanny.pre-spawn-environ``). Setting it also fixes glibc's mmap threshold at
@@ -67,7 +68,8 @@ def dask_backend(scheduler):
 
 def _worker_start(blas_threads):
     """Start of a worker process of :func:`process_pool`: tqdm's lock a thread lock, BLAS on
-    ``blas_threads`` threads (the cores shared among the workers, as joblib's loky does).
+    ``blas_threads`` threads at most (the cores over the processes computing at once, as
+    joblib's loky shares them).
 
     A worker draws no progress bar, but tqdm creates its lock with each bar (even disabled):
     by default a multiprocessing lock, a named semaphore that the worker, stopped once the
@@ -103,10 +105,10 @@ def process_pool(n_workers, n_processes=None):
     allows it (Linux), else fresh interpreters (loky's). Each runs BLAS on the cores divided
     by ``n_processes`` (the processes computing at once; ``n_workers`` when None).
 
-    A forked worker starts with this process's imports (about 3 s of CPU for a fresh one:
-    scikit-learn, SciPy, Astropy, matplotlib), so an extra worker costs almost nothing to
-    start; import what the tasks need before calling this, and call it before starting
-    threads (a thread holding a lock at the fork would leave it held in the workers).
+    A forked worker starts with this process's imports, which a fresh one pays again (about
+    3.5 s of CPU: scikit-learn, SciPy, Astropy, matplotlib); make them first
+    (:func:`prepare_workers`), and call this before starting threads (a thread holding a
+    lock at the fork would leave it held in the workers).
     """
     import gc
     import multiprocessing
