@@ -19,7 +19,9 @@ commit, put first on ``PYTHONPATH``) in the same series, for the ratio against i
 Usage::
 
     python benchmarks/bench_workers.py [--pairs 3] [--n-catalogues 8] [--catalogues F ...]
-                                       [--only fit|compare] [--baseline CHECKOUT]
+                                       [--only fit|compare] [--baseline CHECKOUT] [--quick]
+
+``--quick``: one pair, two catalogues (a smoke run: its figures mean nothing).
 """
 
 from __future__ import annotations
@@ -75,7 +77,10 @@ def main(argv=None):
     parser.add_argument("--only", choices=("fit", "compare"))
     parser.add_argument("--baseline", metavar="CHECKOUT",
                         help="a checkout of another commit, timed in the same series")
+    parser.add_argument("--quick", action="store_true", help="one pair, two catalogues")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.pairs, args.n_catalogues = 1, 2
     codes = {"this": None}
     if args.baseline:
         codes["baseline"] = str(Path(args.baseline).resolve())
