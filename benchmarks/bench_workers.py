@@ -36,14 +36,16 @@ import tempfile
 from pathlib import Path
 
 
-def run(args, pythonpath=None):
-    """CPU seconds (user + system, this command and its reaped workers) of one command."""
+def run(args, folder, pythonpath=None):
+    """CPU seconds (user + system, this command and its reaped workers) of one command, run
+    in ``folder``: ``python -m`` puts its working directory first on ``sys.path``, which
+    would put a checkout there before ``pythonpath``."""
     env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
     if pythonpath:
         env["PYTHONPATH"] = pythonpath
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     proc = subprocess.run([sys.executable, "-m", "sklearn_psf", *args], capture_output=True,
-                          text=True, env=env)
+                          text=True, env=env, cwd=folder)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode:
         raise SystemExit(f"sklearn-psf {' '.join(args[:3])} ... failed:\n{proc.stderr[-2000:]}")
@@ -56,8 +58,8 @@ def pairs(label, make_args, n_pairs, codes):
     for k in range(n_pairs):
         for code, path in codes.items():
             with tempfile.TemporaryDirectory() as tmp:
-                one = run(make_args(tmp, 1), path)
-                two = run(make_args(tmp, 2), path)
+                one = run(make_args(tmp, 1), tmp, path)
+                two = run(make_args(tmp, 2), tmp, path)
             extra[code].append(two - one)
             print(f"  {label} [{code}] pair {k + 1}: --n-jobs 1 {one:.1f} s, --n-jobs 2 {two:.1f} s"
                   f" of CPU: extra worker {two - one:+.1f} s", flush=True)
@@ -86,7 +88,7 @@ def main(argv=None):
         codes["baseline"] = str(Path(args.baseline).resolve())
     with tempfile.TemporaryDirectory() as folder:
         if args.only in (None, "fit"):
-            catalogues = args.catalogues
+            catalogues = [os.path.abspath(c) for c in args.catalogues or []]
             if not catalogues:
                 from sklearn_psf.simulate import write_example_ldac
 
