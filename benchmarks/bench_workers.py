@@ -14,7 +14,10 @@ alternating the runs keeps a drift from falling on one side only.
 - ``compare``: ``compare --quick --n-simulations 2 --study-simulations 1 --studies none``.
 
 ``--baseline PATH`` runs the same pairs with the package at ``PATH`` (a checkout of another
-commit, put first on ``PYTHONPATH``) in the same series, for the ratio against it.
+commit, put first on ``PYTHONPATH``) in the same series, for the ratio against it. The CPU
+of a worker counts only once the command has reaped it: loky's workers, killed at the end of
+``fit`` (the code before the forked workers), may be left unreaped, so a baseline with them
+can read low, even below ``--n-jobs 1``.
 
 Usage::
 
