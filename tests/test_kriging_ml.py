@@ -125,8 +125,11 @@ def test_vecchia_with_all_earlier_stars_is_the_exact_likelihood(drift):
 
 def test_auto_likelihood_is_exact_where_cheap():
     X, Y, rng = gp_field(450, 0.2, [1.0, 0.5], seed=14)
-    cheap = KrigingRegressor(range="auto").fit(X, Y, noise_var=np.full(450, 0.01))
-    assert cheap.likelihood_ == "exact"  # 2 factorisations of 450 stars per step
+    cheap = KrigingRegressor(range="auto").fit(X[:350], Y[:350], noise_var=np.full(350, 0.01))
+    assert cheap.likelihood_ == "exact"  # 2 factorisations of 350 stars per step
+    # 2 of 450: 1.8e8 > 1e8
+    assert KrigingRegressor(range="auto").fit(
+        X, Y, noise_var=np.full(450, 0.01)).likelihood_ == "vecchia"
     costly = KrigingRegressor(range="auto").fit(
         np.vstack([X, X + 1e-3])[:800], np.vstack([Y, Y])[:800],
         noise_var=rng.uniform(0.01, 0.02, size=(800, 2)))
