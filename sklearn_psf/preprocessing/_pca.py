@@ -474,7 +474,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
             A = _with_constant(_shifted(basis_fft32, phase), extra)  # (b, m + extra, p)
             solve(rows, A)
             sub = masked[rows]
-            rows, phase, A = rows[sub], phase[sub], A[sub]
+            rows, phase = rows[sub], phase[sub]
             for step in range(len(_REFINE) * bool(sub.any())):
                 # the offset of a template (with its flux and the background), every
                 # coefficient then fitted at it: first the mean PSF (with pixels masked in
@@ -502,8 +502,10 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
                        @ (Gw @ resid[:, :, None]))[:, :, 0]
                 offsets[rows] += np.clip(sol[:, 1 + extra:], -0.5, 0.5)
                 phase = phase_ramp(s, offsets[rows, 0], offsets[rows, 1])
-                A = _with_constant(_shifted(basis_fft32, phase), extra)
-                solve(rows, A)
+                if step + 1 == len(_REFINE) or _REFINE[step + 1] == "model":
+                    # (the coefficients at the new offsets: the next step's template, or the
+                    # result; a step of the mean's needs none)
+                    solve(rows, _with_constant(_shifted(basis_fft32, phase), extra))
         return a, cov, model, offsets, level
 
     @staticmethod
