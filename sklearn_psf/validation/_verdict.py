@@ -24,7 +24,10 @@ __all__ = ["PSFQualityWarning"]
 
 #: Residuals beyond this many times the noise (reduced chi^2, or e residual over e noise) warn.
 NOISE_LIMIT = 2.0
-_DRAWS = 16  # noise realisations per reserved star for its ellipticity noise
+#: noise realisations per reserved star for its ellipticity (and fourth-moment) noise: the
+#: rms over ~100 reserved stars to ~3% (~6% for the fourth moments); 16 took 0.2 s of CPU of
+#: a DECam-like CCD's 2.3 s fit
+_DRAWS = 8
 
 
 class PSFQualityWarning(UserWarning):
