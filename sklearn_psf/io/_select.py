@@ -92,14 +92,19 @@ def _mask_radius(alpha_n, flux_n, alpha_s, flux_s):
     return alpha_n * reach
 
 
-def _neighbours(catalog, rows, reach):
-    """For each of ``rows``: the other sources within ``reach`` pixels (Chebyshev)."""
+_PAIRS = 4096  # (star, neighbour) pairs drawn at once by neighbour_masks
+
+
+def _neighbour_pairs(catalog, rows, reach):
+    """(k, j): source j is another source within ``reach`` pixels (Chebyshev) of ``rows[k]``;
+    sorted by k."""
     x, y = _column(catalog, "x"), _column(catalog, "y")
     xy = np.column_stack([np.nan_to_num(x, nan=-1e12), np.nan_to_num(y, nan=-1e12)])
-    tree = cKDTree(xy)
-    found = tree.query_ball_point(xy[rows], reach, p=np.inf)
-    return [np.asarray([j for j in near if j != i], dtype=np.intp)
-            for i, near in zip(rows, found)]
+    found = cKDTree(xy).query_ball_point(xy[rows], reach, p=np.inf)
+    k = np.repeat(np.arange(len(rows)), [len(near) for near in found])
+    j = np.fromiter((j for near in found for j in near), dtype=np.intp, count=len(k))
+    other = j != np.asarray(rows, dtype=np.intp)[k]
+    return k[other], j[other]
 
 
 def _crowded(catalog, rows, stamp_size):
@@ -108,13 +113,12 @@ def _crowded(catalog, rows, stamp_size):
     alpha, flux = _sizes_fluxes(catalog)
     x, y = _column(catalog, "x"), _column(catalog, "y")
     reach = (int(stamp_size) - 1) / 2 + 1.5 + 30 * np.nanmax(alpha, initial=2.0)
-    bad = np.zeros(len(rows), dtype=bool)
-    for k, (i, near) in enumerate(zip(rows, _neighbours(catalog, rows, reach))):
-        if near.size:
-            d = np.hypot(x[near] - x[i], y[near] - y[i])
-            r = _mask_radius(alpha[near], flux[near], alpha[i], flux[i])
-            bad[k] = np.any(d < r + alpha[i])
-    return bad
+    rows = np.asarray(rows, dtype=np.intp)
+    k, j = _neighbour_pairs(catalog, rows, reach)
+    i = rows[k]
+    d = np.hypot(x[j] - x[i], y[j] - y[i])
+    r = _mask_radius(alpha[j], flux[j], alpha[i], flux[i])
+    return np.bincount(k[d < r + alpha[i]], minlength=len(rows)) > 0
 
 
 def neighbour_masks(catalog, rows, stamp_size: int):
@@ -163,23 +167,27 @@ def neighbour_masks(catalog, rows, stamp_size: int):
     x, y = _column(catalog, "x"), _column(catalog, "y")
     reach = (s - 1) / 2 + 1.5 + 30 * np.nanmax(alpha, initial=2.0)
     offsets = np.arange(s) - s // 2
-    for k, (i, near) in enumerate(zip(rows, _neighbours(catalog, rows, reach))):
-        if near.size == 0 or not (np.isfinite(x[i]) and np.isfinite(y[i])):
-            continue
-        r = _mask_radius(alpha[near], flux[near], alpha[i], flux[i])
-        px = np.floor(x[i] + 0.5) + offsets   # image pixel of each stamp column
-        py = np.floor(y[i] + 0.5) + offsets
-        # only the discs that reach the stamp's box of pixel centres
-        gap = np.hypot(np.clip(x[near], px[0], px[-1]) - x[near],
-                       np.clip(y[near], py[0], py[-1]) - y[near])
-        reach_box = gap < r + 0.5
-        if not reach_box.any():
-            continue
-        near, r = near[reach_box], r[reach_box]
-        dx = px[None, None, :] - x[near][:, None, None]
-        dy = py[None, :, None] - y[near][:, None, None]
-        # every pixel the disc reaches (its centre within r + half a pixel)
-        masks[k] = np.any(dx**2 + dy**2 < (r[:, None, None] + 0.5)**2, axis=0)
+    k, j = _neighbour_pairs(catalog, rows, reach)
+    i = rows[k]
+    ok = np.isfinite(x[i]) & np.isfinite(y[i])
+    k, j, i = k[ok], j[ok], i[ok]
+    r = _mask_radius(alpha[j], flux[j], alpha[i], flux[i])
+    px = np.floor(x[i] + 0.5)[:, None] + offsets  # image pixel of each stamp column
+    py = np.floor(y[i] + 0.5)[:, None] + offsets
+    # only the discs that reach the stamp's box of pixel centres
+    gap = np.hypot(np.clip(x[j], px[:, 0], px[:, -1]) - x[j],
+                   np.clip(y[j], py[:, 0], py[:, -1]) - y[j])
+    near = gap < r + 0.5
+    k, j, r, px, py = k[near], j[near], r[near], px[near], py[near]
+    for start in range(0, len(k), _PAIRS):  # (bounded memory: s*s floats per pair)
+        sl = slice(start, start + _PAIRS)
+        dx = px[sl, None, :] - x[j[sl]][:, None, None]
+        dy = py[sl, :, None] - y[j[sl]][:, None, None]
+        # every pixel a disc reaches (its centre within r + half a pixel), each star's discs
+        # together
+        disc = dx**2 + dy**2 < (r[sl, None, None] + 0.5)**2
+        first = np.flatnonzero(np.r_[True, k[sl][1:] != k[sl][:-1]])
+        masks[k[sl][first]] |= np.logical_or.reduceat(disc, first, axis=0)
     return masks
 
 
