@@ -86,6 +86,40 @@ def test_neighbour_masks_hold_the_neighbours_light():
     assert not keep[0] and counts["crowded"] >= 1
 
 
+def test_neighbour_masks_equal_every_disc_drawn_one_by_one():
+    """On a crowded random field (sizes and fluxes within 100x of each other, NaN and edge
+    positions), the masks equal each other source's disc drawn pixel by pixel over the whole
+    stamp, and a star is crowded exactly when such a disc reaches alpha of its centre."""
+    from sklearn_psf.io._select import _crowded, _mask_radius, _sizes_fluxes
+
+    rng = np.random.default_rng(3)
+    n, s = 120, 21
+    cat = Table({"x": rng.uniform(-5, 200, n), "y": rng.uniform(0, 150, n),
+                 "flux_radius": rng.uniform(0.8, 4.0, n), "flux": 10 ** rng.uniform(2, 4, n)})
+    cat["x"][7] = np.nan
+    rows = np.arange(0, n, 3)
+    masks, crowded = neighbour_masks(cat, rows, s), _crowded(cat, rows, s)
+    alpha, flux = _sizes_fluxes(cat)
+    x, y = np.asarray(cat["x"]), np.asarray(cat["y"])
+    offsets = np.arange(s) - s // 2
+    for k, i in enumerate(rows):
+        expected = np.zeros((s, s), dtype=bool)
+        core_hit = False
+        for j in range(n):
+            if j == i or not (np.isfinite(x[j]) and np.isfinite(y[j])):
+                continue
+            r = _mask_radius(alpha[j], flux[j], alpha[i], flux[i])
+            core_hit |= bool(np.hypot(x[j] - x[i], y[j] - y[i]) < r + alpha[i])
+            if np.isfinite(x[i]) and np.isfinite(y[i]):
+                px = np.floor(x[i] + 0.5) + offsets
+                py = np.floor(y[i] + 0.5) + offsets
+                expected |= ((px[None, :] - x[j]) ** 2 + (py[:, None] - y[j]) ** 2
+                             < (r + 0.5) ** 2)
+        np.testing.assert_array_equal(masks[k], expected)
+        assert crowded[k] == core_hit
+    assert masks.any(axis=(1, 2)).sum() > len(rows) // 2  # a crowded field indeed
+
+
 def test_fit_exposure_is_the_command_s_fit(tmp_path, capsys):
     """fit_exposure gives the model and verdict that ``sklearn-psf fit`` saves."""
     from sklearn_psf.cli import main

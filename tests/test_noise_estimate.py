@@ -83,3 +83,21 @@ def test_unit_sum_stamps_without_weights_at_realistic_snr(seed):
     assert model.inlier_mask_.mean() >= 0.98
     assert 4 <= model.n_components_ <= 8
     assert abs(model.n_components_ - reference.n_components_) <= 1
+
+
+def test_nanmedian_is_numpy_s():
+    """The sort-based median of the pixel weights and border levels equals np.nanmedian,
+    with NaN, infinite values and all-NaN slices, along either axis."""
+    from sklearn_psf.preprocessing._noise import _nanmedian
+
+    rng = np.random.default_rng(2)
+    for shape, axis in [((40, 9), 1), ((9, 40), 0), ((30, 7, 7), 0), ((5, 1), 1), ((6, 4), 1)]:
+        a = rng.normal(size=shape)
+        a[rng.uniform(size=shape) < 0.3] = np.nan
+        a.flat[0], a.flat[-1] = np.inf, -np.inf
+        a[1] = np.nan  # an all-NaN slice along axis 1 (or a row of them along axis 0)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # NumPy's all-NaN warning
+            for keepdims in (False, True):
+                np.testing.assert_array_equal(_nanmedian(a, axis, keepdims),
+                                              np.nanmedian(a, axis=axis, keepdims=keepdims))
