@@ -84,6 +84,20 @@ def vecchia_neighbours(P, m, seed):
 
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract", "arcp"})
+def _solve(L, k, x):
+    """``x <- C^-1 x`` in place, ``C = L L^T`` (the first ``k`` rows)."""
+    for a in range(k):  # forward: L z = x
+        t = x[a]
+        for c in range(a):
+            t -= L[a, c] * x[c]
+        x[a] = t / L[a, a]
+    for a in range(k - 1, -1, -1):  # backward: L^T x = z, column by column
+        x[a] /= L[a, a]
+        for c in range(a):
+            x[c] -= L[a, c] * x[a]
+
+
+@njit(cache=True, nogil=True, fastmath={"reassoc", "contract", "arcp"})
 def _conditionals(R, dR, r, dr, noise_nb, noise, y_nb, y, F_nb, F, count, p, nu, kappa, free,
                   d_out, yt_out, Ft_out, dd_out, a_out, B_out,
                   fisher):  # pragma: no cover - compiled
@@ -94,10 +108,10 @@ def _conditionals(R, dR, r, dr, noise_nb, noise, y_nb, y, F_nb, F, count, p, nu,
     n, m = r.shape
     q = F.shape[1]
     L = np.empty((m, m))
-    sol = np.empty((2 + q, m))  # rows: b = C^-1 c, C^-1 y_N, C^-1 F_N
-    v = np.empty(m)
+    bvec = np.empty(m)  # b = C^-1 c
+    V = np.empty((4, m))  # v of each parameter
+    U = np.empty((4, m))  # C^-1 v of each parameter (y_N and F_N enter through it)
     dCb = np.empty(m)
-    W = np.empty((4, m))  # L^-1 v of each parameter
     for i in range(n):
         k = count[i]
         # Cholesky of C = p (R + nu I) + kappa diag(noise), row by row (L[a, :a+1])
@@ -115,22 +129,8 @@ def _conditionals(R, dR, r, dr, noise_nb, noise, y_nb, y, F_nb, F, count, p, nu,
                 else:
                     L[a, a] = math.sqrt(t)
         for a in range(k):
-            sol[0, a] = p * r[i, a]
-            sol[1, a] = y_nb[i, a]
-            for j in range(q):
-                sol[2 + j, a] = F_nb[i, a, j]
-        for j in range(2 + q):
-            x = sol[j]
-            for a in range(k):  # forward: L z = rhs
-                t = x[a]
-                for c in range(a):
-                    t -= L[a, c] * x[c]
-                x[a] = t / L[a, a]
-            for a in range(k - 1, -1, -1):  # backward: L^T x = z, column by column
-                x[a] /= L[a, a]
-                for c in range(a):
-                    x[c] -= L[a, c] * x[a]
-        bvec = sol[0]
+            bvec[a] = p * r[i, a]
+        _solve(L, k, bvec)
         cb = 0.0
         yt = y[i]
         for a in range(k):
@@ -147,6 +147,7 @@ def _conditionals(R, dR, r, dr, noise_nb, noise, y_nb, y, F_nb, F, count, p, nu,
         for par in range(4):
             if not free[par]:
                 continue
+            v = V[par]
             if par == 0:  # log range: dC = p dR, dc = p dr, dk = 0
                 for a in range(k):
                     t = 0.0
@@ -171,23 +172,22 @@ def _conditionals(R, dR, r, dr, noise_nb, noise, y_nb, y, F_nb, F, count, p, nu,
                     v[a] = -dCb[a]
                 dk = kappa * noise[i]
             dd = dk
-            av = 0.0
             for a in range(k):
                 dd += -2.0 * (v[a] + dCb[a]) * bvec[a] + bvec[a] * dCb[a]
-                av += v[a] * sol[1, a]
             dd_out[i, par] = dd
+            u = U[par]
+            for a in range(k):
+                u[a] = v[a]
+            _solve(L, k, u)
+            av = 0.0  # v . C^-1 y_N
+            for a in range(k):
+                av += u[a] * y_nb[i, a]
             a_out[i, par] = av
-            for j in range(q):
+            for j in range(q):  # v . C^-1 F_N
                 t = 0.0
                 for a in range(k):
-                    t += v[a] * sol[2 + j, a]
+                    t += u[a] * F_nb[i, a, j]
                 B_out[i, par, j] = t
-            w = W[par]
-            for a in range(k):
-                t = v[a]
-                for c in range(a):
-                    t -= L[a, c] * w[c]
-                w[a] = t / L[a, a]
         d = d_out[i]
         for p1 in range(4):
             if not free[p1]:
@@ -195,9 +195,9 @@ def _conditionals(R, dR, r, dr, noise_nb, noise, y_nb, y, F_nb, F, count, p, nu,
             for p2 in range(p1 + 1):
                 if not free[p2]:
                     continue
-                t = 0.0
+                t = 0.0  # v1 . C^-1 v2
                 for a in range(k):
-                    t += W[p1, a] * W[p2, a]
+                    t += U[p1, a] * V[p2, a]
                 fisher[p1, p2] += 0.5 * dd_out[i, p1] * dd_out[i, p2] / (d * d) + t / d
     return True
 
