@@ -116,7 +116,9 @@ class PSFModel(RegressorMixin, BaseEstimator):
         the pixels, each star fitted at its own sub-pixel phase). Bases
         without a ``project`` method (e.g. :func:`make_paper_basis`, or
         ``make_pipeline(StampNormalizer(), FixedBasis(components, mean))``) know no noise:
-        they take clean, unmasked stamps and no weights.
+        they take clean, unmasked stamps and no weights. A basis whose ``fit`` takes
+        ``positions`` is given the stars' positions (``SuperResolvedPCA``: its joint
+        refinement of the PSF's variation over the field).
     outliers : "chi2", "iqr", outlier detector or None, default="chi2"
         "chi2": :class:`~sklearn_psf.preprocessing.ChiSquareOutlierDetector` on standardised
         residuals (see above; with a basis that knows no noise, on the coefficients'
