@@ -568,8 +568,8 @@ class SuperResolvedPCA(StampPCA):
             return float((u * (d - model - fitted[:, None]) ** 2)[usable].sum())
 
         k, counted, joint = 0, False, 0
-        refine = positions is not None and bool(self.spatial_degree)
-        n_iter = min(int(self.n_iter), _REFINED_ITER) if refine else int(self.n_iter)
+        degree = 0 if positions is None else self._spatial_degree(int(usable.sum()))
+        n_iter = min(int(self.n_iter), _REFINED_ITER) if degree else int(self.n_iter)
         u = star_weights(a[:, 0])
         fine = self._fit_fine(d - level[:, None], u, a, self._ramps(offsets), fine)
         for round_ in range(_MEAN_ROUNDS + n_iter):
@@ -617,9 +617,9 @@ class SuperResolvedPCA(StampPCA):
                                                              fine, usable, pixel_var)
                 a = np.column_stack([a[:, 0], a[:, :1] * coef])
                 fine = np.vstack([fine, np.zeros((k, size * size))])
-        if refine and k:
-            fine = self._refine(d, w, positions[:, :2], fine, a, offsets, level, usable,
-                                star_weights)
+        if degree and k:
+            fine = self._refine(d, w, positions[:, :2], degree, fine, a, offsets, level,
+                                usable, star_weights)
         self.fine_mean_ = fine[0]
         self.fine_components_ = fine[1:]
         self.explained_variance_ = lam
@@ -633,28 +633,31 @@ class SuperResolvedPCA(StampPCA):
         self.mean_, self.components_ = drawn[0], drawn[1:]
         return self
 
-    def _refine(self, d, w, positions, fine, a, offsets, level, usable, star_weights):
+    def _spatial_degree(self, n_stars):
+        """Degree of the joint refinement's polynomial for ``n_stars`` usable stars; 0 for
+        none (``spatial_degree`` None or 0, or fewer than 3 stars per term)."""
+        if self.spatial_degree == "auto":  # the highest with enough stars per term
+            return max(g for g in range(_MAX_DEGREE + 1)
+                       if g == 0 or (g + 1) * (g + 2) // 2 * _STARS_PER_TERM <= n_stars)
+        degree = int(self.spatial_degree or 0)
+        return degree if n_stars >= 3 * (degree + 1) * (degree + 2) // 2 else 0
+
+    def _refine(self, d, w, positions, degree, fine, a, offsets, level, usable,
+                star_weights):
         """The fine images refitted with each star's coefficients on the components set by
-        a polynomial of its position (of degree ``spatial_degree``), fitted jointly to all
-        stars' pixels, as PSFEx's: alternately the polynomial (linear least squares over
-        all stars, given the images, fluxes and offsets), each star's flux, offset and
+        a polynomial of its position (of degree ``degree``), fitted jointly to all stars'
+        pixels, as PSFEx's: alternately the polynomial (linear least squares over all
+        stars, given the images, fluxes and offsets), each star's flux, offset and
         background with its shape held, and the fine images given the coefficients."""
         z = positions - positions.min(axis=0)
         z = 2.0 * z / np.where(z.max(axis=0) > 0, z.max(axis=0), 1.0) - 1.0  # in [-1, 1]
-        n_stars = int(usable.sum())
-        if self.spatial_degree == "auto":  # the highest with enough stars per term
-            deg = max([g for g in range(_MAX_DEGREE + 1)
-                       if (g + 1) * (g + 2) // 2 * _STARS_PER_TERM <= n_stars], default=0)
-        else:
-            deg = int(self.spatial_degree)
-        n_terms = (deg + 1) * (deg + 2) // 2
-        if not deg or n_stars < 3 * n_terms:  # too few stars for the polynomial
-            return fine
-        terms = np.column_stack([z[:, 0] ** i * z[:, 1] ** (t - i) for t in range(deg + 1)
-                                 for i in range(t + 1)])
+        terms = np.column_stack([z[:, 0] ** i * z[:, 1] ** (t - i)
+                                 for t in range(degree + 1) for i in range(t + 1)])
         size = self._grid(self.stamp_size_)[1]
         flux = a[:, 0]
         for _ in range(_JOINT_ROUNDS):
+            if usable.sum() < 3 * terms.shape[1]:  # too many stars lost on the way
+                break
             u = star_weights(flux) * usable[:, None]
             mean = self._draw(np.fft.rfft2(fine[:1].reshape(1, size, size)),
                               self._ramps(offsets))[:, 0]
