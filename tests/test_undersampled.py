@@ -148,8 +148,8 @@ def test_components_converge_on_stars_of_a_varying_psf(optical):
     stars = 1e4 * np.array([_draw(p, o) for p, o in zip(profiles, off)]).reshape(n, -1)
     mt = fixed_moments(np.array([_draw(p, -_centre(p)) for p in profiles]), 1.5)
 
-    def errors(basis):
-        basis.fit(stars, weights=np.ones_like(stars))
+    def errors(basis, positions=None):
+        basis.fit(stars, weights=np.ones_like(stars), positions=positions)
         own = basis.render(basis.project(stars, np.ones_like(stars)).coefficients)
         mo = fixed_moments(own, 1.5)
         de = np.hypot(np.asarray(mo["e1"]) - mt["e1"], np.asarray(mo["e2"]) - mt["e2"])
@@ -161,6 +161,24 @@ def test_components_converge_on_stars_of_a_varying_psf(optical):
     assert e_default < 0.006, e_default  # measured 0.0047 (3 rounds: 0.0056)
     assert e_default < 0.8 * e_one, (e_default, e_one)  # measured 0.0069
     assert s_default < 0.005, s_default  # measured 0.0038 (one round: 0.0053)
+    # with the stars' positions (as PSFModel passes them), the coefficients follow a
+    # polynomial of the position fitted to all stars' pixels together, and the fine images
+    # are refitted given them: no star's single phase sets its own coefficients
+    e_joint, s_joint = errors(SuperResolvedPCA(n_components=3, spatial_degree=3), positions=X)
+    assert e_joint < 0.0025, e_joint  # measured 0.0017
+    assert e_joint < 0.5 * e_default, (e_joint, e_default)
+    assert s_joint < 0.9 * s_default, (s_joint, s_default)  # measured 0.0028
+
+
+def test_super_resolved_positions_must_match_the_stamps():
+    yy, xx = np.mgrid[0:11, 0:11] - 5.0
+    stars = np.repeat(np.exp(-0.5 * (xx**2 + yy**2) / 0.6**2).reshape(1, -1), 5, axis=0)
+    with pytest.raises(ValueError, match="positions must have shape"):
+        SuperResolvedPCA().fit(stars, positions=np.zeros((4, 2)))
+    with pytest.raises(ValueError, match="positions must be finite"):
+        SuperResolvedPCA().fit(stars, positions=np.full((5, 2), np.nan))
+    with pytest.raises(ValueError, match="spatial_degree"):
+        SuperResolvedPCA(spatial_degree=-1).fit(stars)
 
 
 def test_default_model_fits_every_clean_undersampled_star(optical, noisy):

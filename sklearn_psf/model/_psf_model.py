@@ -116,7 +116,9 @@ class PSFModel(RegressorMixin, BaseEstimator):
         the pixels, each star fitted at its own sub-pixel phase). Bases
         without a ``project`` method (e.g. :func:`make_paper_basis`, or
         ``make_pipeline(StampNormalizer(), FixedBasis(components, mean))``) know no noise:
-        they take clean, unmasked stamps and no weights.
+        they take clean, unmasked stamps and no weights. A basis whose ``fit`` takes
+        ``positions`` is given the stars' positions (``SuperResolvedPCA``: its joint
+        refinement of the PSF's variation over the field).
     outliers : "chi2", "iqr", outlier detector or None, default="chi2"
         "chi2": :class:`~sklearn_psf.preprocessing.ChiSquareOutlierDetector` on standardised
         residuals (see above; with a basis that knows no noise, on the coefficients'
@@ -303,7 +305,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
         keep = np.ones(n, dtype=bool)
         fitted, fit_warnings = None, []  # the chi^2 test's interpolator and its warnings
         for round_ in range(2):
-            basis, fitted_stars = self._fit_basis(clone(basis), y, weights, keep)
+            basis, fitted_stars = self._fit_basis(clone(basis), y, weights, keep, X)
             coef, var, cov, flag, stamp_fit = self._project(basis, y, weights, keep,
                                                             fitted_stars)
             usable = flag == FIT_OK
@@ -390,17 +392,21 @@ class PSFModel(RegressorMixin, BaseEstimator):
             )
 
     @staticmethod
-    def _fit_basis(basis, y, weights, keep):
+    def _fit_basis(basis, y, weights, keep, X=None):
         """The basis fitted on the stars ``keep``, and their StampFit on it when the basis
-        gives it with the fit (``StampPCA``: its last iteration's), else None."""
-        takes_weights = "weights" in inspect.signature(basis.fit).parameters
+        gives it with the fit (``StampPCA``: its last iteration's), else None. A basis whose
+        ``fit`` takes ``positions`` is given the stars' positions ``X``."""
+        params = inspect.signature(basis.fit).parameters
+        takes_weights = "weights" in params
+        where = {"positions": X[keep]} if "positions" in params and X is not None else {}
         # (a StampPCA itself: a wrapper such as FrozenEstimator passes attributes through)
         if isinstance(basis, StampPCA) and (weights is not None or keep.all()):
             return basis, basis._fit_project(y[keep],
-                                             None if weights is None else weights[keep])
+                                             None if weights is None else weights[keep],
+                                             **where)
         if takes_weights and weights is not None:
-            return basis.fit(y[keep], None, weights[keep]), None
-        return basis.fit(y[keep]), None
+            return basis.fit(y[keep], None, weights[keep], **where), None
+        return basis.fit(y[keep], **where), None
 
     @staticmethod
     def _project(basis, y, weights, keep, fitted_stars=None):
