@@ -156,7 +156,9 @@ def test_components_converge_on_stars_of_a_varying_psf(optical):
         ds = (np.asarray(mo["sigma"]) - mt["sigma"]) / np.asarray(mt["sigma"])
         return np.sqrt(np.mean(de**2)), np.sqrt(np.mean(ds**2))
 
-    e_default, s_default = errors(SuperResolvedPCA(n_components=3))
+    default = SuperResolvedPCA(n_components=3)
+    e_default, s_default = errors(default)
+    assert default.spatial_degree_ == 0  # no positions: no joint refinement
     e_one, s_one = errors(SuperResolvedPCA(n_components=3, n_iter=1))
     assert e_default < 0.006, e_default  # measured 0.0047 (3 rounds: 0.0056)
     assert e_default < 0.8 * e_one, (e_default, e_one)  # measured 0.0069
@@ -164,7 +166,9 @@ def test_components_converge_on_stars_of_a_varying_psf(optical):
     # with the stars' positions (as PSFModel passes them), the coefficients follow a
     # polynomial of the position fitted to all stars' pixels together, and the fine images
     # are refitted given them: no star's single phase sets its own coefficients
-    e_joint, s_joint = errors(SuperResolvedPCA(n_components=3, spatial_degree=3), positions=X)
+    joint = SuperResolvedPCA(n_components=3, spatial_degree=3)
+    e_joint, s_joint = errors(joint, positions=X)
+    assert joint.spatial_degree_ == 3
     assert e_joint < 0.0025, e_joint  # measured 0.0017
     assert e_joint < 0.5 * e_default, (e_joint, e_default)
     assert s_joint < 0.9 * s_default, (s_joint, s_default)  # measured 0.0028
@@ -216,6 +220,9 @@ def test_super_resolved_model_file_predictions_and_galsim(tmp_path, noisy):
     model.save(path)
     back = load_model(path)
     assert isinstance(back.basis_, SuperResolvedPCA)
+    # PSFModel gave the basis the stars' positions: the joint refinement ran, and the file
+    # says of which degree
+    assert back.basis_.spatial_degree_ == model.basis_.spatial_degree_ >= 1
     offsets = np.array([[0.3, -0.2], [-0.45, 0.1]])
     np.testing.assert_allclose(back.predict(X[:2], offsets=offsets),
                                model.predict(X[:2], offsets=offsets), atol=1e-12)

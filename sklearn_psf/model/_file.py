@@ -39,7 +39,8 @@ column) plus an ``EXPOSURES`` table; a per-exposure model has an ``EXPOSURES`` t
 
 A super-resolved basis (:class:`~sklearn_psf.preprocessing.SuperResolvedPCA`, for
 undersampled stars) is ``basis_kind`` ``"superres"``: its ``stamppca`` entry adds the fine
-grid (``fine_mean_``, ``fine_components_``, ``oversampling_``, ``fine_size_``, ``fwhm_``);
+grid (``fine_mean_``, ``fine_components_``, ``oversampling_``, ``fine_size_``, ``fwhm_``,
+``spatial_degree_``: 0 when absent);
 the ``BASIS_*`` HDUs hold the basis drawn at the pixels' sampling.
 
 Format 4 changes no HDU: the default interpolator (``interpolator`` null in ``SPEC``) scales
@@ -208,7 +209,8 @@ def _leaf_steps(transformer):
 
 
 _STAMPPCA_STATE = ("explained_variance_", "noise_variance_", "noise_edge_", "background_")
-_SUPERRES_STATE = ("fine_mean_", "fine_components_", "oversampling_", "fine_size_", "fwhm_")
+_SUPERRES_STATE = ("fine_mean_", "fine_components_", "oversampling_", "fine_size_", "fwhm_",
+                   "spatial_degree_")
 
 
 def _describe_basis(basis, s):
@@ -269,6 +271,8 @@ def _rebuild_basis(kind, normalizer_params, mean, comps, params, state):
             basis.oversampling_, basis.fine_size_ = (int(state["oversampling_"]),
                                                      int(state["fine_size_"]))
             basis.fwhm_ = float(state["fwhm_"])
+            # (files written before the joint refinement: none ran)
+            basis.spatial_degree_ = int(state.get("spatial_degree_", 0))
         return basis
     steps = [(f"stampnormalizer{i or ''}", StampNormalizer(**p))
              for i, p in enumerate(normalizer_params)]

@@ -198,6 +198,9 @@ class SuperResolvedPCA(StampPCA):
         Side S of the fine grid (odd; the PSF centre at its central sample).
     fwhm_ : float
         Median FWHM of the stars (pixels).
+    spatial_degree_ : int
+        Degree of the joint refinement's polynomial; 0 when none ran (no positions,
+        ``spatial_degree`` None or 0, too few stars, or no component).
     explained_variance_, noise_variance_, noise_edge_ : float or ndarray
         Of the PCA of the residuals at the pixels' sampling (see above).
     background_ : bool
@@ -620,6 +623,7 @@ class SuperResolvedPCA(StampPCA):
         if degree and k:
             fine = self._refine(d, w, positions[:, :2], degree, fine, a, offsets, level,
                                 usable, star_weights)
+        self.spatial_degree_ = int(degree) if k else 0
         self.fine_mean_ = fine[0]
         self.fine_components_ = fine[1:]
         self.explained_variance_ = lam
