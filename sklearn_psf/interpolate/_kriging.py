@@ -34,7 +34,8 @@ _FEW_STARS = 5
 _MIN_ML_STARS = 10
 #: likelihood="auto": the exact likelihood when (factorisations per step) x n^3 is at most
 #: this (~0.005 s per step on one core; 460 stars with one noise pattern, 320 with three,
-#: 250 with six; an exact step costs ~15 Vecchia steps and the optimiser takes ~2x as many)
+#: 250 with six); beyond, an exact step of ~390 stars costs ~3.5 of Vecchia's per target and
+#: L-BFGS-B takes ~2x as many steps as Vecchia's quasi-Newton
 _EXACT_ML_COST = 1e8
 #: extra_scaling="auto": the factors by the exact likelihood of at most
 #: (this / factorisations per step)^(1/3) stars (200 with one noise pattern, 117 with five)
@@ -155,9 +156,9 @@ class KrigingRegressor(_NoiseAwareInterpolator):
         order (cost ``O(n m^3)``; the range and sills differ from the exact ones by ~1%, far
         less than their statistical error). ``"auto"``: exact while
         (factorisations per step) x n^3 <= 1e8 (460 stars with one noise pattern or none,
-        320 with three per-target noises, 250 with six) or when the anisotropy is fitted, Vecchia with 10
-        neighbours beyond; ``"exact"`` on more stars is slower (``n^3`` per step) but equals
-        scikit-learn's ``GaussianProcessRegressor`` (see Notes).
+        320 with three per-target noises, 250 with six) or when the anisotropy is fitted,
+        Vecchia with 10 neighbours beyond; ``"exact"`` on more stars is slower (``n^3`` per
+        step) but equals scikit-learn's ``GaussianProcessRegressor`` (see Notes).
     max_ml_samples : int, default=20000
         Maximum likelihood uses all the stars up to this many, a pseudo-random subset of this
         size beyond (drawn from the positions with ``random_state``: leaving a few stars out
