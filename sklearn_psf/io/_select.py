@@ -95,29 +95,30 @@ def _mask_radius(alpha_n, flux_n, alpha_s, flux_s):
 _PAIRS = 4096  # (star, neighbour) pairs drawn at once by neighbour_masks
 
 
-def _neighbour_pairs(catalog, rows, reach):
-    """(k, j): source j is another source within ``reach`` pixels (Chebyshev) of ``rows[k]``;
-    sorted by k."""
+def _neighbour_discs(catalog, rows, stamp_size):
+    """The other sources within reach (Chebyshev) of the stamps of side ``stamp_size`` of
+    ``rows``, as pairs (k, j), sorted by k: source j near ``rows[k]``, with j's mask radius
+    ``r`` against that star (:func:`_mask_radius`); and every source's x, y and alpha."""
+    alpha, flux = _sizes_fluxes(catalog)
     x, y = _column(catalog, "x"), _column(catalog, "y")
+    reach = (int(stamp_size) - 1) / 2 + 1.5 + 30 * np.nanmax(alpha, initial=2.0)
     xy = np.column_stack([np.nan_to_num(x, nan=-1e12), np.nan_to_num(y, nan=-1e12)])
     found = cKDTree(xy).query_ball_point(xy[rows], reach, p=np.inf)
     k = np.repeat(np.arange(len(rows)), [len(near) for near in found])
     j = np.fromiter((j for near in found for j in near), dtype=np.intp, count=len(k))
-    other = j != np.asarray(rows, dtype=np.intp)[k]
-    return k[other], j[other]
+    other = j != rows[k]
+    k, j = k[other], j[other]
+    i = rows[k]
+    return k, j, _mask_radius(alpha[j], flux[j], alpha[i], flux[i]), x, y, alpha
 
 
 def _crowded(catalog, rows, stamp_size):
     """True for each of ``rows`` whose core (within alpha of its centre, about its FWHM)
     a neighbour's mask reaches (see :func:`neighbour_masks`)."""
-    alpha, flux = _sizes_fluxes(catalog)
-    x, y = _column(catalog, "x"), _column(catalog, "y")
-    reach = (int(stamp_size) - 1) / 2 + 1.5 + 30 * np.nanmax(alpha, initial=2.0)
     rows = np.asarray(rows, dtype=np.intp)
-    k, j = _neighbour_pairs(catalog, rows, reach)
+    k, j, r, x, y, alpha = _neighbour_discs(catalog, rows, stamp_size)
     i = rows[k]
     d = np.hypot(x[j] - x[i], y[j] - y[i])
-    r = _mask_radius(alpha[j], flux[j], alpha[i], flux[i])
     return np.bincount(k[d < r + alpha[i]], minlength=len(rows)) > 0
 
 
@@ -163,15 +164,11 @@ def neighbour_masks(catalog, rows, stamp_size: int):
     masks = np.zeros((len(rows), s, s), dtype=bool)
     if len(rows) == 0 or len(catalog) < 2:
         return masks
-    alpha, flux = _sizes_fluxes(catalog)
-    x, y = _column(catalog, "x"), _column(catalog, "y")
-    reach = (s - 1) / 2 + 1.5 + 30 * np.nanmax(alpha, initial=2.0)
     offsets = np.arange(s) - s // 2
-    k, j = _neighbour_pairs(catalog, rows, reach)
+    k, j, r, x, y, _ = _neighbour_discs(catalog, rows, s)
     i = rows[k]
     ok = np.isfinite(x[i]) & np.isfinite(y[i])
-    k, j, i = k[ok], j[ok], i[ok]
-    r = _mask_radius(alpha[j], flux[j], alpha[i], flux[i])
+    k, j, i, r = k[ok], j[ok], i[ok], r[ok]
     px = np.floor(x[i] + 0.5)[:, None] + offsets  # image pixel of each stamp column
     py = np.floor(y[i] + 0.5)[:, None] + offsets
     # only the discs that reach the stamp's box of pixel centres
