@@ -118,6 +118,16 @@ def test_missing_input_is_reported_before_the_library_is_imported(tmp_path):
     assert "none.fits' does not exist" in proc.stderr
 
 
+def test_console_script_collects_less_often_and_freezes_at_exit():
+    """The command's process collects its youngest generation every 10,000 allocations (not
+    Python's 700) while it runs, and freezes what it leaves before the interpreter exits."""
+    code = ("import gc, sys; import sklearn_psf.cli as c; seen = []; "
+            "c.main = lambda: seen.append(gc.get_threshold()[0]) or 0; "
+            "code = c._console_script(); print(code, seen, gc.get_freeze_count() > 0)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.stdout.strip() == "0 [10000] True", proc.stdout + proc.stderr
+
+
 def test_compare_refuses_an_earlier_run_unless_told(tmp_path, capsys):
     """An earlier run's outputs are never mixed with a new report: refused without
     --overwrite; with it, exactly the earlier run's files are removed (a user's file stays)."""
