@@ -717,6 +717,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         return fit
 
     def _project(self, d, w, s):
+        """:meth:`project`'s fit of the checked stamps ``d`` with the weights ``w``."""
         level = _border_level(d, w, s)[0] if self.background_ else np.zeros(len(d))
         offsets, ok = self._centroids(d - level[:, None], w, s)
         a, cov, model, offsets, level, moved_ok = self._project_stars(d, w, offsets, s)
