@@ -137,7 +137,7 @@ def test_super_resolved_psf_at_a_new_phase_equals_galsim(optical):
 
 
 def test_weights_from_the_noisy_pixels_do_not_narrow_the_psf(optical):
-    # sky + Poisson noise (gain 0.5) and the weights read_stars computes, from the noisy
+    # sky + Poisson noise (gain 0.5) and the weights extract_vignettes computes, from the noisy
     # pixels: 1 / (sky + max(pixel, 0) / gain). Taken as they are, they downweight upward
     # fluctuations (about -1/gain per pixel), which narrows the PSF (size -0.0045 against
     # the same fit on the true variances, on seeds 5-7); the basis takes the Poisson part

@@ -93,8 +93,8 @@ def stamp_fwhm(stamps, weights=None):
 def _poisson_slope(d, w):
     """Slope ``c`` when each stamp's pixel variances ``1 / w`` are exactly ``sky + c *
     max(pixel, 0)`` (one ``sky`` per stamp): weights whose Poisson part was computed from
-    the noisy pixels themselves (:func:`~sklearn_psf.io.read_stars` with a gain, ``c = 1 /
-    gain``); 0 for any other weights."""
+    the noisy pixels themselves (:func:`~sklearn_psf.io.extract_vignettes` with a gain,
+    ``c = 1 / gain``); 0 for any other weights."""
     m = w > 0
     cnt = np.maximum(m.sum(axis=1), 1)[:, None]
     v = np.where(m, 1.0 / np.where(m, w, 1.0), 0.0)
@@ -112,8 +112,7 @@ def _poisson_slope(d, w):
 def _model_weights(d, w, predicted, c):
     """The weights ``w`` with their Poisson part ``c * max(pixel, 0)`` (see
     :func:`_poisson_slope`) taken from the stars' predicted pixels instead of the noisy ones:
-    weights that fall where the noise is up pull the fit down (by ``c`` per pixel: at
-    gain 4, size bias -0.0007 on the Euclid-like stars of ``bench_undersampled.py``)."""
+    weights that fall where the noise is up pull the fit down (by about ``c`` per pixel)."""
     if not c:
         return w
     m = w > 0
@@ -155,6 +154,14 @@ class SuperResolvedPCA(StampPCA):
       re-centred after each round so that its adaptive centroid (on the fine grid) is the
       stamp centre (the package's convention), and normalised so that, drawn at the pixels,
       it sums to 1;
+    - weights whose Poisson part was computed from the noisy pixels themselves (variances
+      exactly ``sky + max(pixel, 0) / gain`` per stamp, as
+      :func:`~sklearn_psf.io.extract_vignettes` gives them) would weight each pixel by its
+      own noise: upward fluctuations less, a bias of about ``-1 / gain`` per pixel that
+      narrows the PSF (size bias -0.0005 on the Euclid-like CCDs of
+      ``benchmarks/bench_undersampled.py``); that part is taken from the stars' models
+      after each round of their fits (and in :meth:`project`). Other weights are used as
+      given;
     - the number of components: the stars' residuals from the mean, each drawn at its own
       phase, are PCA'd at the pixels' sampling with the noise edge of :class:`StampPCA`
       (``n_components="noise"``); their coefficients start the fine components, which are
@@ -764,9 +771,10 @@ class SuperResolvedPCA(StampPCA):
         """Fit stamps on the basis (see :meth:`StampPCA.project`), each through its phase.
 
         Weights whose Poisson part was computed from the noisy pixels (variances exactly
-        ``sky + max(pixel, 0) / gain`` per stamp, as :func:`~sklearn_psf.io.read_stars`'s)
-        are recomputed from the stars' fitted models and the stars refitted (as in
-        :meth:`fit`): the returned ``weights`` are those.
+        ``sky + max(pixel, 0) / gain`` per stamp, as
+        :func:`~sklearn_psf.io.extract_vignettes` gives them) get it from the stars' fitted
+        models and the stars are refitted (as in :meth:`fit`): the returned ``weights``
+        are those.
 
         Parameters
         ----------
