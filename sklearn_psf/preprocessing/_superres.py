@@ -11,6 +11,7 @@ from sklearn.utils.validation import check_is_fitted
 from ..measure import adaptive_moments, fixed_moments
 from ._pca import (
     FALLBACK_SIGMA,
+    FIT_OK,
     StampPCA,
     _border_level,
     _has_background,
@@ -89,6 +90,36 @@ def stamp_fwhm(stamps, weights=None):
     return fwhm
 
 
+def _poisson_slope(d, w):
+    """Slope ``c`` when each stamp's pixel variances ``1 / w`` are exactly ``sky + c *
+    max(pixel, 0)`` (one ``sky`` per stamp): weights whose Poisson part was computed from
+    the noisy pixels themselves (:func:`~sklearn_psf.io.extract_vignettes` with a gain,
+    ``c = 1 / gain``); 0 for any other weights."""
+    m = w > 0
+    cnt = np.maximum(m.sum(axis=1), 1)[:, None]
+    v = np.where(m, 1.0 / np.where(m, w, 1.0), 0.0)
+    x = np.where(m, np.maximum(d, 0.0), 0.0)
+    xc = np.where(m, x - x.sum(axis=1, keepdims=True) / cnt, 0.0)
+    vc = np.where(m, v - v.sum(axis=1, keepdims=True) / cnt, 0.0)
+    sxx = float((xc**2).sum())
+    if not sxx > 0:
+        return 0.0
+    c = float((xc * vc).sum()) / sxx
+    exact = ((vc - c * xc) ** 2).sum() <= 1e-8 * (vc**2).sum()
+    return c if c > 0 and exact else 0.0
+
+
+def _model_weights(d, w, predicted, c):
+    """The weights ``w`` with their Poisson part ``c * max(pixel, 0)`` (see
+    :func:`_poisson_slope`) taken from the stars' predicted pixels instead of the noisy ones:
+    weights that fall where the noise is up pull the fit down (by about ``c`` per pixel)."""
+    if not c:
+        return w
+    m = w > 0
+    var = 1.0 / np.where(m, w, 1.0) + c * (np.maximum(predicted, 0.0) - np.maximum(d, 0.0))
+    return np.where(m & np.isfinite(predicted), 1.0 / np.where(m, var, 1.0), w)
+
+
 class SuperResolvedPCA(StampPCA):
     """PCA basis on a grid finer than the pixels, for undersampled stars.
 
@@ -123,6 +154,14 @@ class SuperResolvedPCA(StampPCA):
       re-centred after each round so that its adaptive centroid (on the fine grid) is the
       stamp centre (the package's convention), and normalised so that, drawn at the pixels,
       it sums to 1;
+    - weights whose Poisson part was computed from the noisy pixels themselves (variances
+      exactly ``sky + max(pixel, 0) / gain`` per stamp, as
+      :func:`~sklearn_psf.io.extract_vignettes` gives them) would weight each pixel by its
+      own noise: upward fluctuations less, a bias of about ``-1 / gain`` per pixel that
+      narrows the PSF (size bias -0.0005 on the Euclid-like CCDs of
+      ``benchmarks/bench_undersampled.py``); that part is taken from the stars' models
+      after each round of their fits (and in :meth:`project`). Other weights are used as
+      given;
     - the number of components: the stars' residuals from the mean, each drawn at its own
       phase, are PCA'd at the pixels' sampling with the noise edge of :class:`StampPCA`
       (``n_components="noise"``); their coefficients start the fine components, which are
@@ -552,6 +591,7 @@ class SuperResolvedPCA(StampPCA):
         else:
             self.oversampling_ = int(self.oversampling)
         size = self._grid(s)[1]
+        w_given, poisson = w, _poisson_slope(d, w)
         pixel_var = np.where(w > 0, 1.0 / np.where(w > 0, w, 1.0), 0.0).mean(axis=1)
 
         def star_weights(flux):
@@ -609,6 +649,10 @@ class SuperResolvedPCA(StampPCA):
             if self.background_:
                 level = np.where(good, fitted, level)
             a = np.where(usable[:, None], a, 0.0)
+            if poisson and trial is not None:  # the Poisson part from the stars' models
+                w = _model_weights(d, w_given, np.where(usable[:, None], model + level[:, None],
+                                                        np.nan), poisson)
+                pixel_var = np.where(w > 0, 1.0 / np.where(w > 0, w, 1.0), 0.0).mean(axis=1)
             if counted:
                 joint += 1
                 if joint >= n_iter or trial is None:
@@ -722,6 +766,35 @@ class SuperResolvedPCA(StampPCA):
         k, edge = self._choose(lam, total, noise, u[usable] * v[usable] / u.sum(), p)
         coef = (resid - centre) @ axes[:k].T
         return k, lam, edge, noise, np.where(usable[:, None], coef, 0.0)
+
+    def project(self, X, weights=None):
+        """Fit stamps on the basis (see :meth:`StampPCA.project`), each through its phase.
+
+        Weights whose Poisson part was computed from the noisy pixels (variances exactly
+        ``sky + max(pixel, 0) / gain`` per stamp, as
+        :func:`~sklearn_psf.io.extract_vignettes` gives them) get it from the stars' fitted
+        models and the stars are refitted (as in :meth:`fit`): the returned ``weights``
+        are those.
+
+        Parameters
+        ----------
+        X : array-like of shape (n, s*s)
+            Raw stamps, NaN for masked pixels. Not modified.
+        weights : array-like of shape (n, s*s), optional
+            Inverse variance per pixel (0 = masked); default estimated from the stamps.
+
+        Returns
+        -------
+        StampFit
+        """
+        fit = super().project(X, weights)
+        d = np.where(fit.weights > 0, np.nan_to_num(np.asarray(X, dtype=np.float64).reshape(
+            fit.weights.shape)), 0.0)
+        c = _poisson_slope(d, fit.weights)
+        if not c:
+            return fit
+        predicted = np.where((fit.flag == FIT_OK)[:, None], fit.model, np.nan)
+        return super().project(X, _model_weights(d, fit.weights, predicted, c))
 
     def _project_stars(self, d, w, offsets, s):
         """Each star fitted through its own phase on the fine grid (Gauss-Newton on the
