@@ -11,10 +11,11 @@ from sklearn.utils.validation import check_is_fitted
 from ..measure import adaptive_moments, fixed_moments
 from ._pca import (
     FALLBACK_SIGMA,
-    FIT_OK,
     StampPCA,
     _border_level,
     _has_background,
+    _model_weights,
+    _poisson_slope,
     _star_weights,
     _sum_zero,
     _weighted_pca,
@@ -88,36 +89,6 @@ def stamp_fwhm(stamps, weights=None):
             ok = (idet > 0) & (ixx > 0)
             fwhm[bad] = np.where(ok, _FWHM_PER_SIGMA * np.abs(idet) ** -0.25, np.nan)
     return fwhm
-
-
-def _poisson_slope(d, w):
-    """Slope ``c`` when each stamp's pixel variances ``1 / w`` are exactly ``sky + c *
-    max(pixel, 0)`` (one ``sky`` per stamp): weights whose Poisson part was computed from
-    the noisy pixels themselves (:func:`~sklearn_psf.io.extract_vignettes` with a gain,
-    ``c = 1 / gain``); 0 for any other weights."""
-    m = w > 0
-    cnt = np.maximum(m.sum(axis=1), 1)[:, None]
-    v = np.where(m, 1.0 / np.where(m, w, 1.0), 0.0)
-    x = np.where(m, np.maximum(d, 0.0), 0.0)
-    xc = np.where(m, x - x.sum(axis=1, keepdims=True) / cnt, 0.0)
-    vc = np.where(m, v - v.sum(axis=1, keepdims=True) / cnt, 0.0)
-    sxx = float((xc**2).sum())
-    if not sxx > 0:
-        return 0.0
-    c = float((xc * vc).sum()) / sxx
-    exact = ((vc - c * xc) ** 2).sum() <= 1e-8 * (vc**2).sum()
-    return c if c > 0 and exact else 0.0
-
-
-def _model_weights(d, w, predicted, c):
-    """The weights ``w`` with their Poisson part ``c * max(pixel, 0)`` (see
-    :func:`_poisson_slope`) taken from the stars' predicted pixels instead of the noisy ones:
-    weights that fall where the noise is up pull the fit down (by about ``c`` per pixel)."""
-    if not c:
-        return w
-    m = w > 0
-    var = 1.0 / np.where(m, w, 1.0) + c * (np.maximum(predicted, 0.0) - np.maximum(d, 0.0))
-    return np.where(m & np.isfinite(predicted), 1.0 / np.where(m, var, 1.0), w)
 
 
 class SuperResolvedPCA(StampPCA):
@@ -766,35 +737,6 @@ class SuperResolvedPCA(StampPCA):
         k, edge = self._choose(lam, total, noise, u[usable] * v[usable] / u.sum(), p)
         coef = (resid - centre) @ axes[:k].T
         return k, lam, edge, noise, np.where(usable[:, None], coef, 0.0)
-
-    def project(self, X, weights=None):
-        """Fit stamps on the basis (see :meth:`StampPCA.project`), each through its phase.
-
-        Weights whose Poisson part was computed from the noisy pixels (variances exactly
-        ``sky + max(pixel, 0) / gain`` per stamp, as
-        :func:`~sklearn_psf.io.extract_vignettes` gives them) get it from the stars' fitted
-        models and the stars are refitted (as in :meth:`fit`): the returned ``weights``
-        are those.
-
-        Parameters
-        ----------
-        X : array-like of shape (n, s*s)
-            Raw stamps, NaN for masked pixels. Not modified.
-        weights : array-like of shape (n, s*s), optional
-            Inverse variance per pixel (0 = masked); default estimated from the stamps.
-
-        Returns
-        -------
-        StampFit
-        """
-        fit = super().project(X, weights)
-        d = np.where(fit.weights > 0, np.nan_to_num(np.asarray(X, dtype=np.float64).reshape(
-            fit.weights.shape)), 0.0)
-        c = _poisson_slope(d, fit.weights)
-        if not c:
-            return fit
-        predicted = np.where((fit.flag == FIT_OK)[:, None], fit.model, np.nan)
-        return super().project(X, _model_weights(d, fit.weights, predicted, c))
 
     def _project_stars(self, d, w, offsets, s):
         """Each star fitted through its own phase on the fine grid (Gauss-Newton on the
