@@ -279,7 +279,7 @@ def test_iqr_constant_column_and_bad_alpha():
 
 def test_poisson_weights_from_the_noisy_pixels_do_not_bias_the_flux():
     """Weights whose Poisson part comes from the noisy pixels (``sky + max(pixel, 0) /
-    gain``, as ``extract_vignettes`` and ``read_stars`` give them with a gain) weigh the
+    gain``, as ``extract_vignettes`` gives them with a gain) weigh the
     pixels whose noise is down more, so that a weighted fit with them comes out low (-0.8%
     in flux here). StampPCA takes the Poisson part from its models of the stars: the fluxes
     of 400 pixel-integrated Gaussians at random phases come out unbiased against the truth."""

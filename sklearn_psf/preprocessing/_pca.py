@@ -94,9 +94,9 @@ def _with_constant(A, extra):
 def _poisson_slope(d, w):
     """Slope ``c`` when each stamp's pixel variances ``1 / w`` are exactly ``sky + c *
     max(pixel, 0)`` (one ``sky`` per stamp): weights whose Poisson part was computed from
-    the noisy pixels themselves (:func:`~sklearn_psf.io.read_stars` and
-    :func:`~sklearn_psf.io.extract_vignettes` with a gain, ``c = 1 / gain``); 0 for any
-    other weights."""
+    the noisy pixels themselves (:func:`~sklearn_psf.io.extract_vignettes` with a gain, as
+    ``sklearn-psf fit --stars`` reads a catalogue, ``c = 1 / gain``); 0 for any other
+    weights."""
     m = w > 0
     cnt = np.maximum(m.sum(axis=1), 1)[:, None]
     v = np.where(m, 1.0 / np.where(m, w, 1.0), 0.0)
@@ -279,8 +279,8 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
        unmasked pixels: the basis is moved to the star, never the masked data to the basis.
        Weights whose Poisson part was computed from the noisy pixels themselves (variances
        exactly ``sky + max(pixel, 0) / gain`` per stamp, as
-       :func:`~sklearn_psf.io.extract_vignettes` and :func:`~sklearn_psf.io.read_stars`
-       give them with a gain) weigh the pixels whose noise is down more and bias the fit low
+       :func:`~sklearn_psf.io.extract_vignettes` gives them with a gain; an image's weight
+       map is used as given) weigh the pixels whose noise is down more and bias the fit low
        (fluxes -0.8%, sizes -0.07% on GalSim DECam-like stars at gain 4): after the first
        round the Poisson part is taken from the stars' fitted models instead, and
        :meth:`project` fits again with it;
