@@ -201,6 +201,8 @@ def startup_cpu(repeats=3):
     numba's first call (``prepare_workers``), median of ``repeats``: the part of a single-CCD
     command that does not depend on the catalogue."""
     code = ("import gc; gc.set_threshold(10_000, 10, 10); "  # as the command's process
+            "from sklearn_psf.cli import _import_sklearn_without_pandas, _tune_malloc; "
+            "_tune_malloc(); _import_sklearn_without_pandas(); "
             "from sklearn_psf.cli._parallel import prepare_workers; "
             "prepare_workers('sklearn_psf.validation', 'treecorr', 'sklearn_psf.io', "
             "'sklearn_psf.model', 'tqdm.auto'); gc.freeze()")

@@ -129,6 +129,30 @@ def test_console_script_collects_less_often_and_freezes_at_exit():
     assert proc.stdout.strip() == "0 [10000] True", proc.stdout + proc.stderr
 
 
+def test_console_script_keeps_freed_memory_for_the_next_arrays():
+    """In the command's process (glibc), 64 MB of 1 MB arrays made, freed and made again are
+    faulted in once; with the allocator's defaults the heap is trimmed between the two."""
+    import platform
+
+    if platform.libc_ver()[0] != "glibc":
+        pytest.skip("the allocator is tuned only where the C library is glibc")
+    code = ("import resource, sys; import numpy as np; import sklearn_psf.cli as c; "
+            "c._run = lambda args: 0; "
+            "sys.argv = ['sklearn-psf', 'predict', 'm.fits', '--positions', 'xy.txt', '-o', "
+            "'o.fits']; {tune}"
+            "faults = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_minflt; "
+            "make = lambda: [np.ones(1 << 17) for _ in range(64)]; "
+            "a = make(); del a; before = faults(); a = make(); print(faults() - before)")
+    counts = []
+    for tune in ("c._console_script(); ", ""):
+        proc = subprocess.run([sys.executable, "-c", code.format(tune=tune)],
+                              capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr
+        counts.append(int(proc.stdout))
+    # 64 MB are 16,384 pages of 4 kB
+    assert counts[0] < 1_000 and counts[1] > 10_000, counts
+
+
 def test_console_script_imports_sklearn_without_pandas_which_imports_later_as_usual():
     """The command's process imports scikit-learn without pandas (~0.3 s of CPU it never
     uses); pandas imported afterwards is a full module that scikit-learn recognises."""
