@@ -103,13 +103,13 @@ def _tune_malloc():
     that limit only as it sees larger blocks freed) and trims its heap when 2x that limit is
     free: each of the thousands of stamp-sized arrays a fit makes and frees is then faulted
     in again page by page. Blocks up to 32 MB (glibc's own upper limit) now come from the
-    heap, which is trimmed only above 64 MB free and grows by 16 MB at a time (so a
-    process keeps at most ~80 MB it does not use; 256 / 64 MB fault no less): a 16-CCD
-    ``fit`` takes ~65,000 page faults instead of ~400,000 (0.9 s of system CPU instead of
-    1.7 s), ``compare --quick`` ~95,000 instead of ~270,000 (1.1 s instead of 2.3 s); the
-    results are identical. The three
-    parameters are set together: any one alone switches the dynamic limits off at their
-    defaults and multiplies the faults. Nothing is done where the C library is not glibc."""
+    heap, which is trimmed only above 256 MB free and grows by 64 MB at a time, so a process
+    keeps at most ~320 MB it does not use. A 16-CCD ``fit`` then takes ~65,000 page faults
+    instead of ~400,000 (0.9 s of system CPU instead of 1.7 s; with 64 / 16 MB, 220,000 to
+    370,000), ``compare --quick`` ~95,000 instead of ~270,000 (1.1 s instead of 2.3 s); the
+    results are identical. The three parameters are set together: any one alone switches
+    the dynamic limits off at their defaults and multiplies the faults. Nothing is done
+    where the C library is not glibc."""
     import ctypes
     import platform
 
@@ -117,8 +117,8 @@ def _tune_malloc():
         return
     mallopt = ctypes.CDLL(None).mallopt
     m_trim_threshold, m_top_pad, m_mmap_threshold = -1, -2, -3  # glibc's <malloc.h>
-    for param, value in ((m_mmap_threshold, 32 << 20), (m_trim_threshold, 64 << 20),
-                         (m_top_pad, 16 << 20)):
+    for param, value in ((m_mmap_threshold, 32 << 20), (m_trim_threshold, 256 << 20),
+                         (m_top_pad, 64 << 20)):
         mallopt(param, value)
 
 
