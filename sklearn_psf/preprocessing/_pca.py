@@ -91,6 +91,12 @@ def _with_constant(A, extra):
     return np.concatenate([A, np.ones((A.shape[0], 1, A.shape[2]))], axis=1)
 
 
+def _variances(w):
+    """Pixel variances ``1 / w`` of the weights ``w``, 0 where a pixel is masked (``w = 0``)."""
+    m = w > 0
+    return np.where(m, 1.0 / np.where(m, w, 1.0), 0.0)
+
+
 def _poisson_slope(d, w):
     """Slope ``c`` when each stamp's pixel variances ``1 / w`` are exactly ``sky + c *
     max(pixel, 0)`` (one ``sky`` per stamp): weights whose Poisson part was computed from
@@ -99,7 +105,7 @@ def _poisson_slope(d, w):
     weights."""
     m = w > 0
     cnt = np.maximum(m.sum(axis=1), 1)[:, None]
-    v = np.where(m, 1.0 / np.where(m, w, 1.0), 0.0)
+    v = _variances(w)
     x = np.where(m, np.maximum(d, 0.0), 0.0)
     xc = np.where(m, x - x.sum(axis=1, keepdims=True) / cnt, 0.0)
     vc = np.where(m, v - v.sum(axis=1, keepdims=True) / cnt, 0.0)
@@ -632,7 +638,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         comps = np.zeros((0, p))
         a = None
         model = np.zeros((n, p))  # the stars' current model: fills their masked pixels
-        pixel_var = np.where(w > 0, 1.0 / np.where(w > 0, w, 1.0), 0.0).mean(axis=1)
+        pixel_var = _variances(w).mean(axis=1)
         w_given, poisson = w, _poisson_slope(d, w)
         for it in range(int(self.n_iter)):
             safe = np.where(usable, flux, 1.0)
@@ -679,7 +685,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
             if poisson and it + 1 < self.n_iter:  # the next round's Poisson part: the models'
                 w = _model_weights(d, w_given, np.where(good[:, None], model + fitted[:, None],
                                                         np.nan), poisson)
-                pixel_var = np.where(w > 0, 1.0 / np.where(w > 0, w, 1.0), 0.0).mean(axis=1)
+                pixel_var = _variances(w).mean(axis=1)
         norm = mean.sum()  # 1 (the mean was normalised before the last fit of the stars)
         self.mean_ = mean / norm
         self.components_ = comps

@@ -18,6 +18,7 @@ from ._pca import (
     _poisson_slope,
     _star_weights,
     _sum_zero,
+    _variances,
     _weighted_pca,
 )
 from ._normalize import phase_ramp
@@ -563,7 +564,7 @@ class SuperResolvedPCA(StampPCA):
             self.oversampling_ = int(self.oversampling)
         size = self._grid(s)[1]
         w_given, poisson = w, _poisson_slope(d, w)
-        pixel_var = np.where(w > 0, 1.0 / np.where(w > 0, w, 1.0), 0.0).mean(axis=1)
+        pixel_var = _variances(w).mean(axis=1)
 
         def star_weights(flux):
             safe = np.where(usable, np.abs(flux), 1.0)
@@ -623,7 +624,7 @@ class SuperResolvedPCA(StampPCA):
             if poisson and trial is not None:  # the Poisson part from the stars' models
                 w = _model_weights(d, w_given, np.where(usable[:, None], model + level[:, None],
                                                         np.nan), poisson)
-                pixel_var = np.where(w > 0, 1.0 / np.where(w > 0, w, 1.0), 0.0).mean(axis=1)
+                pixel_var = _variances(w).mean(axis=1)
             if counted:
                 joint += 1
                 if joint >= n_iter or trial is None:
