@@ -112,11 +112,13 @@ class SuperResolvedPCA(StampPCA):
       1.2 m at 700 nm and 0.1" pixels, so ``oversampling=2`` holds it exactly (up to the
       wings beyond the stamp). The fine images are held to that band in every direction,
       a disc of radius ``oversampling / 2`` cycles per pixel: the square grid's corners
-      beyond it would hold only noise (and, on noiseless stars, the fit's own error),
-      which a star's sampling aliases into its low frequencies (on the Euclid-like CCDs of
-      ``benchmarks/bench_undersampled.py``, e rms at the truth 0.0042 / 0.0039 without the
-      band limit, 0.0034 / 0.0036 with it, size rms 0.0017 / 0.0017 and 0.0011 / 0.0012; on
-      noiseless Roman-like stars, FWHM 1.4 pixels, size bias +0.0098 and +0.0006);
+      beyond it would hold only noise, which a star's sampling aliases into its low
+      frequencies (on the Euclid-like CCDs of ``benchmarks/bench_undersampled.py``, e rms
+      at the truth 0.0042 / 0.0039 without the band limit, 0.0034 / 0.0036 with it, size
+      rms 0.0017 / 0.0017 and 0.0011 / 0.0012). A PSF with power beyond the disc loses it:
+      Roman-like stars at 1.06 um (``D / lambda`` 1.21 cycles per pixel, FWHM 1.4 pixels,
+      so ``oversampling=2``), drawn without noise, get a size bias of +0.0047 with the band
+      limit and -0.0007 without (e rms 0.0088 and 0.0097);
     - each star is ``flux * image(mean + c @ components, offset) (+ background)``; flux,
       coefficients, background and the sub-pixel offset are fitted on the star's unmasked
       pixels by weighted least squares (Gauss-Newton on the offset, started from the centre
@@ -429,10 +431,9 @@ class SuperResolvedPCA(StampPCA):
     def _band(self):
         """0/1 per frequency of the fine grid's ``rfft2``: 1 within its Nyquist frequency in
         every direction (radius ``oversampling / 2`` cycles per pixel). The square grid's
-        corners beyond that circle hold no PSF the pixels let through (the pixel response
-        vanishes at 1 cycle per pixel along each axis, and diffraction cuts off at
-        ``D / lambda``), only the noise they would fit, which a star's sampling aliases into
-        its low frequencies."""
+        corners beyond that circle hold no PSF whose diffraction cutoff ``D / lambda`` lies
+        within it, only the noise they would fit, which a star's sampling aliases into its
+        low frequencies."""
         size = self._grid(self.stamp_size_)[1]
         k = np.hypot(np.fft.fftfreq(size)[:, None], np.fft.rfftfreq(size)[None, :])
         return (k <= 0.5).astype(float)
