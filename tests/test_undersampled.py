@@ -271,13 +271,13 @@ def test_super_resolved_model_file_predictions_and_galsim(tmp_path, noisy):
 
 def test_super_resolved_psf_is_held_to_the_fine_grids_nyquist_disc(noisy):
     # the square fine grid's corners (beyond oversampling / 2 cycles per pixel in radius)
-    # would hold only noise: the fitted PSF has no power there, and full power within
+    # would hold only noise: the fitted PSF has no power there, and its own just within
     X, stars, weights, model, table, summary = noisy
     S = model.basis_.fine_size_
     power = np.abs(np.fft.fft2(model.predict(X[:5], fine=True).reshape(-1, S, S))) ** 2
     k = np.hypot(*np.meshgrid(np.fft.fftfreq(S), np.fft.fftfreq(S)))  # cycles per sample
-    assert power[:, k > 0.5].max() < 1e-20 * power[:, 0, 0].min()
-    assert power[:, (k > 0.3) & (k <= 0.5)].max() > 1e-8 * power[:, 0, 0].min()
+    assert power[:, k > 0.5].max() < 1e-20 * power[:, 0, 0].min()  # measured 8e-33
+    assert power[:, (k > 0.3) & (k <= 0.5)].max() > 1e-4 * power[:, 0, 0].min()  # 4e-3
 
 
 def test_noiseless_phase_zero_stars_do_not_crash(optical):

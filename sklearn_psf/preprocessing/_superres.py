@@ -201,9 +201,8 @@ class SuperResolvedPCA(StampPCA):
         to 3 with at least 30 stars per term (3 from 300 stars, 2 from 180, 1 from 90).
         On the Euclid-like CCDs of ``benchmarks/bench_undersampled.py`` (~440 stars; before
         the band limit above), degree 3 gives e rms at the truth 0.0043 and 0.0039 (seeds 3
-        and 4; degree 2:
-        0.0050 and 0.0042; no refinement: 0.0050 and 0.0058); on the Roman-like one (~200
-        stars), degree 2 gives 0.0207 against degree 3's 0.0233.
+        and 4; degree 2: 0.0050 and 0.0042; no refinement: 0.0050 and 0.0058); on the
+        Roman-like one (~200 stars), degree 2 gives 0.0207 against degree 3's 0.0233.
 
     Attributes
     ----------
@@ -366,8 +365,7 @@ class SuperResolvedPCA(StampPCA):
         updates. Only the images' frequencies in :meth:`_band` are fitted."""
         n, m = a.shape
         size = self._grid(self.stamp_size_)[1]
-        ramp = ramp * self._band()
-        fine0 = self._band_limited(fine0)
+        ramp = ramp * self._band()  # (``fine0`` comes band-limited, from :meth:`_settle`)
         def keep(x):  # components stay on the PSF's support (``frame``: 0/1 per sample)
             if frame is not None and m > 1:
                 x = x.copy()
