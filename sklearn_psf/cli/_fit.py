@@ -77,6 +77,11 @@ def _add_fit_parsers(sub):
                      "5-fold cross-validation [kriging: range fitted by maximum likelihood]")
     fit.add_argument("--reserve", type=_fraction, default=0.2,
                      help="fraction of stars reserved for validation [0.2]")
+    fit.add_argument("--band-limit", type=_positive, metavar="CYCLES",
+                     help="undersampled stars: the PSF's band limit in cycles per pixel, the "
+                     "optics' cutoff D/lambda times the pixel scale in radians (2.4 m, 1.06 "
+                     "um, 0.11\" pixels: 1.21); the super-resolved basis is then used, its "
+                     "fine grid held to this band [chosen from the stars]")
     fit.add_argument("--stamp-size", type=_stamp_size,
                      help="stamp side [25; a catalogue's VIGNET side]; the star's pixel is at "
                      "index side // 2 (SExtractor's VIGNET convention, even sides too)")
@@ -432,7 +437,8 @@ def _fit_steps(args, lines, fit_warnings, quiet=False):
                     locus_width=args.locus_width, max_spread_model=args.max_spread_model,
                     min_class_star=args.min_class_star, stamp_size=args.stamp_size,
                     interpolator=args.interpolator, reserve=args.reserve,
-                    random_state=args.seed, keys=args.keys, progress=progress)
+                    random_state=args.seed, keys=args.keys, band_limit=args.band_limit,
+                    progress=progress)
         except StarSelectionError as exc:
             hint = ("or use --no-select if the catalogue holds stars only" if args.stars
                     else "or give a star catalogue with --stars")

@@ -40,7 +40,8 @@ column) plus an ``EXPOSURES`` table; a per-exposure model has an ``EXPOSURES`` t
 A super-resolved basis (:class:`~sklearn_psf.preprocessing.SuperResolvedPCA`, for
 undersampled stars) is ``basis_kind`` ``"superres"``: its ``stamppca`` entry adds the fine
 grid (``fine_mean_``, ``fine_components_``, ``oversampling_``, ``fine_size_``, ``fwhm_``,
-``spatial_degree_``: 0 when absent);
+``spatial_degree_``: 0 when absent; ``band_limit_``, cycles per pixel: ``oversampling_ / 2``
+when absent);
 the ``BASIS_*`` HDUs hold the basis drawn at the pixels' sampling.
 
 Format 4 changes no HDU: the default interpolator (``interpolator`` null in ``SPEC``) scales
@@ -210,7 +211,7 @@ def _leaf_steps(transformer):
 
 _STAMPPCA_STATE = ("explained_variance_", "noise_variance_", "noise_edge_", "background_")
 _SUPERRES_STATE = ("fine_mean_", "fine_components_", "oversampling_", "fine_size_", "fwhm_",
-                   "spatial_degree_")
+                   "spatial_degree_", "band_limit_")
 
 
 def _describe_basis(basis, s):
@@ -273,6 +274,8 @@ def _rebuild_basis(kind, normalizer_params, mean, comps, params, state):
             basis.fwhm_ = float(state["fwhm_"])
             # (files written before the joint refinement: none ran)
             basis.spatial_degree_ = int(state.get("spatial_degree_", 0))
+            # (files written before band_limit_ was recorded: the grid's Nyquist disc)
+            basis.band_limit_ = float(state.get("band_limit_", basis.oversampling_ / 2.0))
         return basis
     steps = [(f"stampnormalizer{i or ''}", StampNormalizer(**p))
              for i, p in enumerate(normalizer_params)]

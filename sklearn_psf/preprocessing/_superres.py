@@ -41,6 +41,8 @@ _JOINT_ROUNDS = 4  # rounds of the spatial refinement (converged on Euclid-like 
 _REFINED_ITER = 2  # at most, rounds of the components' fit before the spatial refinement
 _STARS_PER_TERM = 30  # spatial_degree="auto": stars per term of the polynomial, at least
 _MAX_DEGREE = 3  # spatial_degree="auto": at most
+_RING = 0.1  # cycles per pixel: width of the Fourier rings of band_limit="auto"
+_RING_THRESHOLD = 1.0 / 7.0  # band_limit="auto": ring correlation where the signal ends
 
 
 def stamp_fwhm(stamps, weights=None):
@@ -110,15 +112,23 @@ class SuperResolvedPCA(StampPCA):
       beyond the fine grid's Nyquist frequency, ``oversampling / 2`` cycles per pixel: a
       diffraction-limited PSF has none beyond ``D / lambda``, e.g. 0.83 cycles per pixel for
       1.2 m at 700 nm and 0.1" pixels, so ``oversampling=2`` holds it exactly (up to the
-      wings beyond the stamp). The fine images are held to that band in every direction,
-      a disc of radius ``oversampling / 2`` cycles per pixel: the square grid's corners
-      beyond it would hold only noise, which a star's sampling aliases into its low
-      frequencies (on the Euclid-like CCDs of ``benchmarks/bench_undersampled.py``, e rms
-      at the truth 0.0042 / 0.0039 without the band limit, 0.0034 / 0.0036 with it, size
-      rms 0.0017 / 0.0017 and 0.0011 / 0.0012). A PSF with power beyond the disc loses it:
-      Roman-like stars at 1.06 um (``D / lambda`` 1.21 cycles per pixel, FWHM 1.4 pixels,
-      so ``oversampling=2``), drawn without noise, get a size bias of +0.0047 with the band
-      limit and -0.0007 without (e rms 0.0088 and 0.0097);
+      wings beyond the stamp). The fine images are held to a disc in frequency,
+      ``band_limit_`` cycles per pixel in radius: beyond the PSF's own band they would hold
+      only noise, which a star's sampling aliases into its low frequencies. By default
+      (``band_limit="auto"``) the disc ends where the stars' information on the mean ends:
+      where two means, each fitted on half of the stars over the whole square grid, stop
+      agreeing (their Fourier ring correlation, in rings 0.1 cycle per pixel wide, falls
+      below 1/7, cryo-electron microscopy's resolution criterion). On the Euclid-like CCDs
+      of ``benchmarks/bench_undersampled.py`` it finds 0.83-0.84 cycle per pixel, their
+      diffraction cutoff (0.83), and the e rms at the truth is 0.0030 / 0.0031 (0.0042 /
+      0.0039 on the whole square grid, 0.0034 / 0.0036 on the grid's Nyquist disc of
+      ``oversampling / 2`` cycles per pixel), the size rms 0.0012 / 0.0008 (0.0017 / 0.0017
+      and 0.0011 / 0.0012). Where the PSF's power near its cutoff is under the noise, the
+      criterion stops short of the cutoff and the power is lost: Roman-like stars at 1.06 um
+      (``D / lambda`` 1.21 cycles per pixel, FWHM 1.4 pixels, so ``oversampling=2``), where
+      it finds 1.04-1.13, have a size bias of +0.0014 / +0.0050 (-0.0003 / +0.0034 with the
+      optics' cutoff given, ``band_limit=1.21``; +0.0033 / +0.0082 on the Nyquist disc;
+      noiseless, +0.0047 on the Nyquist disc and -0.0007 on the whole grid);
     - each star is ``flux * image(mean + c @ components, offset) (+ background)``; flux,
       coefficients, background and the sub-pixel offset are fitted on the star's unmasked
       pixels by weighted least squares (Gauss-Newton on the offset, started from the centre
@@ -203,6 +213,12 @@ class SuperResolvedPCA(StampPCA):
         the band limit above), degree 3 gives e rms at the truth 0.0043 and 0.0039 (seeds 3
         and 4; degree 2: 0.0050 and 0.0042; no refinement: 0.0050 and 0.0058); on the
         Roman-like one (~200 stars), degree 2 gives 0.0207 against degree 3's 0.0233.
+    band_limit : "auto", float or None, default="auto"
+        Radius (cycles per pixel) of the disc of frequencies the fine images hold (see
+        above). "auto": where the stars' information on the mean ends. A float: the PSF's band limit, the optics' diffraction
+        cutoff ``D / lambda`` times the pixel scale in radians (1.2 m at 700 nm with 0.1"
+        pixels: 0.83; 2.4 m at 1.06 um with 0.11" pixels: 1.21), clipped by the square
+        grid (``oversampling / 2`` along each axis). None: the whole square grid.
 
     Attributes
     ----------
@@ -220,6 +236,9 @@ class SuperResolvedPCA(StampPCA):
     spatial_degree_ : int
         Degree of the joint refinement's polynomial; 0 when none ran (no positions,
         ``spatial_degree`` None or 0, too few stars, or no component).
+    band_limit_ : float
+        Radius (cycles per pixel) of the fine images' disc of frequencies; the square
+        grid's corner, ``oversampling_ / sqrt(2)``, for ``band_limit=None``.
     explained_variance_, noise_variance_, noise_edge_ : float or ndarray
         Of the PCA of the residuals at the pixels' sampling (see above).
     background_ : bool
@@ -251,9 +270,10 @@ class SuperResolvedPCA(StampPCA):
 
     def __init__(self, oversampling="auto", n_components="noise", max_components: int = 10,
                  n_iter: int = 6, max_star_weight: float = 10.0, guess_sigma: float = 3.0,
-                 background="auto", spatial_degree="auto"):
+                 background="auto", spatial_degree="auto", band_limit="auto"):
         self.oversampling = oversampling
         self.spatial_degree = spatial_degree
+        self.band_limit = band_limit
         super().__init__(n_components=n_components, max_components=max_components,
                          n_iter=n_iter, max_star_weight=max_star_weight,
                          guess_sigma=guess_sigma, background=background)
@@ -427,14 +447,44 @@ class SuperResolvedPCA(StampPCA):
         return x
 
     def _band(self):
-        """0/1 per frequency of the fine grid's ``rfft2``: 1 within its Nyquist frequency in
-        every direction (radius ``oversampling / 2`` cycles per pixel). The square grid's
-        corners beyond that circle hold no PSF whose diffraction cutoff ``D / lambda`` lies
-        within it, only the noise they would fit, which a star's sampling aliases into its
-        low frequencies."""
+        """0/1 per frequency of the fine grid's ``rfft2``: 1 within ``band_limit_`` cycles per
+        pixel (a disc, clipped by the square grid's own Nyquist frequencies)."""
         size = self._grid(self.stamp_size_)[1]
         k = np.hypot(np.fft.fftfreq(size)[:, None], np.fft.rfftfreq(size)[None, :])
-        return (k <= 0.5).astype(float)
+        return (k * self.oversampling_ <= self.band_limit_).astype(float)
+
+    def _ring_band(self, d, u, a, offsets, usable):
+        """``band_limit="auto"``: the radius (cycles per pixel) where the stars' information
+        on the mean ends, by the Fourier ring correlation of two means, each fitted on half
+        of the usable stars with the whole square grid (cryo-electron microscopy's
+        resolution criterion): where the correlation, in rings ``_RING`` wide, falls below
+        1/7 (linear between the rings' centres); the whole grid if it does not, the grid's
+        Nyquist disc if it is below from the first ring (no information to go by)."""
+        f, size, _ = self._grid(self.stamp_size_)
+        nyquist = f / 2.0
+        self.band_limit_ = np.sqrt(2.0) * nyquist  # the whole grid for the halves' fits
+        spectra = []
+        for half in (np.flatnonzero(usable)[0::2], np.flatnonzero(usable)[1::2]):
+            mean = self._fit_fine(d[half], u[half], a[half, :1], self._ramps(offsets[half]),
+                                  np.zeros((1, size * size)))
+            spectra.append(np.fft.rfft2(mean.reshape(size, size)))
+        one, two = spectra
+        k = np.hypot(np.fft.fftfreq(size)[:, None], np.fft.rfftfreq(size)[None, :]) * f
+        corner = np.sqrt(2.0) * nyquist
+        centres = np.arange(_RING / 2.0, corner, _RING)
+        frc = np.ones(len(centres))
+        for i, c in enumerate(centres):
+            ring = np.abs(k - c) < _RING / 2.0
+            norm = np.sqrt((np.abs(one[ring]) ** 2).sum() * (np.abs(two[ring]) ** 2).sum())
+            frc[i] = np.real(one[ring] * np.conj(two[ring])).sum() / norm if norm > 0 else 0.0
+        below = np.flatnonzero(frc < _RING_THRESHOLD)
+        if not len(below):
+            return float(corner)
+        if below[0] == 0:
+            return float(nyquist)
+        i = below[0]
+        t = (frc[i - 1] - _RING_THRESHOLD) / (frc[i - 1] - frc[i])
+        return float(min(centres[i - 1] + t * _RING, corner))
 
     def _band_limited(self, fine):
         """Fine images (m, S*S) with their frequencies outside :meth:`_band` removed."""
@@ -536,6 +586,12 @@ class SuperResolvedPCA(StampPCA):
         if not (g is None or g == "auto" if isinstance(g, str) or g is None else
                 isinstance(g, numbers.Integral) and not isinstance(g, bool) and g >= 0):
             raise ValueError(f"spatial_degree must be 'auto', None or an int >= 0, got {g!r}.")
+        b = self.band_limit
+        if not (b is None or (b == "auto" if isinstance(b, str) else
+                              isinstance(b, numbers.Real) and not isinstance(b, bool)
+                              and np.isfinite(b) and b > 0)):
+            raise ValueError(f"band_limit must be 'auto', None or a positive number (cycles "
+                             f"per pixel), got {b!r}.")
 
     def _fit_project(self, X, weights=None, positions=None):
         return self.fit(X, weights=weights, positions=positions).project(X, weights)
@@ -590,6 +646,9 @@ class SuperResolvedPCA(StampPCA):
             self.oversampling_ = 2 if not self.fwhm_ < 1.3 else 3
         else:
             self.oversampling_ = int(self.oversampling)
+        b = self.band_limit
+        self.band_limit_ = (self.oversampling_ / 2.0 if b == "auto" else
+                            np.sqrt(2.0) * self.oversampling_ / 2.0 if b is None else float(b))
         size = self._grid(s)[1]
         w_given, poisson = w, _poisson_slope(d, w)
         pixel_var = _variances(w).mean(axis=1)
@@ -660,6 +719,10 @@ class SuperResolvedPCA(StampPCA):
             elif change < _OFFSET_TOL or round_ + 1 >= _MEAN_ROUNDS:
                 # the mean and the offsets have converged: how many components the stars hold
                 counted = True
+                if self.band_limit == "auto":  # the band narrowed to the stars' information
+                    self.band_limit_ = self._ring_band(d - level[:, None], star_weights(a[:, 0]),
+                                                       a, offsets, usable)
+                    fine = self._band_limited(fine)
                 k, lam, edge, noise, coef = self._components(d - level[:, None], w, a, offsets,
                                                              fine, usable, pixel_var)
                 a = np.column_stack([a[:, 0], a[:, :1] * coef])

@@ -373,7 +373,7 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
                  isolation: float | None = None, locus_width: float | str = "auto",
                  max_spread_model: float = 0.003, min_class_star: float = 0.8,
                  stamp_size: int | None = None, interpolator: str = "kriging",
-                 reserve: float = 0.2, random_state=0, keys=None,
+                 reserve: float = 0.2, random_state=0, keys=None, band_limit=None,
                  progress=None) -> ExposureFit:
     """Fit and validate the PSF model of an exposure, from its files to the verdict.
 
@@ -408,6 +408,13 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     interpolator : str, default="kriging"
         A scheme of :func:`~sklearn_psf.model.make_interpolator`, or ``"auto"`` to choose it
         by cross-validation among them.
+    band_limit : float, optional
+        The PSF's band limit in cycles per pixel, for undersampled stars: the optics'
+        diffraction cutoff ``D / lambda`` times the pixel scale in radians (2.4 m at 1.06 um
+        with 0.11" pixels: 1.21). The model's basis is then
+        ``SuperResolvedPCA(band_limit=band_limit)``, whatever the stars' sampling. Default:
+        :class:`~sklearn_psf.model.PSFModel`'s basis (a super-resolved one, its band chosen
+        from the stars, when they are undersampled).
     reserve : float, default=0.2
         Fraction of the stars reserved for the verdict.
     random_state : int, default=0
@@ -455,6 +462,7 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     """
     from ..io import celestial_wcs, find_stars, select_stars
     from ..model import INTERPOLATORS, PSFModel, make_interpolator
+    from ..preprocessing import SuperResolvedPCA
     from ._fit import fit_and_validate
 
     step = progress or (lambda name: None)
@@ -556,13 +564,15 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     wcs = celestial_wcs(inputs.header)
     options = {"reserve": reserve, "random_state": random_state, "weights": stars.weights,
                "wcs": wcs}
+    basis = None if band_limit is None else SuperResolvedPCA(band_limit=float(band_limit))
     if interpolator == "auto":
-        candidates = {n: PSFModel(interpolator=make_interpolator(n)) for n in INTERPOLATORS}
+        candidates = {n: PSFModel(basis=basis, interpolator=make_interpolator(n))
+                      for n in INTERPOLATORS}
         model, residuals, summary = fit_and_validate(X, stars.stamps, candidates=candidates,
                                                      **options)
     else:
         model, residuals, summary = fit_and_validate(
-            X, stars.stamps, PSFModel(interpolator=make_interpolator(interpolator)),
+            X, stars.stamps, PSFModel(basis=basis, interpolator=make_interpolator(interpolator)),
             **options)
     summary["selection"] = dict(stars.counts)
     summary["image"] = os.path.abspath(inputs.image_path or inputs.catalog_path or ".")
