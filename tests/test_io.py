@@ -488,6 +488,33 @@ def test_psf_maps_use_the_page_whatever_the_chip_aspect(shape):
     plt.close(fig)
 
 
+@pytest.mark.parametrize("sigma, moments", [(2.0, "adaptive-moment"),
+                                             (0.5, "fixed-weight (1.5 px) moment")])
+def test_psf_maps_name_the_moments_they_measure(sigma, moments):
+    """Undersampled models (adaptive moments fail: "object too small") are mapped with
+    fixed-weight moments, and the titles say which."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from sklearn_psf.validation import plot_psf_maps
+
+    class Round:
+        X_fit_ = np.array([[100.0, 100.0], [900.0, 900.0]])
+
+        def predict(self, X):
+            yy, xx = np.mgrid[-7:8, -7:8]
+            g = np.exp(-(xx**2 + yy**2) / (2 * sigma**2)).ravel()
+            return np.tile(g / g.sum(), (len(X), 1))
+
+    fig = plot_psf_maps(Round(), (1000, 1000), n_grid=4)
+    titles = [ax.get_title() for ax in fig.axes[:2]]
+    assert titles[0].startswith(f"model ellipticity, {moments}s"), titles
+    assert f"({moments} sigma)" in titles[1], titles
+    plt.close(fig)
+
+
 def test_even_stamps_are_cut_with_the_star_at_index_half_the_side(field):
     """32x32 cut-outs: the star's pixel floor(x + 0.5) at index 16, as SExtractor's VIGNET
     and GalSim's Image.center; stars at the edge are skipped by the even stamp's own extent."""
