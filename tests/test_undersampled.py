@@ -308,6 +308,18 @@ def test_band_limit_given_holds_the_fine_psf_to_it(optical):
         assert power[(k > band - 0.2) & (k <= band)].max() > 1e-7 * power[0, 0]  # 0.04, 6e-7
 
 
+def test_band_limit_auto_needs_enough_stars_to_split(optical):
+    # halves of a few stars each cannot resolve what all of them do (2-12 Euclid-like stars:
+    # their correlation gave 0.57-0.67 cycle per pixel): under 20 stars at oversampling 2
+    # the band is the grid's Nyquist disc; from 20 on, the stars' own (the cutoff, 0.83)
+    rng = np.random.default_rng(1)
+    off = rng.uniform(-0.5, 0.5, (40, 2))
+    stars = np.array([_draw(optical, o) for o in off]).reshape(40, -1) * 3e3
+    stars += rng.normal(0.0, 1.0, stars.shape)
+    assert SuperResolvedPCA().fit(stars[:19]).band_limit_ == 1.0
+    assert abs(SuperResolvedPCA().fit(stars).band_limit_ - 0.83) < 0.05  # measured 0.833
+
+
 @pytest.mark.parametrize("band", [0, -1.0, np.nan, np.inf, True, "nyquist"])
 def test_band_limit_must_be_auto_none_or_positive(band):
     with pytest.raises(ValueError, match="band_limit must be"):

@@ -43,6 +43,9 @@ _STARS_PER_TERM = 30  # spatial_degree="auto": stars per term of the polynomial,
 _MAX_DEGREE = 3  # spatial_degree="auto": at most
 _RING = 0.1  # cycles per pixel: width of the Fourier rings of band_limit="auto"
 _RING_THRESHOLD = 1.0 / 7.0  # band_limit="auto": ring correlation where the signal ends
+_RING_STARS = 2.5  # band_limit="auto": usable stars per half and per fine sample of a pixel,
+# at least (10 per half at oversampling 2: with fewer the halves' fits stop short of the
+# band that all the stars resolve, e.g. 0.57-0.67 cycle per pixel for 2-12 Euclid-like stars)
 
 
 def stamp_fwhm(stamps, weights=None):
@@ -118,7 +121,8 @@ class SuperResolvedPCA(StampPCA):
       (``band_limit="auto"``) the disc ends where the stars' information on the mean ends:
       where two means, each fitted on half of the stars over the whole square grid, stop
       agreeing (their Fourier ring correlation, in rings 0.1 cycle per pixel wide, falls
-      below 1/7, cryo-electron microscopy's resolution criterion). On the Euclid-like CCDs
+      below 1/7, cryo-electron microscopy's resolution criterion; with fewer than 20 stars,
+      45 at ``oversampling=3``, the grid's Nyquist disc). On the Euclid-like CCDs
       of ``benchmarks/bench_undersampled.py`` it finds 0.83-0.84 cycle per pixel, their
       diffraction cutoff (0.83), and the e rms at the truth is 0.0030 / 0.0031 (0.0042 /
       0.0039 on the whole square grid, 0.0034 / 0.0036 on the grid's Nyquist disc of
@@ -459,9 +463,12 @@ class SuperResolvedPCA(StampPCA):
         of the usable stars with the whole square grid (cryo-electron microscopy's
         resolution criterion): where the correlation, in rings ``_RING`` wide, falls below
         1/7 (linear between the rings' centres); the whole grid if it does not, the grid's
-        Nyquist disc if it is below from the first ring (no information to go by)."""
+        Nyquist disc if it is below from the first ring (no information to go by) or with
+        fewer than ``2 * _RING_STARS * oversampling**2`` usable stars (20 at oversampling 2)."""
         f, size, _ = self._grid(self.stamp_size_)
         nyquist = f / 2.0
+        if usable.sum() < 2 * _RING_STARS * f * f:  # too few stars to split
+            return float(nyquist)
         self.band_limit_ = np.sqrt(2.0) * nyquist  # the whole grid for the halves' fits
         spectra = []
         for half in (np.flatnonzero(usable)[0::2], np.flatnonzero(usable)[1::2]):
