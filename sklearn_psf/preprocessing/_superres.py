@@ -219,10 +219,11 @@ class SuperResolvedPCA(StampPCA):
         Roman-like one (~200 stars), degree 2 gives 0.0207 against degree 3's 0.0233.
     band_limit : "auto", float or None, default="auto"
         Radius (cycles per pixel) of the disc of frequencies the fine images hold (see
-        above). "auto": where the stars' information on the mean ends. A float: the PSF's band limit, the optics' diffraction
-        cutoff ``D / lambda`` times the pixel scale in radians (1.2 m at 700 nm with 0.1"
-        pixels: 0.83; 2.4 m at 1.06 um with 0.11" pixels: 1.21), clipped by the square
-        grid (``oversampling / 2`` along each axis). None: the whole square grid.
+        above). "auto": where the stars' information on the mean ends. A float: the PSF's
+        band limit, the optics' diffraction cutoff ``D / lambda`` times the pixel scale in
+        radians (1.2 m at 700 nm with 0.1" pixels: 0.83; 2.4 m at 1.06 um with 0.11"
+        pixels: 1.21), clipped by the square grid (``oversampling / 2`` along each axis).
+        None: the whole square grid.
 
     Attributes
     ----------
@@ -726,7 +727,7 @@ class SuperResolvedPCA(StampPCA):
             elif change < _OFFSET_TOL or round_ + 1 >= _MEAN_ROUNDS:
                 # the mean and the offsets have converged: how many components the stars hold
                 counted = True
-                if self.band_limit == "auto":  # the band narrowed to the stars' information
+                if self.band_limit == "auto":  # the band the stars' information reaches
                     self.band_limit_ = self._ring_band(d - level[:, None], star_weights(a[:, 0]),
                                                        a, offsets, usable)
                     fine = self._band_limited(fine)
