@@ -380,17 +380,19 @@ class SuperResolvedPCA(StampPCA):
         return a, cov, model, offsets, level, ok
 
     # -- the fine images' joint fit -----------------------------------------------------------
-    def _fit_fine(self, target, u, a, ramp, fine0, J=None, tol=_CG_TOL, frame=None):
+    def _fit_fine(self, target, u, a, ramp, fine0, J=None, tol=_CG_TOL, frame=None,
+                  band=None):
         """Fine images x (m, S*S) minimising ``sum_n ||target_n - draw_n(a_n @ x)||^2`` in
         the pixel weights ``u`` (n, p), conjugate gradients from ``fine0``. With ``J`` (n, q, p),
         each star's residual is taken orthogonally (in ``u``) to the span of its rows: the
         star's own parameters (flux, coefficients, offset, background) are profiled out, so
         that ``target`` = the stars' residuals gives the Gauss-Newton step of all parameters
         together (variable projection). Rows of ``frame`` are kept out of the components'
-        updates. Only the images' frequencies in :meth:`_band` are fitted."""
+        updates. Only the images' frequencies in ``band`` (default :meth:`_band`) are fitted."""
         n, m = a.shape
         size = self._grid(self.stamp_size_)[1]
-        ramp = ramp * self._band()  # (``fine0`` comes band-limited, from :meth:`_settle`)
+        # (``fine0`` comes band-limited, from :meth:`_settle`)
+        ramp = ramp * (self._band() if band is None else band)
         def keep(x):  # components stay on the PSF's support (``frame``: 0/1 per sample)
             if frame is not None and m > 1:
                 x = x.copy()
@@ -451,12 +453,16 @@ class SuperResolvedPCA(StampPCA):
             rz = rz_new
         return x
 
+    def _radius(self):
+        """Radius (cycles per pixel) of each frequency of the fine grid's ``rfft2``."""
+        size = self._grid(self.stamp_size_)[1]
+        k = np.hypot(np.fft.fftfreq(size)[:, None], np.fft.rfftfreq(size)[None, :])
+        return k * self.oversampling_
+
     def _band(self):
         """0/1 per frequency of the fine grid's ``rfft2``: 1 within ``band_limit_`` cycles per
         pixel (a disc, clipped by the square grid's own Nyquist frequencies)."""
-        size = self._grid(self.stamp_size_)[1]
-        k = np.hypot(np.fft.fftfreq(size)[:, None], np.fft.rfftfreq(size)[None, :])
-        return (k * self.oversampling_ <= self.band_limit_).astype(float)
+        return (self._radius() <= self.band_limit_).astype(float)
 
     def _ring_band(self, d, u, a, offsets, usable):
         """``band_limit="auto"``: the radius (cycles per pixel) where the stars' information
@@ -470,14 +476,14 @@ class SuperResolvedPCA(StampPCA):
         nyquist = f / 2.0
         if usable.sum() < 2 * _RING_STARS * f * f:  # too few stars to split
             return float(nyquist)
-        self.band_limit_ = np.sqrt(2.0) * nyquist  # the whole grid for the halves' fits
+        k = self._radius()
+        whole = np.ones_like(k)  # the halves' fits: the whole square grid
         spectra = []
         for half in (np.flatnonzero(usable)[0::2], np.flatnonzero(usable)[1::2]):
             mean = self._fit_fine(d[half], u[half], a[half, :1], self._ramps(offsets[half]),
-                                  np.zeros((1, size * size)))
+                                  np.zeros((1, size * size)), band=whole)
             spectra.append(np.fft.rfft2(mean.reshape(size, size)))
         one, two = spectra
-        k = np.hypot(np.fft.fftfreq(size)[:, None], np.fft.rfftfreq(size)[None, :]) * f
         corner = np.sqrt(2.0) * nyquist
         centres = np.arange(_RING / 2.0, corner, _RING)
         frc = np.ones(len(centres))
