@@ -488,8 +488,8 @@ def test_psf_maps_use_the_page_whatever_the_chip_aspect(shape):
     plt.close(fig)
 
 
-@pytest.mark.parametrize("sigma, moments", [(2.0, "adaptive-moment"),
-                                             (0.5, "fixed-weight (1.5 px) moment")])
+@pytest.mark.parametrize("sigma, moments", [(2.0, "adaptive"),
+                                             (0.5, "fixed-weight (1.5 px)")])
 def test_psf_maps_name_the_moments_they_measure(sigma, moments):
     """Undersampled models (adaptive moments fail: "object too small") are mapped with
     fixed-weight moments, and the titles say which."""
@@ -510,8 +510,8 @@ def test_psf_maps_name_the_moments_they_measure(sigma, moments):
 
     fig = plot_psf_maps(Round(), (1000, 1000), n_grid=4)
     titles = [ax.get_title() for ax in fig.axes[:2]]
-    assert titles[0].startswith(f"model ellipticity, {moments}s"), titles
-    assert f"({moments} sigma)" in titles[1], titles
+    assert titles[0].startswith(f"model ellipticity, {moments} moments"), titles
+    assert f"(sigma of the {moments} moments)" in titles[1], titles
     plt.close(fig)
 
 

@@ -295,10 +295,10 @@ def plot_psf_maps(model, shape, n_grid: int = 20):
     grid = np.column_stack([gx.ravel(), gy.ravel()]
                            + [np.full(gx.size, np.median(c)) for c in X_fit[:, 2:].T])
     stamps = model.predict(grid)
-    mom, moments = adaptive_moments(stamps), "adaptive-moment"
+    mom, moments = adaptive_moments(stamps), "adaptive"
     if np.mean(np.asarray(mom["flag"]) != 0) > 0.5:  # undersampled: fixed-weight moments
         mom = fixed_moments(stamps, FIXED_WEIGHT_SIGMA)
-        moments = f"fixed-weight ({FIXED_WEIGHT_SIGMA:g} px) moment"
+        moments = f"fixed-weight ({FIXED_WEIGHT_SIGMA:g} px)"
     e1 = np.asarray(mom["e1"], float).reshape(gx.shape)
     e2 = np.asarray(mom["e2"], float).reshape(gx.shape)
     sigma = np.asarray(mom["sigma"], float).reshape(gx.shape)
@@ -316,13 +316,14 @@ def plot_psf_maps(model, shape, n_grid: int = 20):
     emax = float(np.nanmax(np.hypot(e1, e2))) or 1e-3
     _whisker(axes[0], gx.ravel(), gy.ravel(), e1.ravel(), e2.ravel(), 0.9 * step / emax, "k",
              "model")
-    axes[0].set_title(f"model ellipticity, {moments}s\n(longest whisker: |e| = {emax:.3f})")
+    axes[0].set_title(f"model ellipticity, {moments} moments\n(longest whisker: |e| = "
+                      f"{emax:.3f})")
     im = axes[1].imshow(sigma, origin="lower", extent=(0, nx, 0, ny), cmap="viridis",
                         aspect="equal")
     fig.colorbar(im, ax=axes[1], label=r"$\sigma$ [pixel]", shrink=0.8)
     stars = np.asarray(getattr(model, "X_fit_", np.zeros((0, 2))))
     axes[1].plot(stars[:, 0], stars[:, 1], ".", color="w", ms=2, label="fitted stars")
-    axes[1].set_title(f"model size\n({moments} sigma)")
+    axes[1].set_title(f"model size\n(sigma of the {moments} moments)")
     for ax in axes:
         ax.set_xlim(0, nx)
         ax.set_ylim(0, ny)
