@@ -27,6 +27,18 @@ source within 1 px and FLAGS 0.
 ``--optics-band`` also runs ``sklearn-psf fit --band-limit`` with the optics' cutoff
 ``D / lambda`` in cycles per pixel (0.83 Euclid-like, 1.21 Roman-like).
 
+``--noise-draws K`` runs every tool again on K new noise realisations of the same CCD (same
+sources, dead columns and truth: ``render_galsim_ccd(noise_seed=1..K)``), each catalogued
+afresh, and prints each figure's mean and standard deviation over the K + 1 runs: how much of
+a figure measured on one CCD is that CCD's noise.
+
+``--bound`` prints the Cramer-Rao bound of the mean PSF's size from the CCD's clean stars
+for a model on a fine grid (the mean fine image free within a band, each star's flux and
+offset free, the noise of every pixel its sky plus signal / gain): the smallest standard
+deviation that the size bias measured on one CCD can have, for a fit that is unbiased on
+average. It is evaluated at the band the default fit found, the optics' cutoff and the whole
+grid.
+
 Run: ``python benchmarks/bench_undersampled.py [--seed 3] [--n-stars 600] [--field roman]``
 (~5 min with PIFF on 2 shared cores).
 """
@@ -183,7 +195,81 @@ def main(argv=None):
     parser.add_argument("--optics-band", action="store_true",
                         help="also run sklearn-psf fit with --band-limit the optics' cutoff "
                              "D/lambda (0.83 cycles per pixel Euclid-like, 1.21 Roman-like)")
+    parser.add_argument("--noise-draws", type=int, default=0, metavar="K",
+                        help="run every tool again on K new noise realisations of the same "
+                             "CCD (same sources, render_galsim_ccd's noise_seed 1..K) and print "
+                             "each figure's mean and standard deviation over the K + 1 runs")
+    parser.add_argument("--bound", action="store_true",
+                        help="also print the Cramer-Rao bound of the mean PSF's size from the "
+                             "CCD's clean stars, for a fine-grid model held to the band fit "
+                             "found, the optics' cutoff and the whole grid")
     args = parser.parse_args(argv)
+    n, side, scale = args.size, 25, FIELDS[args.field][0]
+    psf = _psf_factory(n, args.field)
+    rng = np.random.default_rng(args.seed + 1)
+    P = rng.uniform(0, n - 1, (args.n_truth, 2))
+    truth = _truth(psf, P, side, scale)
+    rows, n_ours, notes, ccd, cat, found = _run(args, psf, P, truth, None)
+    print(f"\naccuracy at the truth ({args.n_truth} positions, fixed-weight moments sigma "
+          "1.5 px, native sampling, phase 0 for every model)")
+    print(f"{'model':<42} {'e rms':>8} {'size rms':>9} {'size bias':>10} {'stars':>6} "
+          f"{'CPU s':>6}")
+    for name, e, s, b, used, c in rows:
+        print(f"{name:<42} {e:8.4f} {s:9.4f} {b:+10.4f} {used:6d} {c:6.1f}")
+    print()
+    _ratios(rows, n_ours)
+    print(notes)
+    if args.bound:
+        clean, _ = _clean(ccd.stars, cat)
+        _, lam, diam, _, _ = FIELDS[args.field]
+        cutoff = diam / (lam * 1e-9) * scale / 206264.806
+        bands = [found, cutoff, None]
+        print(f"\nCramer-Rao bound of the mean PSF's relative size, fixed-weight at phase 0, "
+              f"from the {int(clean.sum())} clean stars (a fine-grid model: the mean fine image "
+              "free within the band, each star's flux and offset free; noise sky + signal / "
+              "gain; linearised at the fit of the stars drawn without noise, whose size bias "
+              "at the truth is given): the smallest standard deviation of one CCD's size bias "
+              "for a fit unbiased at that band")
+        names = ["found by fit", "optics' D / lambda", "whole grid"]
+        for name, band, (sd, bias) in zip(names, bands,
+                                          _size_bound(ccd, clean, side, bands, P, truth)):
+            where = "" if band is None else f" ({band:.2f} cycles per pixel)"
+            print(f"  {name}{where}: standard deviation {sd:.1e}; noiseless fit's size bias "
+                  f"{bias:+.4f}")
+    if not args.noise_draws:
+        return
+    runs = [rows]
+    for k in range(1, args.noise_draws + 1):
+        runs.append(_run(args, psf, P, truth, k)[0])
+        print(f"noise draw {k}: " + "; ".join(f"{r[0]} {r[1]:.4f} / {r[2]:.4f} / {r[3]:+.4f}"
+                                              for r in runs[-1]), flush=True)
+    figures = np.array([[r[1:4] for r in rows] for rows in runs])  # (run, model, 3)
+    mean, sd = figures.mean(axis=0), figures.std(axis=0, ddof=1)
+    print(f"\nover the CCD's own noise and {args.noise_draws} new noise draws (same sources): "
+          "mean +- standard deviation of e rms / size rms / size bias; share of runs with "
+          "|size bias| < 1e-3")
+    for i, row in enumerate(rows):
+        within = np.mean(np.abs(figures[:, i, 2]) < 1e-3)
+        print(f"{row[0]:<42} " + "  ".join(f"{m:+.4f} +- {d:.4f}" if j == 2 else
+                                         f"{m:.4f} +- {d:.4f}"
+                                         for j, (m, d) in enumerate(zip(mean[i], sd[i])))
+              + f"  {within:.0%}")
+    _ratios([(row[0], *mean[i]) for i, row in enumerate(rows)], n_ours, "mean ")
+
+
+def _ratios(rows, n_ours, what=""):
+    """Print our rows' e rms and size rms over the best peer's (rows: name, e, size, ...)."""
+    e_best = min(rows[n_ours:], key=lambda r: r[1])
+    s_best = min(rows[n_ours:], key=lambda r: r[2])
+    for row in rows[:n_ours]:
+        print(f"{row[0]} / best peer: {what}e rms {row[1] / e_best[1]:.2f}x ({e_best[0]}), "
+              f"{what}size rms {row[2] / s_best[2]:.2f}x ({s_best[0]})")
+
+
+def _run(args, psf, P, truth, noise_seed):
+    """Render the CCD (``noise_seed``: see :func:`render_galsim_ccd`), catalogue it and run
+    every tool on it: rows (name, e rms, size rms, size bias, stars, CPU s), how many rows are
+    ours (the first), and the notes printed under the table (star counts, our verdict)."""
     from astropy.io import fits
 
     from sklearn_psf.io import run_psfex, run_sextractor
@@ -193,22 +279,18 @@ def main(argv=None):
     import galsim.des  # noqa: F401  (not imported by galsim itself)
 
     n, side, scale = args.size, 25, FIELDS[args.field][0]
-    psf = _psf_factory(n, args.field)
     work = Path(tempfile.mkdtemp(prefix="bench_undersampled_"))
     t = time.time()
     ccd = render_galsim_ccd(shape=(n, n), pixel_scale=scale, n_stars=args.n_stars,
                             n_galaxies=args.n_stars, psf=psf, snr_range=(30.0, 1000.0),
-                            random_state=args.seed)
+                            random_state=args.seed, noise_seed=noise_seed)
     image = ccd.write(work, overwrite=True)
     cat = run_sextractor(image, work / "cat.ldac", weight_path=ccd.weight_path(image),
                          vignet=(side, side), overwrite=True)
-    print(f"CCD {n}x{n} at {scale}\"/px, {len(ccd.stars)} stars: rendered and catalogued in "
-          f"{time.time() - t:.0f} s ({work})")
-    rng = np.random.default_rng(args.seed + 1)
-    P = rng.uniform(0, n - 1, (args.n_truth, 2))
-    truth = _truth(psf, P, side, scale)
+    if noise_seed is None:
+        print(f"CCD {n}x{n} at {scale}\"/px, {len(ccd.stars)} stars: rendered and catalogued "
+              f"in {time.time() - t:.0f} s ({work})")
     rows = []
-
     env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
            "MKL_NUM_THREADS": "1"}
     _, lam, diam, _, _ = FIELDS[args.field]
@@ -228,6 +310,7 @@ def main(argv=None):
         if not extra:
             report = [line for line in out.stdout.splitlines() if "reserved stars" in line]
             kept = f"{used} of {n_fitted}"
+            found = float(model.basis_.band_limit_)
         rows.append((name, *_scores(model.predict(P), truth), used, cpu))
     for sampling in (0.0, 0.5):
         cpu = _cpu()
@@ -245,41 +328,33 @@ def main(argv=None):
         psfex = galsim.des.DES_PSFEx(str(path))  # profiles in pixels, 1-based positions
         pred = np.array([_phase_zero(psfex.getPSF(galsim.PositionD(x + 1.0, y + 1.0)), side,
                                      1.0) for x, y in P])
-        name = f"PSFEx PSF_SAMPLING {'auto' if not sampling else sampling} ({actual:.2f})"
+        name = f"PSFEx PSF_SAMPLING {'auto' if not sampling else sampling}"
+        if noise_seed is None:
+            name += f" ({actual:.2f})"
         rows.append((name, *_scores(pred, truth), used, cpu))
     if args.no_piff:
-        print("PIFF: skipped (--no-piff)")
+        if noise_seed is None:
+            print("PIFF: skipped (--no-piff)")
     else:
         got = _run_piff(image, ccd.weight_path(image), _selected_stars(cat, side),
                         work / "piff", side, scale, ccd.header["SKYLEVEL"], ccd.header["GAIN"],
                         P, env)
         if isinstance(got, str):
-            print(f"PIFF: skipped ({got})")
+            if noise_seed is None:
+                print(f"PIFF: skipped ({got})")
         else:
             rows.append(("PIFF PixelGrid 0.5 px + BasisPolynomial 2", *_scores(got[0], truth),
                          *got[1:]))
     clean, selected = _clean_stars(ccd.stars, cat, _selected_stars(cat, side))
-    print(f"\naccuracy at the truth ({args.n_truth} positions, fixed-weight moments sigma "
-          "1.5 px, native sampling, phase 0 for every model)")
-    print(f"{'model':<42} {'e rms':>8} {'size rms':>9} {'size bias':>10} {'stars':>6} "
-          f"{'CPU s':>6}")
-    for name, e, s, b, used, c in rows:
-        print(f"{name:<42} {e:8.4f} {s:9.4f} {b:+10.4f} {used:6d} {c:6.1f}")
-    e_best = min(rows[len(ours):], key=lambda r: r[1])
-    s_best = min(rows[len(ours):], key=lambda r: r[2])
-    print()
-    for row in rows[:len(ours)]:
-        print(f"{row[0]} / best peer: e rms {row[1] / e_best[1]:.2f}x ({e_best[0]}), size rms "
-              f"{row[2] / s_best[2]:.2f}x ({s_best[0]})")
-    print(f"clean stars (unsaturated true stars catalogued within 1 px, FLAGS 0): {clean}; "
-          f"selected by fit: {selected} ({selected / clean:.1%}); fitted stars kept: "
-          f"{kept} ({rows[0][0]})")
-    print("our verdict lines:\n  " + "\n  ".join(report))
+    notes = (f"clean stars (unsaturated true stars catalogued within 1 px, FLAGS 0): {clean}; "
+             f"selected by fit: {selected} ({selected / clean:.1%}); fitted stars kept: "
+             f"{kept} ({rows[0][0]})\nour verdict lines:\n  " + "\n  ".join(report))
+    return rows, len(ours), notes, ccd, cat, found
 
 
-def _clean_stars(truth, cat, selected):
-    """Clean stars (unsaturated true stars with a catalogue source within 1 px and FLAGS 0)
-    and how many of them fit selects."""
+def _clean(truth, cat):
+    """Clean stars (unsaturated true stars with a catalogue source within 1 px and FLAGS 0):
+    a mask over ``truth``'s rows, and each one's catalogue position."""
     from scipy.spatial import cKDTree
 
     from sklearn_psf.validation import read_exposure
@@ -287,11 +362,112 @@ def _clean_stars(truth, cat, selected):
     table = read_exposure(catalog=cat).catalog
     xy = np.column_stack([table["x"], table["y"]])
     flags = np.asarray(table["flags"]) if "flags" in table.colnames else np.zeros(len(xy))
-    true = np.column_stack([truth["x"], truth["y"]])[~np.asarray(truth["saturated"])]
-    dist, idx = cKDTree(xy).query(true)
+    dist, idx = cKDTree(xy).query(np.column_stack([truth["x"], truth["y"]]))
     found = (dist < 1.0) & (flags[np.minimum(idx, len(xy) - 1)] == 0)
-    dist, _ = cKDTree(selected).query(xy[idx[found]])
-    return int(found.sum()), int((dist < 1e-6).sum())
+    return found & ~np.asarray(truth["saturated"]), xy[np.minimum(idx, len(xy) - 1)]
+
+
+def _clean_stars(truth, cat, selected):
+    """How many clean stars (see :func:`_clean`) there are and how many of them fit selects."""
+    from scipy.spatial import cKDTree
+
+    clean, xy = _clean(truth, cat)
+    dist, _ = cKDTree(selected).query(xy[clean])
+    return int(clean.sum()), int((dist < 1e-6).sum())
+
+
+def _size_bound(ccd, clean, side, bands, P, truth):
+    """Cramer-Rao bound of the mean PSF's relative size (fixed-weight, phase 0) from the
+    clean stars, for a fine-grid model of the PSF: the mean fine image free within each band
+    (cycles per pixel; None: the whole square grid), each star's flux and offset free, every
+    pixel's noise its sky plus signal / gain. Linearised at ``SuperResolvedPCA``'s fit on the
+    stars drawn without noise at their true positions and fluxes (the truth known); uses the
+    basis's own drawing methods. Returns, per band, (standard deviation of ln size, the
+    noiseless fit's size bias at the truth)."""
+    import galsim
+
+    from sklearn_psf.measure import fixed_moments
+    from sklearn_psf.model import PSFModel
+    from sklearn_psf.preprocessing import SuperResolvedPCA
+
+    stars = ccd.stars[clean]
+    sky, gain = ccd.header["SKYLEVEL"] / ccd.header["GAIN"], ccd.header["GAIN"]
+    X = np.column_stack([stars["x"], stars["y"]])
+    c = np.round(X)
+    stamps = np.array([galsim.Convolve(ccd.psf(x, y), galsim.Pixel(ccd.pixel_scale))
+                       .drawImage(nx=side, ny=side, scale=ccd.pixel_scale, method="no_pixel",
+                                  offset=(x - cx, y - cy)).array.ravel() * flux
+                       for (x, y), (cx, cy), flux in zip(X, c, stars["flux"])])
+    u = 1.0 / (sky + np.maximum(stamps, 0.0) / gain)
+    out = []
+    for band in bands:
+        model = PSFModel(basis=SuperResolvedPCA(band_limit=band), outliers=None).fit(
+            X, stamps, weights=u)
+        b = model.basis_
+        fit = b.project(stamps, u)
+        f, size, o = b._grid(side)
+        mask = b._band()
+        flux = np.asarray(fit.flux)[:, None]
+        ramp = b._ramps(np.asarray(fit.offsets)) * mask
+        mean = b.fine_mean_
+        fmean = np.fft.rfft2(mean.reshape(1, size, size))
+        # each star's flux and offset, profiled out of its pixels (in u)
+        J = np.concatenate([b._draw_sum(fmean, np.ones_like(flux), ramp)[:, None],
+                            b._gradient(fmean, flux, ramp)], axis=1)
+        Ju = J * u[:, None, :]
+        JuJ = np.linalg.pinv(Ju @ J.transpose(0, 2, 1), hermitian=True)
+
+        def fisher(x):
+            pix = b._draw_sum(np.fft.rfft2(x.reshape(1, size, size)), flux, ramp)
+            pix = u * pix - ((JuJ @ (Ju @ pix[:, :, None]))[:, :, 0][:, None, :] @ Ju)[:, 0]
+            back = np.einsum("bi,byx->iyx", flux, b._draw_adjoint(pix, ramp))
+            return np.fft.irfft2(back, s=(size, size)).ravel()
+
+        # the size at phase 0 after recentring on the fine image's own Gaussian-weighted
+        # centroid: unchanged by a shift of the mean that every star's offset takes up
+        yy, xx = (np.mgrid[0:size, 0:size] - (size - 1) / 2) / f
+
+        def sizes(images):
+            img = images.reshape(-1, size, size)
+            cen = np.zeros((len(img), 2))
+            for _ in range(4):
+                w = img * np.exp(-((xx - cen[:, :1, None]) ** 2 + (yy - cen[:, 1:, None]) ** 2)
+                                 / (2 * 1.5**2))
+                cen = np.stack([(w * xx).sum((1, 2)), (w * yy).sum((1, 2))], 1) \
+                    / w.sum((1, 2))[:, None]
+            drawn = np.fft.irfft2(np.fft.rfft2(img) * b._ramps(-cen) * mask, s=(size, size))
+            return fixed_moments(f * f * drawn[:, o:o + f * side:f, o:o + f * side:f],
+                                 1.5)["sigma"]
+
+        h = 1e-5 * np.abs(mean).max()
+        grad = np.empty(mean.size)
+        for lo in range(0, mean.size, 512):
+            idx = np.arange(lo, min(lo + 512, mean.size))
+            step = np.zeros((len(idx), mean.size))
+            step[np.arange(len(idx)), idx] = h
+            grad[idx] = (sizes(mean + step) - sizes(mean - step)) / (2 * h)
+        g = np.fft.irfft2(np.fft.rfft2(grad.reshape(size, size)) * mask,
+                          s=(size, size)).ravel() / sizes(mean[None])[0]
+        # conjugate gradients on fisher(z) = g, the mean's shift and scale (to which the size
+        # is blind, g is orthogonal to them) held by a penalty
+        ky, kx = np.fft.fftfreq(size)[:, None], np.fft.rfftfreq(size)[None, :]
+        gauge = np.stack([np.fft.irfft2(fmean[0] * k * mask, s=(size, size)).ravel()
+                          for k in (2j * np.pi * kx, 2j * np.pi * ky)] + [mean])
+        gauge /= np.linalg.norm(gauge, axis=1)[:, None]
+        probe = np.random.default_rng(0).standard_normal(mean.size)
+        lam = float(probe @ fisher(probe)) / float(probe @ probe)
+        z, r = np.zeros_like(g), g.copy()
+        d, rr = r.copy(), float(r @ r)
+        for _ in range(2000):
+            q = fisher(d) + lam * gauge.T @ (gauge @ d)
+            alpha = rr / float(d @ q)
+            z += alpha * d
+            r -= alpha * q
+            if float(r @ r) < 1e-16 * float(g @ g):
+                break
+            d, rr = r + float(r @ r) / rr * d, float(r @ r)
+        out.append((float(np.sqrt(g @ z)), _scores(model.predict(P), truth)[2]))
+    return out
 
 
 if __name__ == "__main__":

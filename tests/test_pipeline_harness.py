@@ -124,6 +124,31 @@ def test_callable_psf_and_write(tmp_path):
         render_galsim_ccd(shape=(128, 128), psf="space")
 
 
+def test_noise_seed_redraws_the_noise_alone():
+    """Same random_state, another noise_seed: same sources and dead columns, the difference
+    of two images is two independent noise draws (variance twice the pixels' own); no
+    noise_seed: the image random_state alone gives."""
+    kw = dict(shape=(160, 160), pixel_scale=0.11, n_stars=6, n_galaxies=3, n_saturated=0,
+              psf=lambda x, y: galsim.Airy(lam_over_diam=0.1), random_state=4)
+    a, b = render_galsim_ccd(**kw, noise_seed=1), render_galsim_ccd(**kw, noise_seed=2)
+    own = render_galsim_ccd(**kw)
+    np.testing.assert_array_equal(render_galsim_ccd(**kw).image, own.image)
+    np.testing.assert_array_equal(render_galsim_ccd(**kw, noise_seed=1).image, a.image)
+    for t in (a, own):
+        np.testing.assert_array_equal(t.stars["x"], b.stars["x"])
+        np.testing.assert_array_equal(t.galaxies["flux"], b.galaxies["flux"])
+        np.testing.assert_array_equal(t.weight, b.weight)
+    live = b.weight > 0
+    diff = (a.image - b.image)[live]
+    assert not np.array_equal(a.image, own.image)
+    variance = 2 * (a.header["SKYLEVEL"] / a.header["GAIN"])   # the sky dominates the pixels
+    assert abs(np.mean(diff)) < 5 * np.sqrt(variance / diff.size)
+    assert np.var(diff) == pytest.approx(variance, rel=0.05)
+    for bad in (-1, 1.5, "1", True):
+        with pytest.raises(ValueError, match="noise_seed must be"):
+            render_galsim_ccd(**kw, noise_seed=bad)
+
+
 @needs_sex
 def test_sextractor_finds_the_stars(ccd, catalog):
     cat = Table.read(catalog, hdu=2)

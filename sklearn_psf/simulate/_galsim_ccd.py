@@ -238,7 +238,7 @@ def render_galsim_ccd(*, shape=(2048, 2048), pixel_scale: float = 0.263, n_stars
                       n_saturated: int = 5, sky_level: float = 400.0, gain: float = 4.0,
                       saturation: float = 30000.0, fwhm: float = 0.9, shear_rms: float = 0.01,
                       galaxy_snr_range=(10.0, 80.0), n_bad_columns: int = 2,
-                      margin: int = 8, random_state=None) -> GalSimCCD:
+                      margin: int = 8, random_state=None, noise_seed=None) -> GalSimCCD:
     """Render a DECam-like CCD with GalSim: stars, galaxies, sky noise, saturation, dead columns.
 
     Parameters
@@ -285,6 +285,12 @@ def render_galsim_ccd(*, shape=(2048, 2048), pixel_scale: float = 0.263, n_stars
     margin : int, default=8
         Sources lie at least this many pixels from the edges.
     random_state : None, int, SeedSequence or Generator
+        Seeds everything: the sources, the noise and the dead columns.
+    noise_seed : None, int or SeedSequence, default=None
+        When given, the pixel noise alone is drawn from this seed: the same ``random_state``
+        with another ``noise_seed`` gives the same sources and dead columns under a new noise
+        realisation (how far a figure measured on one CCD moves with its noise). ``None``:
+        from ``random_state``.
 
     Returns
     -------
@@ -308,6 +314,13 @@ def render_galsim_ccd(*, shape=(2048, 2048), pixel_scale: float = 0.263, n_stars
     """
     galsim = _galsim()
     rng = as_generator(random_state)
+    if noise_seed is not None:
+        if isinstance(noise_seed, (bool, np.bool_)) or not isinstance(
+                noise_seed, (int, np.integer, np.random.SeedSequence)) or (
+                not isinstance(noise_seed, np.random.SeedSequence) and noise_seed < 0):
+            raise ValueError(f"noise_seed must be None, a non-negative integer or a "
+                             f"SeedSequence, got {noise_seed!r}.")
+        noise_rng = np.random.default_rng(noise_seed)
     ny, nx = (int(v) for v in shape)
     if min(ny, nx) <= 2 * margin + 16:
         raise ValueError(f"shape {shape!r} is too small for margin={margin}.")
@@ -378,7 +391,10 @@ def render_galsim_ccd(*, shape=(2048, 2048), pixel_scale: float = 0.263, n_stars
                       "g1": g1, "g2": g2})
 
     signal = noiseless.array + sky_level
-    noisy = signal + rng.standard_normal(signal.shape) * np.sqrt(np.maximum(signal, 0) / gain)
+    noise = rng.standard_normal(signal.shape)  # drawn either way: the dead columns stay
+    if noise_seed is not None:
+        noise = noise_rng.standard_normal(signal.shape)
+    noisy = signal + noise * np.sqrt(np.maximum(signal, 0) / gain)
     image = np.minimum(noisy, saturation).astype(np.float32)
     weight = np.full((ny, nx), 1.0 / sigma**2, dtype=np.float32)
     bad = rng.choice(np.arange(margin, nx - margin), int(n_bad_columns), replace=False)
