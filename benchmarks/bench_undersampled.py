@@ -221,9 +221,7 @@ def main(argv=None):
     print(notes)
     if args.bound:
         clean, _ = _clean(ccd.stars, cat)
-        _, lam, diam, _, _ = FIELDS[args.field]
-        cutoff = diam / (lam * 1e-9) * scale / 206264.806
-        bands = [found, cutoff, None]
+        bands = [found, _cutoff(args.field), None]
         print(f"\nCramer-Rao bound of the mean PSF's relative size, fixed-weight at phase 0, "
               f"from the {int(clean.sum())} clean stars (a fine-grid model: the mean fine image "
               "free within the band, each star's flux and offset free; noise sky + signal / "
@@ -243,7 +241,7 @@ def main(argv=None):
         runs.append(_run(args, psf, P, truth, k)[0])
         print(f"noise draw {k}: " + "; ".join(f"{r[0]} {r[1]:.4f} / {r[2]:.4f} / {r[3]:+.4f}"
                                               for r in runs[-1]), flush=True)
-    figures = np.array([[r[1:4] for r in rows] for rows in runs])  # (run, model, 3)
+    figures = np.array([[r[1:4] for r in run] for run in runs])  # (run, model, 3)
     mean, sd = figures.mean(axis=0), figures.std(axis=0, ddof=1)
     print(f"\nover the CCD's own noise and {args.noise_draws} new noise draws (same sources): "
           "mean +- standard deviation of e rms / size rms / size bias; share of runs with "
@@ -255,6 +253,12 @@ def main(argv=None):
                                          for j, (m, d) in enumerate(zip(mean[i], sd[i])))
               + f"  {within:.0%}")
     _ratios([(row[0], *mean[i]) for i, row in enumerate(rows)], n_ours, "mean ")
+
+
+def _cutoff(field):
+    """The optics' diffraction cutoff D / lambda in cycles per pixel."""
+    scale, lam, diam, _, _ = FIELDS[field]
+    return diam / (lam * 1e-9) * scale / 206264.806
 
 
 def _ratios(rows, n_ours, what=""):
@@ -269,7 +273,8 @@ def _ratios(rows, n_ours, what=""):
 def _run(args, psf, P, truth, noise_seed):
     """Render the CCD (``noise_seed``: see :func:`render_galsim_ccd`), catalogue it and run
     every tool on it: rows (name, e rms, size rms, size bias, stars, CPU s), how many rows are
-    ours (the first), and the notes printed under the table (star counts, our verdict)."""
+    ours (the first), the notes printed under the table (star counts, our verdict), the CCD,
+    its catalogue and the band (cycles per pixel) our default fit found."""
     from astropy.io import fits
 
     from sklearn_psf.io import run_psfex, run_sextractor
@@ -293,8 +298,7 @@ def _run(args, psf, P, truth, noise_seed):
     rows = []
     env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
            "MKL_NUM_THREADS": "1"}
-    _, lam, diam, _, _ = FIELDS[args.field]
-    cutoff = diam / (lam * 1e-9) * scale / 206264.806  # D / lambda, cycles per pixel
+    cutoff = _cutoff(args.field)
     ours = [("sklearn-psf fit", [])]
     if args.optics_band:
         ours.append((f"sklearn-psf fit --band-limit {cutoff:.2f}",
