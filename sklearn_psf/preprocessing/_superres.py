@@ -478,8 +478,8 @@ class SuperResolvedPCA(StampPCA):
             return float(nyquist)
         k = self._radius()
         whole = np.ones_like(k)  # the halves' fits: the whole square grid
-        spectra = []
-        for half in (np.flatnonzero(usable)[0::2], np.flatnonzero(usable)[1::2]):
+        spectra, rows = [], np.flatnonzero(usable)
+        for half in (rows[0::2], rows[1::2]):
             mean = self._fit_fine(d[half], u[half], a[half, :1], self._ramps(offsets[half]),
                                   np.zeros((1, size * size)), band=whole)
             spectra.append(np.fft.rfft2(mean.reshape(size, size)))

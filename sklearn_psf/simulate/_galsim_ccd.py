@@ -315,9 +315,9 @@ def render_galsim_ccd(*, shape=(2048, 2048), pixel_scale: float = 0.263, n_stars
     galsim = _galsim()
     rng = as_generator(random_state)
     if noise_seed is not None:
-        if isinstance(noise_seed, (bool, np.bool_)) or not isinstance(
-                noise_seed, (int, np.integer, np.random.SeedSequence)) or (
-                not isinstance(noise_seed, np.random.SeedSequence) and noise_seed < 0):
+        integer = isinstance(noise_seed, (int, np.integer)) and not isinstance(
+            noise_seed, (bool, np.bool_))
+        if not (isinstance(noise_seed, np.random.SeedSequence) or integer and noise_seed >= 0):
             raise ValueError(f"noise_seed must be None, a non-negative integer or a "
                              f"SeedSequence, got {noise_seed!r}.")
         noise_rng = np.random.default_rng(noise_seed)
