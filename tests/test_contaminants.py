@@ -15,7 +15,7 @@ from sklearn_psf.model._companions import (
     companion_offsets,
     companion_signatures,
 )
-from sklearn_psf.model._noise import pixel_inverse_variance
+from sklearn_psf.model._noise import PixelNoise, pixel_inverse_variance
 from sklearn_psf.preprocessing import StampPCA, fourier_shift
 from sklearn_psf.simulate import make_psf_field, realistic_snr
 
@@ -144,7 +144,7 @@ def test_companion_pixels_add_to_the_coefficients(basis):
     floors = np.broadcast_to(np.median(p.coefficient_var, axis=0), p.coefficients.shape)
     departure = (p.coefficients - np.median(p.coefficients[m:], axis=0)
                  + rng.standard_normal(p.coefficients.shape) * np.sqrt(floors))
-    pixels = (data - p.model, pixel_inverse_variance(weights, p.model, 0.0), p.flux, p.offsets)
+    pixels = (data - p.model, pixel_inverse_variance(weights, p.model, PixelNoise()), p.flux, p.offsets)
     level = np.log10(COMPANION_P_VALUE)
     coef_only = companion_log_p(model, p.coefficients, departure, p.coefficient_var,
                                 floors) < level

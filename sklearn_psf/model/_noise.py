@@ -4,6 +4,7 @@ and standardised residuals for the chi^2 outlier test."""
 from __future__ import annotations
 
 import inspect
+from typing import NamedTuple
 
 import numpy as np
 from scipy import stats
@@ -197,36 +198,106 @@ def _drop_self(idx, own, m):
     return np.take_along_axis(idx, order, axis=1)[:, :m]
 
 
-def pixel_residuals(stamps, model, weights, reference=None):
-    """Standardised pixel residuals of stars against their own fit, NaN on masked pixels.
+class PixelNoise(NamedTuple):
+    """The pixel noise the stars' residuals show: variance ``sky / w + poisson * max(model,
+    0) + eps2 * model^2`` for a pixel of weight ``w`` and model value ``model``."""
 
-    The variance of a pixel is ``1 / w + eps^2 model^2``: the relative model error ``eps``
-    (truncated basis, imperfect centring, the stars' own Poisson noise missing from
-    estimated weights) is the smallest value that brings the 80th percentile of the
-    reduced chi^2 of the brighter half of the stars down to that of pure noise.
+    #: Scale of the given (or border-estimated) variances ``1 / w``.
+    sky: float = 1.0
+    #: Poisson variance per unit of the model's value (``1 / gain`` in the stamps' units)
+    #: missing from ``1 / w``.
+    poisson: float = 0.0
+    #: Relative model error squared (truncated basis, imperfect centring).
+    eps2: float = 0.0
+
+    def variance(self, weights, model):
+        """Each pixel's variance (infinite where ``weights`` is 0)."""
+        good = weights > 0
+        inv_w = np.where(good, 1.0 / np.where(good, weights, 1.0), np.inf)
+        return self.sky * inv_w + self.poisson * np.maximum(model, 0.0) + self.eps2 * model**2
+
+
+def _noise_likelihood(r2, v, m, m2, theta):
+    """Gaussian negative log-likelihood of residuals ``r2`` (squared) under variances
+    ``theta[0] v + theta[1] m + theta[2] m2``, and its gradient."""
+    var = theta[0] * v + theta[1] * m + theta[2] * m2
+    q = r2 / var
+    g = (1.0 - q) / var
+    return float(np.sum(np.log(var) + q)), np.array([g @ v, g @ m, g @ m2])
+
+
+def calibrate_pixel_noise(stamps, model, weights, reference=None, clip=5.0) -> PixelNoise:
+    """The pixel noise of stars against their fitted models, learnt from their residuals.
+
+    Real images rarely come with the noise model their stamps follow: no gain (so no
+    Poisson term), a gain in the wrong units, noise correlated by resampling, a sky
+    variance that the stamps' borders misjudge, and the model's own error in the bright
+    cores. The variance of a pixel is taken as ``sky / w + poisson * max(model, 0) + eps2 *
+    model^2`` (see :class:`PixelNoise`) and its three terms are fitted by maximum likelihood
+    to the squared residuals of the ``reference`` stars' unmasked pixels (Gaussian), pixels
+    beyond ``clip`` standard deviations (cosmic-ray hits, defects) left out, then the stars
+    whose residuals exceed the others' (the 20% of largest reduced chi^2: blends, galaxies)
+    left out and the fit repeated. Weights that already hold the right noise give ``sky``
+    near 1 and ``poisson`` near 0.
+
+    Parameters
+    ----------
+    stamps, model, weights : ndarray of shape (n, p)
+    reference : ndarray of shape (n,), bool, optional
+        The stars to learn from (default all).
+    clip : float, default=5
+
+    Returns
+    -------
+    PixelNoise
     """
+    from scipy.optimize import minimize
+
     good = weights > 0
-    r2 = np.where(good, (stamps - model) ** 2, 0.0)
-    inv_w = np.where(good, 1.0 / np.where(good, weights, 1.0), np.inf)
-    m2 = model**2
-    dof = np.maximum(good.sum(axis=1), 1)
-    snr2 = np.where(good, weights * m2, 0.0).sum(axis=1)
     ref = np.ones(len(stamps), dtype=bool) if reference is None else np.asarray(reference, bool)
-    bright = ref & (snr2 >= np.median(snr2[ref]))
+    v = np.where(good, 1.0 / np.where(good, weights, 1.0), 0.0)
+    r2 = np.where(good, (stamps - model) ** 2, 0.0)
+    mp = np.maximum(model, 0.0)
+    # scales that make the three terms of order one where each matters
+    v0 = float(np.median(v[good & ref[:, None]])) if (good & ref[:, None]).any() else 1.0
+    peak = float(np.median(np.max(np.where(good, mp, 0.0), axis=1)[ref])) or 1.0
+    scale = np.array([1.0, v0 / peak, v0 / peak**2])  # parameters = theta * scale
+    theta = np.array([1.0, 0.0, 0.0])
+    use = ref.copy()
+    for _ in range(3):
+        pix = good & use[:, None]
+        if pix.sum() < 10:
+            break
+        for _ in range(2):  # clip the pixels far beyond the current noise
+            var = (theta * scale) @ np.stack([v[pix], mp[pix], model[pix] ** 2])
+            keep = r2[pix] <= clip**2 * var
+            args = (r2[pix][keep] / v0, v[pix][keep] / v0, mp[pix][keep] / peak,
+                    model[pix][keep] ** 2 / peak**2)
+            res = minimize(lambda t: _noise_likelihood(*args, t), theta, jac=True,
+                           method="L-BFGS-B", bounds=[(1e-3, None), (0.0, None), (0.0, None)])
+            theta = res.x
+        noise = PixelNoise(*(theta * scale))
+        chi = np.where(good, r2 / np.where(good, noise.variance(weights, model), 1.0), 0.0)
+        reduced = chi.sum(axis=1) / np.maximum(good.sum(axis=1), 1)
+        new = ref & (reduced <= np.quantile(reduced[ref], _FLOOR_QUANTILE))
+        if (new == use).all():
+            break
+        use = new
+    return PixelNoise(*(float(t) for t in theta * scale))
 
-    def reduced(t):
-        return np.quantile((r2[bright] / (inv_w[bright] + t * m2[bright])).sum(axis=1)
-                           / dof[bright], _FLOOR_QUANTILE)
 
-    typical = float(np.median(dof[bright]))
-    eps2 = _solve_floor(reduced, float(stats.chi2.ppf(_FLOOR_QUANTILE, typical)) / typical)
-    z = (stamps - model) * np.sqrt(pixel_inverse_variance(weights, model, eps2))
-    return np.where(good, z, np.nan), eps2
-
-
-def pixel_inverse_variance(weights, model, eps2):
-    """Inverse variance of each pixel with the relative model error ``eps2`` (as
-    :func:`pixel_residuals` finds it): ``1 / (1 / w + eps2 model^2)``, 0 where ``w`` is 0."""
+def pixel_residuals(stamps, model, weights, reference=None):
+    """Standardised pixel residuals of stars against their own fit, NaN on masked pixels,
+    in the noise :func:`calibrate_pixel_noise` learns from the ``reference`` stars (with
+    the model's own error), and that noise (a :class:`PixelNoise`)."""
     good = weights > 0
-    inv_w = 1.0 / np.where(good, weights, 1.0)
-    return np.where(good, 1.0 / (inv_w + eps2 * model**2), 0.0)
+    noise = calibrate_pixel_noise(stamps, model, weights, reference)
+    z = (stamps - model) * np.sqrt(pixel_inverse_variance(weights, model, noise))
+    return np.where(good, z, np.nan), noise
+
+
+def pixel_inverse_variance(weights, model, noise):
+    """Inverse variance of each pixel in the calibrated ``noise`` (a :class:`PixelNoise`,
+    as :func:`pixel_residuals` finds it), 0 where ``weights`` is 0."""
+    good = weights > 0
+    return np.where(good, 1.0 / np.where(good, noise.variance(weights, model), 1.0), 0.0)

@@ -482,18 +482,24 @@ class PSFModel(RegressorMixin, BaseEstimator):
         pixels = None
         if stamp_fit is not None:
             data, model = np.where(np.isnan(y[idx]), 0.0, y[idx]), stamp_fit.model[idx]
-            z_pix, eps2 = pixel_residuals(data, model, stamp_fit.weights[idx], reference=ref)
+            z_pix, noise = pixel_residuals(data, model, stamp_fit.weights[idx], reference=ref)
             pix = clone(detector).fit(z_pix)
             ok &= pix.predict(z_pix) == 1
             score[idx] = np.minimum(score[idx], pix.score_samples(z_pix))
             pixels = (np.where(np.isfinite(z_pix), data - model, 0.0),  # z_pix: NaN if masked
-                      pixel_inverse_variance(stamp_fit.weights[idx], model, eps2),
+                      pixel_inverse_variance(stamp_fit.weights[idx], model, noise),
                       stamp_fit.flux[idx], stamp_fit.offsets[idx])
         if basis is not None:  # an unresolved companion: see model/_companions.py
             log_p = companion_log_p(basis, coef[idx], coef[idx] - predicted,
                                     None if var is None else var[idx], floors, ref, pixels)
             ok &= log_p >= np.log10(COMPANION_P_VALUE)
             score[idx] = np.minimum(score[idx], log_p)
+        cap = detector.max_remove
+        if cap is not None and (~ok).sum() > int(cap * len(idx)):
+            # the combined tests reject at most max_remove of the stars: the worst ones
+            worst = np.argsort(score[idx], kind="stable")[:int(cap * len(idx))]
+            ok = np.ones(len(idx), dtype=bool)
+            ok[worst] = False
         inliers[idx] = ok
         return inliers, score, full, caught
 

@@ -25,24 +25,45 @@ class ChiSquareOutlierDetector(_OffsetOutlierMixin, BaseEstimator):
       defect: a cosmic-ray hit, a hot pixel).
 
     ``score_samples`` is ``log10`` of the smaller p-value (times 2, Bonferroni over the two
-    tests): larger is more normal. ``offset_ = log10(p_value)``; ``predict`` gives +1 (inlier)
-    where ``score_samples >= offset_``, -1 elsewhere. Nothing is learnt from the data: the
-    reference is the noise law itself, so ``fit`` only checks the input.
+    tests): larger is more normal. ``predict`` gives +1 (inlier) where ``score_samples >=
+    offset_``, -1 elsewhere; ``offset_ = log10(p_value)``, raised so that at most
+    ``max_remove`` of the rows ``fit`` saw fall below it.
+
+    With ``population=True`` (the default) each test is judged against the rows' own
+    population as well as against the noise law: each p-value is turned into a normal
+    score ``u`` (0 for a typical noise row, larger for a rarer one), and ``u`` is taken
+    relative to the robust location (median) and scale (1.4826 times the median absolute
+    deviation) of the rows ``fit`` saw, whenever these exceed what pure noise gives (0 and
+    1) by more than 3 times their sampling error. A noise model that is right leaves the test as it is; one that is wrong for every
+    star (a missing Poisson term, a misjudged sky, noise correlated by resampling, the
+    unresolved stars of a crowded field) shifts and widens the population's scores, and a
+    star is then rejected only when it departs from the other stars, not from a noise law
+    none of them follows.
 
     :class:`~sklearn_psf.model.PSFModel` (``outliers="chi2"``, its default) feeds it two sets
     of residuals per star, pixels against the star's own fit on the basis and coefficients
     against their interpolation from the other stars, with the model error added to the
-    noise so that bright clean stars are not rejected for the model's own limits.
+    noise so that bright clean stars are not rejected for the model's own limits; it caps
+    what its combined tests reject at ``max_remove`` of the stars.
 
     Parameters
     ----------
     p_value : float, default=1e-4
         Probability that a star whose residuals are pure noise is rejected.
+    population : bool, default=True
+        Judge the rows against their own population too (see above).
+    max_remove : float or None, default=0.25
+        Largest fraction of the rows ``fit`` saw that may be rejected (the worst first),
+        as PIFF's ``max_remove``: a model never rests on a minority of its stars because
+        their noise model is wrong. None: no cap.
 
     Attributes
     ----------
     offset_ : float
-        ``log10(p_value)``.
+        ``log10(p_value)``, or higher when ``max_remove`` caps the rejections.
+    location_, scale_ : ndarray of shape (2,)
+        The population's location and scale of the normal scores of the chi^2 and the
+        largest-residual tests (0 and 1 with ``population=False``).
     n_features_in_ : int
 
     Examples
@@ -55,13 +76,18 @@ class ChiSquareOutlierDetector(_OffsetOutlierMixin, BaseEstimator):
     >>> z[5] *= 2.0             # a star twice as noisy as it should be
     >>> np.flatnonzero(ChiSquareOutlierDetector().fit_predict(z) == -1)
     array([3, 5])
+    >>> z *= 1.3                # every star 1.3 times noisier than its weights say
+    >>> np.flatnonzero(ChiSquareOutlierDetector().fit_predict(z) == -1)
+    array([3, 5])
     """
 
-    def __init__(self, p_value: float = 1e-4):
+    def __init__(self, p_value: float = 1e-4, population: bool = True, max_remove=0.25):
         self.p_value = p_value
+        self.population = population
+        self.max_remove = max_remove
 
     def fit(self, X, y=None):
-        """Check the residuals (nothing is learnt from them).
+        """Learn the population's scores (and check the residuals).
 
         Parameters
         ----------
@@ -76,12 +102,52 @@ class ChiSquareOutlierDetector(_OffsetOutlierMixin, BaseEstimator):
         p = self.p_value
         if not (isinstance(p, (int, float, np.floating)) and 0 < p < 1):
             raise ValueError(f"p_value must be a probability in (0, 1), got {p!r}.")
-        validate_data(self, X, dtype=np.float64, ensure_all_finite="allow-nan")
+        cap = self.max_remove
+        if cap is not None and not (isinstance(cap, (int, float, np.floating))
+                                    and not isinstance(cap, bool) and 0 < cap <= 1):
+            raise ValueError(f"max_remove must be a fraction in (0, 1] or None, got {cap!r}.")
+        z = validate_data(self, X, dtype=np.float64, ensure_all_finite="allow-nan")
+        self.location_, self.scale_ = np.zeros(2), np.ones(2)
+        u, m = self._normal_scores(z)
+        rows = m > 0
+        n = int(rows.sum())
+        if self.population and n >= 5:
+            med = np.median(u[rows], axis=0)
+            mad = 1.4826 * np.median(np.abs(u[rows] - med), axis=0)
+            # only departures from pure noise beyond 3 times their sampling error count
+            # (the standard errors of a normal sample's median and MAD-based sigma)
+            self.location_ = np.where(med > 3 * 1.2533 / np.sqrt(n), med, 0.0)
+            self.scale_ = np.where(mad > 1 + 3 * 1.1664 / np.sqrt(n), mad, 1.0)
         self.offset_ = float(np.log10(p))
+        if cap is not None:
+            score = np.sort(self.score_samples(z))
+            k = int(np.floor(cap * len(score)))  # rows that may fall below the offset
+            if k < len(score) and score[k] < self.offset_:
+                self.offset_ = float(score[k])  # the k worst rows stay below it
         return self
 
+    @staticmethod
+    def _normal_scores(z):
+        """Each row's two tests as normal scores (the upper-tail quantile of their p-value
+        under pure noise), and its count of finite entries."""
+        finite = np.isfinite(z)
+        m = finite.sum(axis=1)
+        z2 = np.where(finite, z * z, 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            log_chi = stats.chi2.logsf(z2.sum(axis=1), np.maximum(m, 1))
+            # P(max |z| >= t) for m standard normals = 1 - (1 - erfc(t / sqrt 2))^m
+            tail = special.erfc(np.sqrt(z2.max(axis=1, initial=0.0)) / np.sqrt(2.0))
+            log_max = np.log(-np.expm1(m * np.log1p(-np.minimum(tail, 1.0))))
+            log_max = np.where(tail < 1e-12, np.log(m * tail), log_max)
+        logp = np.column_stack([log_chi, log_max])
+        logp = np.where(np.isfinite(logp), np.minimum(logp, 0.0), -np.inf)
+        u = -special.ndtri_exp(np.maximum(logp, -1e300))
+        return np.where(m[:, None] > 0, u, 0.0), m
+
     def score_samples(self, X):
-        """log10 of the p-value of each row under pure noise (larger = more normal).
+        """log10 of the p-value of each row (larger = more normal): under pure noise, or,
+        with ``population=True``, relative to the rows ``fit`` saw where they depart from
+        pure noise.
 
         Parameters
         ----------
@@ -94,16 +160,9 @@ class ChiSquareOutlierDetector(_OffsetOutlierMixin, BaseEstimator):
         """
         check_is_fitted(self)
         z = validate_data(self, X, dtype=np.float64, reset=False, ensure_all_finite="allow-nan")
-        finite = np.isfinite(z)
-        m = finite.sum(axis=1)
-        z2 = np.where(finite, z * z, 0.0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            log_chi = stats.chi2.logsf(z2.sum(axis=1), np.maximum(m, 1))
-            # P(max |z| >= t) for m standard normals = 1 - (1 - erfc(t / sqrt 2))^m
-            tail = special.erfc(np.sqrt(z2.max(axis=1, initial=0.0)) / np.sqrt(2.0))
-            log_max = np.log(-np.expm1(m * np.log1p(-np.minimum(tail, 1.0))))
-            log_max = np.where(tail < 1e-12, np.log(m * tail), log_max)
-        logp = np.minimum(np.minimum(log_chi, log_max) + np.log(2.0), 0.0)
+        u, m = self._normal_scores(z)
+        rel = (u - self.location_) / self.scale_
+        logp = np.minimum(special.log_ndtr(-rel).min(axis=1) + np.log(2.0), 0.0)
         return np.where(m > 0, logp / np.log(10.0), 0.0)
 
     def __sklearn_tags__(self):

@@ -203,6 +203,62 @@ def _sum_zero(axes, mean):
     return (q * np.where(np.diag(r) < 0, -1.0, 1.0)).T
 
 
+def _mean_variance(w, scale, u):
+    """Per-pixel noise variance of the weighted mean ``sum_i u_i x_i / sum(u)`` of the
+    normalised stamps ``x_i = d_i / scale_i`` (pixel variances ``1 / w``; masked pixels,
+    filled from a model, add none)."""
+    c = u / u.sum()
+    return (c**2 / np.where(c > 0, scale, 1.0) ** 2) @ _variances(w)
+
+
+def _rings(s):
+    """Each pixel's ring about the centre of an s x s stamp: ``floor(r)``, r in pixels."""
+    yy, xx = np.mgrid[0:s, 0:s] - (s - 1) / 2.0
+    return np.floor(np.hypot(xx, yy)).astype(np.int64).ravel()
+
+
+def radial_wings(mean, var, s):
+    """The mean PSF stamp with the noise of its faint wings taken out, ring by ring, and the
+    radius of its support.
+
+    In each 1-pixel ring about the centre, the mean is split into its ring average (the
+    azimuthal profile) and each pixel's departure from it; each part is kept in proportion
+    to its signal's share of signal plus noise (a Wiener factor): the profile by
+    ``max(P^2 - N^2, 0) / P^2`` (``N^2`` the noise of the ring's average), the departures by
+    ``S^2 / (S^2 + var)`` (``S^2`` their variance in the ring in excess of the pixels'
+    noise). Where the stars measure the PSF well (the core) nothing changes; in the wings,
+    where a single pixel of the mean holds more noise than PSF, what remains is the profile
+    averaged over the ring (its noise divided by the ring's pixel count) and the shape the
+    noise does not drown; beyond the last ring the stars detect, zero. The support radius is
+    the first ring whose profile falls below its pixels' noise (infinite when none does).
+
+    Parameters
+    ----------
+    mean : ndarray of shape (s*s,)
+    var : ndarray of shape (s*s,)
+        Noise variance of each pixel of ``mean``.
+    s : int
+
+    Returns
+    -------
+    denoised : ndarray of shape (s*s,)
+    radius : float
+    """
+    ring = _rings(s)
+    count = np.bincount(ring).astype(np.float64)
+    profile = np.bincount(ring, mean) / count
+    dev = mean - profile[ring]
+    noise = np.bincount(ring, var) / count**2
+    excess = np.maximum(np.bincount(ring, dev**2 - var * (1.0 - 1.0 / count[ring])) / count,
+                        0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        keep_profile = np.where(profile**2 > noise, 1.0 - noise / profile**2, 0.0)
+        keep_dev = np.where(excess[ring] + var > 0, excess[ring] / (excess[ring] + var), 1.0)
+    below = np.flatnonzero(np.abs(profile) < np.sqrt(np.bincount(ring, var) / count))
+    radius = float(below[0]) if below.size else np.inf
+    return profile[ring] * keep_profile[ring] + keep_dev * dev, radius
+
+
 def noise_edge(contributions, p: int, quantile: bool = False) -> float:
     """Largest eigenvalue of ``sum_i c_i z_i z_i^T`` for ``z_i`` standard normal in ``p``
     dimensions, as the number of terms and ``p`` grow (the edge of the generalised
@@ -348,6 +404,18 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         more than 5% of the stamps, or a negative one), else False; the choice is
         ``background_``.
 
+    wings : "radial" or None, default="radial"
+        How the mean stamp's faint wings are estimated. "radial": where a pixel of the
+        weighted mean holds more noise than PSF (the wings of a large stamp, a real
+        catalogue's 63x63 VIGNETs around stars of S/N 30-300), the noise is taken out ring
+        by ring (:func:`radial_wings`: the azimuthal profile and each pixel's departure from
+        it kept in proportion to their signal), and the components end at the support
+        radius, where the profile falls below its pixels' noise. Every prediction would
+        otherwise carry the mean's pixel noise over the whole stamp: on the real DECam
+        catalogue of ``../shared/realdata`` that noise made the model lose to PSFEx on most
+        stars (see ``benchmarks/README.md``). None: every pixel's weighted mean (the
+        paper's).
+
     Attributes
     ----------
     mean_ : ndarray of shape (p,)
@@ -363,6 +431,10 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         The noise edge the variances are compared with.
     background_ : bool
         Whether a local background is fitted with each star (see ``background``).
+    support_radius_ : float
+        Radius (pixels from the centre) beyond which the components are zero, with
+        ``wings="radial"``: the first ring whose mean profile falls below its pixels' noise
+        (infinite when none does, or with ``wings=None``).
     n_components_ : int
     stamp_size_ : int
     n_features_in_ : int
@@ -390,13 +462,14 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
 
     def __init__(self, n_components="noise", max_components: int = 20, n_iter: int = 2,
                  max_star_weight: float = 10.0, guess_sigma: float = 3.0,
-                 background="auto"):
+                 background="auto", wings="radial"):
         self.n_components = n_components
         self.max_components = max_components
         self.n_iter = n_iter
         self.max_star_weight = max_star_weight
         self.guess_sigma = guess_sigma
         self.background = background
+        self.wings = wings
 
     # -- input ---------------------------------------------------------------------------
     def _check_params(self):
@@ -416,6 +489,8 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         if not (isinstance(self.background, (bool, np.bool_)) or self.background == "auto"):
             raise ValueError(f"background must be 'auto', True or False, got "
                              f"{self.background!r}.")
+        if self.wings not in ("radial", None):
+            raise ValueError(f"wings must be 'radial' or None, got {self.wings!r}.")
 
     def _stamps_and_weights(self, X, weights, reset):
         X = validate_data(self, X, dtype=np.float64, reset=reset, ensure_all_finite="allow-nan")
@@ -672,8 +747,12 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
             mean, axes, lam, total = _weighted_pca(x[usable], u[usable], n_top)
             noise = float((u * v).sum() / u.sum())
             k, edge = self._choose(lam, total, noise, u[usable] * v[usable] / u.sum(), p)
+            axes, radius = axes[:k], np.inf
+            if self.wings == "radial":  # the mean's faint wings: their signal, not its noise
+                mean, radius = radial_wings(mean, _mean_variance(w, scale, u), s)
+                axes = np.where(_rings(s) < radius, axes, 0.0)
             mean = mean / mean.sum()
-            comps = _sum_zero(axes[:k], mean)
+            comps = _sum_zero(axes, mean)
             a, cov, model, offsets, fitted = self._fit_stamps(d, w, offsets, mean, comps, s)
             flux_new, coef, var, ccov, good = self._coefficients(a, cov)
             level = np.where(good, fitted, level)
@@ -692,6 +771,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         self.explained_variance_ = lam / norm**2
         self.noise_variance_ = noise / norm**2
         self.noise_edge_ = edge / norm**2
+        self.support_radius_ = radius
         self.n_components_ = int(k)
         self.stamp_size_ = s
         self._n_features_out = self.n_components_

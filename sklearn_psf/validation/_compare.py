@@ -193,6 +193,7 @@ def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6
     if not keep.any():
         raise InputError(f"None of the {n} stars can be compared (left out: "
                          + ", ".join(f"{k} {v}" for k, v in left_out.items() if v) + ").")
+    index = np.flatnonzero(keep)  # the residual tables' rows are the input's
     if not keep.all():
         X, cube = X[keep], cube[keep]
         weights = None if weights is None else \
@@ -207,7 +208,8 @@ def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6
                              f"keys) but X gives {X.shape[1] - 2}")
         pred = _fit_size(model.predict(X[:, :width]), s)
         table, summary = measure_residuals(X, cube, pred, weights=weights, wcs=wcs,
-                                           min_sep=min_sep, max_sep=max_sep, nbins=nbins)
+                                           min_sep=min_sep, max_sep=max_sep, nbins=nbins,
+                                           index=index)
         results[name] = (table, summary)
         ok = np.asarray(table["flag"]) == 0
         row = {"model": name, "kind": kind,

@@ -17,7 +17,7 @@ from ..metrics._correlation import EmptyBinsWarning
 from ..model import PSFModel
 from ..model._noise import pixel_residuals
 from ..preprocessing import ChiSquareOutlierDetector, estimate_pixel_weights
-from ._residuals import FIXED_WEIGHT_SIGMA, _chi2, measure_residuals, rho_bins
+from ._residuals import FIXED_WEIGHT_SIGMA, _centroid_shift, _chi2, measure_residuals, rho_bins
 from ._verdict import PSFQualityWarning, model_verdict
 
 __all__ = ["fit_and_validate"]
@@ -72,7 +72,7 @@ def _reserved_outliers(table, stamps, weights, model):
     d = np.where(w > 0, np.nan_to_num(d), 0.0)
     psf = np.asarray(table["stamp_model"], dtype=np.float64)[ok]
     n, s = len(ok), int(round(np.sqrt(psf.shape[1])))
-    _, _, fitted = _chi2(d, w, psf, adaptive_moments(psf.reshape(n, s, s)), return_model=True)
+    _, _, fitted = _chi2(d, w, psf, _centroid_shift(d, w, psf), return_model=True)
     usable = np.isfinite(fitted).all(axis=1)
     if usable.sum() < 5:
         return out

@@ -17,7 +17,8 @@ from ..measure import adaptive_moments, fixed_moments, fourth_moments
 from ..metrics import FOURTH_RHO_NAMES, RHO_NAMES, fourth_moment_rho_statistics, \
     rho_statistics
 from ..metrics._correlation import EmptyBinsWarning
-from ..preprocessing import StampNormalizer, estimate_pixel_weights, fourier_shift
+from ..preprocessing import StampNormalizer, estimate_pixel_weights
+from ..preprocessing._normalize import phase_ramp
 from ..preprocessing._noise import check_pixel_weights
 
 __all__ = ["measure_residuals", "rho_bins"]
@@ -60,40 +61,78 @@ def shape_moments(sigma):
     return lambda stamps, weights=None: fixed_moments(stamps, sigma, weights=weights)
 
 
-def _chi2(raw, weights, model, model_mom, return_model=False):
-    """chi^2 of each raw star stamp against its model stamp, and its degrees of freedom
-    (and, with ``return_model``, the fitted model stamps ``flux * model + background``).
+#: Gauss-Newton steps of the sub-pixel shift fitted with each model's flux and background.
+SHIFT_STEPS = 4
 
-    The model stamp is moved so that its adaptive centroid falls on the star's (a Fourier
-    shift), then scaled and offset by the weighted least-squares flux and constant
-    background; chi^2 = sum w (star - flux * model - background)^2 over the unmasked pixels,
-    with dof = their number - 4 (flux, background, centroid). NaN where either centroid is
-    unknown. With ``model_mom`` None the model stamps are taken at the stars' positions
-    already (not moved).
-    """
-    n, p = raw.shape
-    s = int(round(np.sqrt(p)))
-    w = weights.reshape(n, p)
-    d = np.where(w > 0, np.nan_to_num(raw.reshape(n, p)), 0.0)
-    if model_mom is None:  # the model is already at the star's position
-        m, ok = model.reshape(n, p), np.ones(n, dtype=bool)
-    else:
-        ms = adaptive_moments(d.reshape(n, s, s), weights=w.reshape(n, s, s))
-        dx = np.asarray(ms["x0"], float) - np.asarray(model_mom["x0"], float)
-        dy = np.asarray(ms["y0"], float) - np.asarray(model_mom["y0"], float)
-        ok = np.isfinite(dx) & np.isfinite(dy)
-        m = fourier_shift(model.reshape(n, s, s), np.where(ok, dx, 0.0),
-                          np.where(ok, dy, 0.0)).reshape(n, p)
-    # weighted least squares of d = f m + b, per star (2 x 2 normal equations)
+
+def _fit_linear(d, w, m):
+    """Per-star weighted least squares of ``d = f m + b``: flux, background, their
+    determinant (not positive: no fit)."""
     sw, smm, sm = w.sum(1), (w * m * m).sum(1), (w * m).sum(1)
     sdm, sd = (w * d * m).sum(1), (w * d).sum(1)
     det = smm * sw - sm**2
     with np.errstate(divide="ignore", invalid="ignore"):
         f = (sdm * sw - sd * sm) / det
         b = (smm * sd - sm * sdm) / det
+    return np.nan_to_num(f), np.nan_to_num(b), det
+
+
+def _centroid_shift(d, w, model):
+    """(n, 2) shifts moving each model stamp's adaptive centroid onto its star's (0 where
+    either is not measured): where :func:`_chi2` starts its fitted shift."""
+    n, p = d.shape
+    s = int(round(np.sqrt(p)))
+    ms = adaptive_moments(d.reshape(n, s, s), weights=w.reshape(n, s, s))
+    mm = adaptive_moments(model.reshape(n, s, s))
+    shift = np.column_stack([np.asarray(ms["x0"], float) - np.asarray(mm["x0"], float),
+                             np.asarray(ms["y0"], float) - np.asarray(mm["y0"], float)])
+    return np.where(np.isfinite(shift) & (np.abs(shift) < 2.0), shift, 0.0)
+
+
+def _chi2(raw, weights, model, start=None, return_model=False):
+    """chi^2 of each raw star stamp against its model stamp, and its degrees of freedom
+    (and, with ``return_model``, the fitted model stamps ``flux * model + background``).
+
+    The model stamp is moved to the star by a sub-pixel shift fitted with its flux and a
+    constant background (Gauss-Newton steps from ``start``, (n, 2) shifts in pixels,
+    default none; a Fourier shift), so that every model is judged at its best centring
+    whatever its centroid convention: chi^2 = sum w (star - flux * model - background)^2
+    over the unmasked pixels, with dof = their number - 4 (flux, background, shift). NaN
+    where the fit fails (no positive flux).
+    """
+    n, p = raw.shape
+    s = int(round(np.sqrt(p)))
+    w = weights.reshape(n, p)
+    d = np.where(w > 0, np.nan_to_num(raw.reshape(n, p)), 0.0)
+    shift = np.zeros((n, 2)) if start is None else np.nan_to_num(np.asarray(start, float))
+    spectrum = np.fft.rfft2(model.reshape(n, s, s))
+    ky = np.fft.fftfreq(s)[None, :, None]
+    kx = np.fft.rfftfreq(s)[None, None, :]
+    if s % 2 == 0:  # the Nyquist frequency carries no shift (see phase_ramp)
+        ky, kx = np.where(np.abs(ky) == 0.5, 0.0, ky), np.where(np.abs(kx) == 0.5, 0.0, kx)
+    for _ in range(SHIFT_STEPS + 1):
+        moved = spectrum * phase_ramp(s, shift[:, 0], shift[:, 1])
+        m = np.fft.irfft2(moved, s=(s, s)).reshape(n, p)
+        f, b, det = _fit_linear(d, w, m)
+        if _ == SHIFT_STEPS:
+            break
+        # d(model)/d(shift) = minus the model's gradient; solve for the shift's step
+        gx = np.fft.irfft2(moved * (2j * np.pi * kx), s=(s, s)).reshape(n, p)
+        gy = np.fft.irfft2(moved * (2j * np.pi * ky), s=(s, s)).reshape(n, p)
+        G = np.stack([m, np.ones_like(m), -f[:, None] * gx, -f[:, None] * gy], axis=1)
+        resid = d - f[:, None] * m - b[:, None]
+        Gw = G * w[:, None, :]
+        normal = Gw @ G.transpose(0, 2, 1)
+        rhs = (Gw @ resid[:, :, None])[:, :, 0]
+        try:
+            step = np.linalg.solve(normal, rhs[:, :, None])[:, :, 0]
+        except np.linalg.LinAlgError:
+            step = (np.linalg.pinv(normal) @ rhs[:, :, None])[:, :, 0]
+        good = np.isfinite(step).all(axis=1) & (f > 0)
+        shift = shift + np.where(good[:, None], np.clip(step[:, 2:], -0.5, 0.5), 0.0)
     chi2 = (w * (d - f[:, None] * m - b[:, None]) ** 2).sum(1)
     dof = (w > 0).sum(1) - 4
-    ok &= np.isfinite(chi2) & (dof > 0) & (det > 0)
+    ok = np.isfinite(chi2) & (dof > 0) & (det > 0) & (f > 0)
     out = np.where(ok, chi2, np.nan), np.where(ok, dof, 0)
     if return_model:
         return *out, f[:, None] * m + b[:, None]
@@ -278,12 +317,14 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
         for q in ("M22", "M31", "M13"):  # fourth moments: spin 0, spin 2 (star - model)
             table[f"d{q}"] = np.where(ok, np.asarray(fs[q]) - np.asarray(fm[q]), np.nan)
         table["resid_rms"] = np.sqrt(np.mean((star - pred) ** 2, axis=1))
-        chi2, dof = _chi2(y, w, pred, mm if sigma is None else None)
-        table["chi2"], table["dof"] = np.where(ok, chi2, np.nan), np.where(ok, dof, 0)
+        chi2, dof = _chi2(y, w, pred, _centroid_shift(d, w, pred) if sigma is None else None)
+        # every star with a usable stamp has its chi^2, whether or not moments are measured
+        table["chi2"] = np.where(usable, chi2, np.nan)
+        table["dof"] = np.where(usable & np.isfinite(chi2), dof, 0)
     ok = np.asarray(table["flag"]) == 0
     de1, de2 = np.asarray(table["de1"])[ok], np.asarray(table["de2"])[ok]
     ds = np.asarray(table["dsigma"])[ok]
-    chi2, dof = np.asarray(table["chi2"])[ok], np.asarray(table["dof"])[ok]
+    chi2, dof = np.asarray(table["chi2"]), np.asarray(table["dof"])
     fitted = np.isfinite(chi2) & (dof > 0)
     summary = {
         "n_measured": int(ok.sum()),

@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 
 from ..measure import adaptive_moments, fourth_moments
 from ..preprocessing import estimate_pixel_weights
-from ._residuals import _chi2, shape_moments
+from ._residuals import _centroid_shift, _chi2, shape_moments
 
 __all__ = ["PSFQualityWarning"]
 
@@ -171,14 +171,14 @@ def model_verdict(model, X, stamps, weights, reserved, residuals, random_state=0
     chi2 = np.asarray(residuals["chi2"], dtype=np.float64)[ok]
     measure = shape_moments(sigma)
     if sigma is None:
-        _, _, fitted = _chi2(d, w, psf, adaptive_moments(psf.reshape(n, s, s)),
+        _, _, fitted = _chi2(d, w, psf, _centroid_shift(d, w, psf),
                              return_model=True)
         const = np.broadcast_to(_constant_psf(model), (n, p))
-        chi2_c, _ = _chi2(d, w, const, adaptive_moments(const.reshape(n, s, s)))
+        chi2_c, _ = _chi2(d, w, const, _centroid_shift(d, w, const))
     else:  # undersampled: the model and the constant PSF at each star's phase
-        _, _, fitted = _chi2(d, w, psf, None, return_model=True)
+        _, _, fitted = _chi2(d, w, psf, return_model=True)
         const = _constant_psf(model, np.asarray(offsets, dtype=np.float64)[ok])
-        chi2_c, _ = _chi2(d, w, const, None)
+        chi2_c, _ = _chi2(d, w, const)
     dof = np.maximum(np.asarray(residuals["dof"], dtype=np.float64)[ok], 1)
     chi2, chi2_c = chi2 / dof, chi2_c / dof
     rng = np.random.default_rng(random_state)

@@ -1,0 +1,288 @@
+"""K-fold cross-validation of PSF models on a catalogue's stars: every star judged once, out
+of sample, by every model, so that two tools are compared star by star (a paired test)."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+
+import numpy as np
+from astropy.table import Table
+
+from .._files import InputError
+
+__all__ = ["CrossValidation", "cross_validate_catalog", "paired_comparison"]
+
+
+def paired_comparison(chi2_a, chi2_b, dof, *, n_boot: int = 2000, random_state=0) -> dict:
+    """Star-by-star comparison of two models' chi^2 on the same stars.
+
+    Parameters
+    ----------
+    chi2_a, chi2_b : array-like of shape (n,)
+        Each star's chi^2 against model a and model b (NaN: not measured, left out).
+    dof : array-like of shape (n,)
+        The stars' degrees of freedom (the same pixels for both models).
+    n_boot : int, default=2000
+        Bootstrap resamples of the stars for the interval of the mean difference.
+    random_state : int, default=0
+
+    Returns
+    -------
+    dict
+        ``n`` (stars measured by both), ``a_lower`` (fraction of them where a's chi^2/dof
+        is lower), ``sign_p`` (two-sided sign test of that fraction against 1/2),
+        ``sum_ratio`` (summed chi^2 of a over b's), ``mean_diff`` (mean of a's minus b's
+        chi^2/dof) and ``mean_diff_ci`` (its 95% bootstrap interval), ``median_ratio``
+        (median of the stars' chi^2 ratio a / b).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from sklearn_psf.validation import paired_comparison
+    >>> rng = np.random.default_rng(0)
+    >>> b = rng.chisquare(100, 200)
+    >>> out = paired_comparison(0.9 * b, b, np.full(200, 100))
+    >>> out["a_lower"], round(out["sum_ratio"], 3), bool(out["sign_p"] < 1e-10)
+    (1.0, 0.9, True)
+    """
+    from scipy.stats import binomtest
+
+    a, b = np.asarray(chi2_a, dtype=float), np.asarray(chi2_b, dtype=float)
+    d = np.asarray(dof, dtype=float)
+    ok = np.isfinite(a) & np.isfinite(b) & (d > 0)
+    a, b, d = a[ok], b[ok], d[ok]
+    n = int(ok.sum())
+    if n == 0:
+        return {"n": 0, "a_lower": np.nan, "sign_p": np.nan, "sum_ratio": np.nan,
+                "mean_diff": np.nan, "mean_diff_ci": (np.nan, np.nan), "median_ratio": np.nan}
+    diff = (a - b) / d
+    lower, ties = int(np.sum(diff < 0)), int(np.sum(diff == 0))
+    sign_p = binomtest(lower, n - ties, 0.5).pvalue if n > ties else 1.0
+    rng = np.random.default_rng(random_state)
+    boot = diff[rng.integers(0, n, (int(n_boot), n))].mean(axis=1)
+    return {"n": n, "a_lower": lower / n, "sign_p": float(sign_p),
+            "sum_ratio": float(a.sum() / b.sum()), "mean_diff": float(diff.mean()),
+            "mean_diff_ci": (float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5))),
+            "median_ratio": float(np.median(a / b))}
+
+
+class CrossValidation:
+    """What :func:`cross_validate_catalog` returns.
+
+    Attributes
+    ----------
+    table : astropy.table.Table
+        One row per judged star: ``row`` (its row in the catalogue, 0-based), ``x``, ``y``
+        (0-based pixels), ``fold``, ``dof``, and for every model ``chi2_<name>`` (NaN where
+        the model could not be fitted or measured on it).
+    models : list of str
+        The models' names, this package's first.
+    counts : dict
+        ``n_rows`` (catalogue rows), ``n_selected`` (stars this package selects),
+        ``n_psfex`` (stars PSFEx accepts, per PSFEx setting), ``n_judged``, and ``n_fit``
+        (the stars each fold's model of this package rests on, per fold).
+    """
+
+    def __init__(self, table, models, counts):
+        self.table, self.models, self.counts = table, list(models), dict(counts)
+
+    def compare(self, a=None, b=None, **kwargs) -> dict:
+        """:func:`paired_comparison` of model ``a`` (default this package's) against ``b``
+        (default the next model)."""
+        a = self.models[0] if a is None else a
+        b = self.models[1] if b is None else b
+        return paired_comparison(self.table[f"chi2_{a}"], self.table[f"chi2_{b}"],
+                                 self.table["dof"], **kwargs)
+
+    def lines(self) -> list:
+        """The comparison in words, one line per model against this package's."""
+        ours = self.models[0]
+        t = self.table
+        out = [f"{len(t)} stars judged out of sample in {int(np.max(t['fold'])) + 1} folds "
+               "(chi^2 of each raw star against the model moved to it by a fitted sub-pixel "
+               "shift, with its flux and background fitted, in the star's pixel noise)"]
+        for name in self.models:
+            c = np.asarray(t[f"chi2_{name}"], float)
+            ok = np.isfinite(c)
+            out.append(f"  {name}: {int(ok.sum())} stars measured, summed chi^2/dof "
+                       f"{c[ok].sum() / np.asarray(t['dof'])[ok].sum():.4f}")
+        for other in self.models[1:]:
+            r = self.compare(ours, other)
+            if not r["n"]:
+                continue
+            lo, hi = r["mean_diff_ci"]
+            out.append(
+                f"  {ours} against {other} on the {r['n']} stars both measure: lower chi^2 on "
+                f"{r['a_lower']:.0%} of them (sign test p = {r['sign_p']:.2g}); summed chi^2 "
+                f"ratio {r['sum_ratio']:.4f}; median ratio {r['median_ratio']:.4f}; mean "
+                f"difference of chi^2/dof {r['mean_diff']:+.4f} (95% bootstrap interval "
+                f"{lo:+.4f} to {hi:+.4f})")
+        return out
+
+
+def _write_rows(path, out, keep):
+    """A copy of the FITS_LDAC catalogue ``path`` holding only the objects ``keep`` (bool)."""
+    from astropy.io import fits
+
+    with fits.open(path) as hdul:
+        hdus = [h.copy() for h in hdul]
+        heads = {i: (hdul.fileinfo(i)["datLoc"], hdul.fileinfo(i)["datSpan"])
+                 for i, h in enumerate(hdul) if h.name == "LDAC_IMHEAD"}
+    for i, h in enumerate(hdus):
+        if isinstance(h, fits.BinTableHDU) and h.name == "LDAC_OBJECTS":
+            hdus[i] = fits.BinTableHDU(h.data[keep], header=h.header, name=h.name)
+    fits.HDUList(hdus).writeto(out)
+    # the image header's cell byte for byte (astropy pads it with NUL bytes, which PSFEx
+    # 3.21 crashes on)
+    with fits.open(out) as hdul:
+        starts = {i: hdul.fileinfo(i)["datLoc"] for i in heads}
+    with open(path, "rb") as src, open(out, "r+b") as dst:
+        for i, (loc, span) in heads.items():
+            src.seek(loc)
+            dst.seek(starts[i])
+            dst.write(src.read(span))
+
+
+def _psfex_accepted(path, config, folder):
+    """Which rows of the catalogue PSFEx accepts (``FLAGS_PSF`` 0 in its output catalogue)."""
+    from astropy.io import fits
+
+    from ..io import run_psfex
+
+    out = os.path.join(folder, "psfex_full.cat")
+    run_psfex(path, folder, config={**config, "OUTCAT_TYPE": "FITS_LDAC", "OUTCAT_NAME": out},
+              overwrite=True)
+    with fits.open(out) as hdul:
+        objects = hdul["LDAC_OBJECTS"].data
+        number = np.asarray(objects["SOURCE_NUMBER"]) - 1  # 1-based rows of the input
+        flags = np.asarray(objects["FLAGS_PSF"])
+    accepted = np.zeros(int(number.max()) + 1 if len(number) else 0, dtype=bool)
+    accepted[number[flags == 0]] = True
+    return accepted
+
+
+def cross_validate_catalog(catalog, *, n_folds: int = 5, psfex=None, fit_options=None,
+                           models=None, random_state=0, progress=None,
+                           work_dir=None) -> CrossValidation:
+    """K-fold cross-validation of this package's model (and PSFEx's) on a catalogue's stars.
+
+    The stars are those this package selects (:func:`fit_exposure`'s selection) and, when
+    PSFEx runs, that every PSFEx setting accepts on the whole catalogue; they are split at
+    random into ``n_folds`` folds. For each fold, every tool is fitted on the catalogue
+    without that fold's stars (its own selection and outlier rejection on what is left) and
+    judged on them: each star is judged once, out of sample, by every model, in the same
+    pixels and noise (:func:`validate_models`: chi^2 of the raw star against the model moved
+    to it by a fitted sub-pixel shift, flux and background fitted; neighbours masked as
+    :func:`fit_exposure` masks them).
+
+    Parameters
+    ----------
+    catalog : str or os.PathLike
+        A SExtractor FITS_LDAC catalogue with ``VIGNET`` stamps (PSFEx's input).
+    n_folds : int, default=5
+    psfex : dict, list of dict or None
+        PSFEx settings (e.g. ``{"PSFVAR_DEGREES": 2}``), one model per dict, each named
+        ``psfex`` (or ``psfex_<k>``); PSFEx must be installed. None: no PSFEx model.
+    fit_options : dict, optional
+        Options of :func:`fit_exposure` for this package's model (``reserve`` is 0).
+    models : dict, optional
+        ``{name: callable(fold, train_catalog_path) -> model}``: further models per fold (an
+        object with ``predict``, or a model file).
+    random_state : int, default=0
+        Seed of the folds.
+    progress : callable, optional
+        Called with a short text as each fold starts.
+    work_dir : str, optional
+        Folder for the folds' catalogues and PSFEx files (default a temporary folder,
+        removed afterwards).
+
+    Returns
+    -------
+    CrossValidation
+    """
+    from sklearn.model_selection import KFold
+
+    from ..io import run_psfex, select_stars
+    from ._compare import validate_models
+    from ._exposure import _mask_neighbours, fit_exposure, read_exposure
+    from ._external import load_psf_model
+
+    path = os.fspath(catalog)
+    fit_options = {k: v for k, v in (fit_options or {}).items() if k != "reserve"}
+    configs = [] if psfex is None else [psfex] if isinstance(psfex, dict) else list(psfex)
+    step = progress or (lambda text: None)
+    inputs = read_exposure(catalog=path)
+    table = inputs.catalog
+    if not inputs.has_vignettes:
+        raise InputError(f"{path} has no VIGNET column: cross-validation reads the stars' "
+                         "stamps from the catalogue (PSFEx's input)")
+    side = inputs.default_stamp_size
+    sel = {k: fit_options[k] for k in ("min_snr", "flag_mask", "isolation", "locus_width",
+                                       "max_spread_model", "min_class_star")
+           if k in fit_options}
+    flag_mask = sel.get("flag_mask", 0xfe)
+    keep, _ = select_stars(table, min_snr=sel.get("min_snr", 20.0),
+                           saturation=inputs.saturation, flag_mask=flag_mask,
+                           stamp_size=side, isolation=sel.get("isolation"),
+                           locus_width=sel.get("locus_width", "auto"),
+                           max_spread_model=sel.get("max_spread_model", 0.003),
+                           min_class_star=sel.get("min_class_star", 0.8), min_stars=0)
+    counts = {"n_rows": len(table), "n_selected": int(keep.sum()), "n_psfex": [],
+              "n_fit": []}
+    names = ["sklearn_psf"] + [("psfex" if len(configs) == 1 else f"psfex_{k + 1}")
+                               for k in range(len(configs))] + list(models or {})
+    with tempfile.TemporaryDirectory(prefix="sklearn_psf_cv_") as tmp:
+        folder = tmp if work_dir is None else os.fspath(work_dir)
+        os.makedirs(folder, exist_ok=True)
+        for k, config in enumerate(configs):
+            accepted = _psfex_accepted(path, config, os.path.join(folder, f"full_{k}"))
+            accepted = np.pad(accepted, (0, max(0, len(table) - len(accepted))))
+            counts["n_psfex"].append(int(accepted.sum()))
+            keep &= accepted[:len(table)]
+        judged = np.flatnonzero(keep)
+        if len(judged) < n_folds:
+            raise InputError(f"{len(judged)} stars are selected by every tool: too few for "
+                             f"{n_folds} folds")
+        fold_of = np.full(len(table), -1)
+        splits = KFold(n_folds, shuffle=True, random_state=random_state).split(judged)
+        for k, (_, test) in enumerate(splits):
+            fold_of[judged[test]] = k
+        columns = {name: np.full(len(table), np.nan) for name in names}
+        dof = np.zeros(len(table), dtype=np.int64)
+        stars_table = table.copy(copy_data=False)
+        if flag_mask is not None and "flags" in stars_table.colnames:
+            stars_table["flags"] = np.asarray(stars_table["flags"]).astype(np.int64) \
+                & int(flag_mask)
+        for k in range(n_folds):
+            step(f"fold {k + 1} of {n_folds}")
+            test = np.flatnonzero(fold_of == k)
+            train = os.path.join(folder, f"fold{k + 1}_train.ldac")
+            _write_rows(path, train, fold_of != k)
+            fitted = {}
+            fit = fit_exposure(catalog=train, reserve=0.0, **fit_options)
+            fitted["sklearn_psf"] = fit.model
+            counts["n_fit"].append(int(np.sum(fit.model.inlier_mask_)))
+            for j, config in enumerate(configs):
+                out = os.path.join(folder, f"fold{k + 1}_psfex{j + 1}")
+                psf = run_psfex(train, out, config=config, overwrite=True)
+                fitted[names[1 + j]] = load_psf_model(psf, side)
+            for name, make in (models or {}).items():
+                fitted[name] = make(k, train)
+            stars = inputs.cut_stamps(stars_table[test], side)
+            used = np.asarray(stars.catalog["used"], dtype=bool)
+            _mask_neighbours(stars, table, test[used], [])
+            rows = test[used]
+            _, results = validate_models(stars.positions, stars.stamps, fitted,
+                                         weights=stars.weights)
+            for name, (res, _) in results.items():
+                index = rows[np.asarray(res["index"])]
+                columns[name][index] = np.asarray(res["chi2"], float)
+                dof[index] = np.asarray(res["dof"])
+    rows = judged[dof[judged] > 0]
+    out = Table({"row": rows, "x": np.asarray(table["x"])[rows],
+                 "y": np.asarray(table["y"])[rows], "fold": fold_of[rows], "dof": dof[rows]})
+    for name in names:
+        out[f"chi2_{name}"] = columns[name][rows]
+    counts["n_judged"] = len(judged)
+    return CrossValidation(out, names, counts)
