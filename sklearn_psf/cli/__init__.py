@@ -2,7 +2,8 @@
 ``sklearn-psf fit`` builds a validated PSF model of a FITS image (or of each of many CCDs, in
 parallel or on a Dask cluster) and ``sklearn-psf predict`` evaluates a saved model at given
 positions; ``sklearn-psf validate`` compares PSF models
-(this package's, PSFEx, PIFF) on the same reserved stars.
+(this package's, PSFEx, PIFF) on the same reserved stars, and ``sklearn-psf crossval`` this
+package's model and PSFEx by K-fold cross-validation, every star judged once by both.
 
 Run ``sklearn-psf <command> --help`` for the options. Errors in the arguments or the data end with
 a one-line message and exit status 2; any other failure is a bug of the package: it says so,
@@ -21,13 +22,14 @@ from .._files import is_input_error
 from ._fit import _add_fit_parsers, _fit, _predict
 from ._compare import PRESETS, STUDIES, STUDY_SCHEMES, add_compare_parser, run_compare
 from ._validate import add_validate_parser, run_validate
+from ._crossval import add_crossval_parser, run_crossval
 
 __all__ = ["PRESETS", "STUDIES", "STUDY_SCHEMES", "build_parser", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``sklearn-psf`` argument parser (commands ``compare``, ``fit``, ``predict``,
-    ``validate``)."""
+    ``validate``, ``crossval``)."""
     parser = argparse.ArgumentParser(
         prog="sklearn-psf", description="PSF modelling and interpolation (Berge et al. 2012)."
     )
@@ -37,6 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_compare_parser(sub)
     _add_fit_parsers(sub)
     add_validate_parser(sub)
+    add_crossval_parser(sub)
     return parser
 
 
@@ -53,7 +56,7 @@ def main(argv=None) -> int:
 def _run(args) -> int:
     """Run the command of the parsed ``args``; the exit status of :func:`main`."""
     runners = {"compare": run_compare, "fit": _fit, "predict": _predict,
-               "validate": run_validate}
+               "validate": run_validate, "crossval": run_crossval}
     debug = args.debug or os.environ.get("SKLEARN_PSF_DEBUG", "") not in ("", "0")
     try:
         return runners[args.command](args)

@@ -86,6 +86,11 @@ def _add_fit_parsers(sub):
                      help="stamp side [25; a catalogue's VIGNET side]; the star's pixel is at "
                      "index side // 2 (SExtractor's VIGNET convention, even sides too)")
     fit.add_argument("--seed", type=int, default=0, help="seed of the reserved-star draw [0]")
+    fit.add_argument("--reserve-out", metavar="RESERVED.fits",
+                     help="write the reserved stars' catalogue rows to this FITS catalogue, "
+                     "and every other row to RESERVED_train.fits (a FITS or FITS_LDAC "
+                     "catalogue input only): run PSFEx on the second, then 'sklearn-psf "
+                     "validate --stars RESERVED.fits' judges both models on the same stars")
     fit.add_argument("--no-plots", action="store_true", help="do not write figures")
     fit.add_argument("--psfex", metavar="PATH.psf",
                      help="also write the model as a PSFEx .psf file (for Source Extractor's "
@@ -271,6 +276,14 @@ def _fit(args):
         if len(jobs) > 1:
             raise CLIInputError("--psfex writes one .psf file: give one input (one model)")
         _check_output_file(args.psfex, args.overwrite, inputs=inputs)
+    if args.reserve_out is not None:
+        if len(jobs) > 1 or not args.stars:
+            raise CLIInputError("--reserve-out writes the rows of one catalogue: give one "
+                                "--stars catalogue (one model)")
+        if args.reserve == 0:
+            raise CLIInputError("--reserve-out needs reserved stars: --reserve is 0")
+        for path in _reserve_paths(args.reserve_out):
+            _check_output_file(path, args.overwrite, inputs=inputs)
     if len(jobs) > 1 or args.scheduler is not None:
         return _fit_many(jobs, args)
     outcome = _fit_one(jobs[0])
@@ -461,6 +474,8 @@ def _fit_steps(args, lines, fit_warnings, quiet=False):
         written = [args.output]
         if getattr(args, "psfex", None):
             written.append(_write_psfex(args, fit, lines))
+        if getattr(args, "reserve_out", None):
+            written += _write_reserved(args, fit)
         if not args.no_plots:
             bar.set_description("figures")
             written += _save_figures(fit.figures(), _figure_paths(args.output))
@@ -485,6 +500,27 @@ def _write_psfex(args, fit, lines):
                  f"error against the model: pixel rms {out.pixel_rms:.2e} of the peak, e rms "
                  f"{out.e_rms:.4f}, size rms {out.size_rms:.4f} pixels")
     return args.psfex
+
+
+def _reserve_paths(path):
+    """The reserved stars' catalogue and the others' (``<stem>_train<ext>``)."""
+    stem, ext = os.path.splitext(path)
+    return path, f"{stem}_train{ext or '.fits'}"
+
+
+def _write_reserved(args, fit):
+    """The catalogue's reserved rows and the other rows, each to its own file."""
+    import numpy as np
+
+    from ..io import write_catalog_rows
+
+    reserved = fit.stars.rows[np.asarray(fit.residuals["index"], dtype=int)]
+    paths = _reserve_paths(args.reserve_out)
+    with _about(args.stars):
+        write_catalog_rows(args.stars, paths[0], reserved, overwrite=args.overwrite)
+        write_catalog_rows(args.stars, paths[1], reserved, invert=True,
+                           overwrite=args.overwrite)
+    return list(paths)
 
 
 def _save_figures(figures, paths):

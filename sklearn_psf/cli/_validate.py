@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import os
 
-from ._common import (CLIInputError, _about, _check_not_input, _non_negative, _positive,
-                      _stamp_size)
+from ._common import (CLIInputError, _about, _bits, _check_not_input, _non_negative,
+                      _positive, _stamp_size)
 
 #: Files ``validate`` writes in its output folder (figures only without --no-plots).
 OUTPUTS = {"table": "validation.csv", "rho": "validation_rho.png",
@@ -55,6 +55,9 @@ def add_validate_parser(sub):
                    help="apply the star selection of 'fit' to the catalogue [use every row]")
     p.add_argument("--min-snr", type=_non_negative, default=20.0,
                    help="smallest S/N of a selected star, with --select [20]")
+    p.add_argument("--flag-mask", type=_bits, default=0xFE,
+                   help="bits of FLAGS that leave a star out [0xfe, PSFEx's and fit's: "
+                   "stars flagged 1, with neighbours, are judged]")
     p.add_argument("--stamp-size", type=_stamp_size,
                    help="stamp side, odd or even [25; a catalogue's VIGNET side]")
     p.add_argument("--saturation", type=_positive,
@@ -72,6 +75,8 @@ def add_validate_parser(sub):
 
 def _stars(args):
     """Positions, stamps, weights, WCS and a line on the stars used."""
+    import numpy as np
+
     from ..io import celestial_wcs, select_stars
     from ..validation import read_exposure
 
@@ -84,6 +89,7 @@ def _stars(args):
     n_rows = len(catalog)
     if args.select:
         keep, counts = select_stars(catalog, min_snr=args.min_snr, saturation=inputs.saturation,
+                                    flag_mask=args.flag_mask,
                                     stamp_size=args.stamp_size or 25)
         if keep.sum() < 1:
             reasons = ", ".join(f"{k} {v}" for k, v in counts.items()
@@ -91,6 +97,9 @@ def _stars(args):
             raise CLIInputError(f"no star of {args.stars} passes the selection ({reasons}); "
                                 "leave out --select or lower --min-snr")
         catalog = catalog[keep]
+    if "flags" in catalog.colnames:  # judged as fit and PSFEx accept them: flag 1 is fine
+        catalog = catalog.copy(copy_data=False)
+        catalog["flags"] = np.asarray(catalog["flags"]).astype(np.int64) & args.flag_mask
     cut = inputs.cut_stamps(catalog, args.stamp_size)
     skipped = ", ".join(f"{k} {v}" for k, v in cut.counts.items()
                         if k not in ("input", "used") and v)
@@ -192,8 +201,10 @@ def run_validate(args) -> int:
     left_out = ", ".join(f"{k} {v}" for k, v in table.meta["left_out"].items() if v)
     if left_out:
         print(f"stars left out of the comparison: {left_out}")
-    print(f"star - model on the same stars (rank 1: lowest chi2/dof; e and size from adaptive "
-          f"moments, size in pixels; |rho| mean over separations in {units}):")
+    print(f"star - model on the same stars (rank 1: lowest chi2/dof, each model moved to "
+          f"each star by a fitted sub-pixel shift; e and size from "
+          f"{table.meta['moments']} moments, size in pixels; |rho| mean over separations in "
+          f"{units}):")
     _print_table(table)
     print(f"Wrote {', '.join(written)}")
     return 0

@@ -85,7 +85,7 @@ or step by step::
 """
 
 from .._files import InputError
-from ._catalog import CatalogColumnWarning, read_catalog, write_ldac
+from ._catalog import CatalogColumnWarning, read_catalog, write_catalog_rows, write_ldac
 from ._draw import draw_psf, extrapolation_flags
 from ._image import FITSHeaderWarning, read_image
 from ._psf_stamps import read_psf_stamps, write_psf_stamps
@@ -148,6 +148,7 @@ __all__ = [
     "save_model",
     "select_stars",
     "sky_to_pixel",
+    "write_catalog_rows",
     "write_ldac",
     "write_psf_stamps",
 ]

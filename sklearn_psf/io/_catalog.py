@@ -12,7 +12,7 @@ from astropy.table import Table
 from .._files import InputError
 from ._image import _checked_header, _FileError, _is_fits, _one_line, _tolerant_fits
 
-__all__ = ["read_catalog", "write_ldac", "CatalogColumnWarning"]
+__all__ = ["read_catalog", "write_catalog_rows", "write_ldac", "CatalogColumnWarning"]
 
 
 class CatalogColumnWarning(UserWarning):
@@ -154,6 +154,83 @@ def write_ldac(path, objects: Table, header=None, overwrite: bool = False) -> No
     with open(path, "r+b") as f:
         f.seek(start)
         f.write(text.encode("ascii"))
+
+
+def write_catalog_rows(path, out, rows, *, invert: bool = False,
+                       overwrite: bool = False) -> None:
+    """Write a copy of a FITS catalogue holding only some of its sources.
+
+    For a SExtractor FITS_LDAC file the ``LDAC_OBJECTS`` table is cut and every other HDU
+    (the image header of ``LDAC_IMHEAD`` byte for byte, as PSFEx needs it) is kept; for a
+    FITS table, its first table HDU is cut. What PSFEx or this package then reads is the
+    same catalogue without the other sources (e.g. the reserved stars of a fit, or a
+    cross-validation fold's training stars).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A FITS_LDAC or FITS table catalogue.
+    out : str or os.PathLike
+        The copy to write.
+    rows : array-like of bool of shape (n,), or of int
+        The sources to keep (a mask over the catalogue's rows, or their 0-based indices).
+    invert : bool, default=False
+        Keep every source but ``rows``.
+    overwrite : bool, default=False
+
+    Raises
+    ------
+    InputError
+        A file that is not a FITS catalogue.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from astropy.table import Table
+    >>> from sklearn_psf.io import read_catalog, write_catalog_rows, write_ldac
+    >>> folder = tempfile.mkdtemp()
+    >>> write_ldac(os.path.join(folder, "all.ldac"),
+    ...            Table({"X_IMAGE": [11.0, 20.0, 30.0], "Y_IMAGE": [21.0, 5.0, 9.0]}))
+    >>> write_catalog_rows(os.path.join(folder, "all.ldac"), os.path.join(folder, "two.ldac"),
+    ...                    [0, 2])
+    >>> read_catalog(os.path.join(folder, "two.ldac"))["x"].tolist()
+    [10.0, 29.0]
+    """
+    from .._files import InputError
+
+    path, out = os.fspath(path), os.fspath(out)
+    try:
+        hdul = fits.open(path)
+    except OSError as exc:
+        raise InputError(f"{path} is not a FITS catalogue ({exc})") from None
+    with hdul:
+        names = [h.name for h in hdul]
+        target = "LDAC_OBJECTS" if "LDAC_OBJECTS" in names else next(
+            (h.name for h in hdul if isinstance(h, fits.BinTableHDU)), None)
+        if target is None:
+            raise InputError(f"{path} holds no FITS table to cut")
+        hdus = [h.copy() for h in hdul]
+        heads = {i: (hdul.fileinfo(i)["datLoc"], hdul.fileinfo(i)["datSpan"])
+                 for i, name in enumerate(names) if name == "LDAC_IMHEAD"}
+    i = names.index(target)
+    data = hdus[i].data
+    keep = np.asarray(rows)
+    if keep.dtype != bool:
+        keep = np.isin(np.arange(len(data)), keep)
+    if invert:
+        keep = ~keep
+    hdus[i] = fits.BinTableHDU(data[keep], header=hdus[i].header, name=target)
+    fits.HDUList(hdus).writeto(out, overwrite=overwrite)
+    # the image header's cell byte for byte (astropy pads it with NUL bytes, which PSFEx
+    # 3.21 crashes on)
+    with fits.open(out) as written:
+        starts = {j: written.fileinfo(j)["datLoc"] for j in heads}
+    with open(path, "rb") as src, open(out, "r+b") as dst:
+        for j, (loc, span) in heads.items():
+            src.seek(loc)
+            dst.seek(starts[j])
+            dst.write(src.read(span))
 
 
 def _read_table(path, hdu):

@@ -270,6 +270,9 @@ class StarStamps:
     weights : ndarray of shape (m, s*s) or None
         Pixel weights: inverse variance in the stamps' units, 0 for masked pixels; None when
         no weight map was given.
+    rows : ndarray of shape (m,) or None
+        Each used star's row in the catalogue the selection started from (set by
+        :func:`~sklearn_psf.validation.fit_exposure`; None otherwise).
     """
 
     def __init__(self, positions, stamps, catalog, counts, weights=None):
@@ -278,6 +281,7 @@ class StarStamps:
         self.catalog = catalog
         self.counts = counts
         self.weights = weights
+        self.rows = None
 
     def __repr__(self):
         skipped = ", ".join(f"{k}={v}" for k, v in self.counts.items()

@@ -217,13 +217,41 @@ class PixelNoise(NamedTuple):
         return self.sky * inv_w + self.poisson * np.maximum(model, 0.0) + self.eps2 * model**2
 
 
-def _noise_likelihood(r2, v, m, m2, theta):
-    """Gaussian negative log-likelihood of residuals ``r2`` (squared) under variances
-    ``theta[0] v + theta[1] m + theta[2] m2``, and its gradient."""
-    var = theta[0] * v + theta[1] * m + theta[2] * m2
-    q = r2 / var
-    g = (1.0 - q) / var
-    return float(np.sum(np.log(var) + q)), np.array([g @ v, g @ m, g @ m2])
+#: Largest number of pixels the noise calibration fits its three terms on.
+_NOISE_PIXELS = 100_000
+
+
+def _fit_variance(r2, design, theta):
+    """Non-negative ``theta`` of the variance model ``design @ theta`` for the squared
+    residuals ``r2``, by Fisher scoring (iteratively reweighted least squares: ``E[r^2] =
+    V``, ``Var(r^2) = 2 V^2`` for Gaussian residuals); the first term (the sky's) is kept,
+    the others dropped where they would go negative (every subset tried)."""
+    from itertools import combinations
+
+    k = design.shape[1]
+    subsets = [(0, *c) for m in range(k) for c in combinations(range(1, k), m)]
+    for _ in range(30):
+        var = np.maximum(design @ theta, 1e-300)
+        a = design / var[:, None]
+        b = r2 / var
+        norm = np.sqrt((a**2).sum(axis=0)) + 1e-300
+        a = a / norm
+        gram, rhs = a.T @ a, a.T @ b  # the weighted normal equations, columns scaled
+        best, best_cost = theta, np.inf
+        for cols in subsets:
+            c = list(cols)
+            sol = np.linalg.lstsq(gram[np.ix_(c, c)], rhs[c], rcond=None)[0]
+            if (sol < 0).any():
+                continue
+            cost = float(sol @ gram[np.ix_(c, c)] @ sol - 2 * sol @ rhs[c])
+            if cost < best_cost:
+                best_cost, best = cost, np.zeros(k)
+                best[c] = sol / norm[c]
+        done = np.allclose(best, theta, rtol=1e-6, atol=0)
+        theta = best
+        if done:
+            break
+    return theta
 
 
 def calibrate_pixel_noise(stamps, model, weights, reference=None, clip=5.0) -> PixelNoise:
@@ -233,12 +261,12 @@ def calibrate_pixel_noise(stamps, model, weights, reference=None, clip=5.0) -> P
     Poisson term), a gain in the wrong units, noise correlated by resampling, a sky
     variance that the stamps' borders misjudge, and the model's own error in the bright
     cores. The variance of a pixel is taken as ``sky / w + poisson * max(model, 0) + eps2 *
-    model^2`` (see :class:`PixelNoise`) and its three terms are fitted by maximum likelihood
-    to the squared residuals of the ``reference`` stars' unmasked pixels (Gaussian), pixels
-    beyond ``clip`` standard deviations (cosmic-ray hits, defects) left out, then the stars
-    whose residuals exceed the others' (the 20% of largest reduced chi^2: blends, galaxies)
-    left out and the fit repeated. Weights that already hold the right noise give ``sky``
-    near 1 and ``poisson`` near 0.
+    model^2`` (see :class:`PixelNoise`) and its three terms are fitted to the squared
+    residuals of the ``reference`` stars' unmasked pixels (Gaussian likelihood, by Fisher
+    scoring; non-negative terms), pixels beyond ``clip`` standard deviations (cosmic-ray
+    hits, defects) left out, then the stars whose reduced chi^2 exceeds the others' (by more
+    than 4 robust standard deviations: blends, galaxies) left out and the fit repeated. Weights that
+    already hold the right noise give ``sky`` near 1 and ``poisson`` near 0.
 
     Parameters
     ----------
@@ -251,39 +279,36 @@ def calibrate_pixel_noise(stamps, model, weights, reference=None, clip=5.0) -> P
     -------
     PixelNoise
     """
-    from scipy.optimize import minimize
-
     good = weights > 0
     ref = np.ones(len(stamps), dtype=bool) if reference is None else np.asarray(reference, bool)
     v = np.where(good, 1.0 / np.where(good, weights, 1.0), 0.0)
     r2 = np.where(good, (stamps - model) ** 2, 0.0)
-    mp = np.maximum(model, 0.0)
-    # scales that make the three terms of order one where each matters
-    v0 = float(np.median(v[good & ref[:, None]])) if (good & ref[:, None]).any() else 1.0
-    peak = float(np.median(np.max(np.where(good, mp, 0.0), axis=1)[ref])) or 1.0
-    scale = np.array([1.0, v0 / peak, v0 / peak**2])  # parameters = theta * scale
+    star = np.broadcast_to(np.arange(len(stamps))[:, None], good.shape)[good]
+    design = np.column_stack([v[good], np.maximum(model[good], 0.0), model[good] ** 2])
+    r2_good = r2[good]
+    if len(star) > _NOISE_PIXELS:  # three numbers: a fixed random subset of pixels will do
+        sub = np.sort(np.random.default_rng(0).choice(len(star), _NOISE_PIXELS, replace=False))
+        star, design, r2_good = star[sub], design[sub], r2_good[sub]
     theta = np.array([1.0, 0.0, 0.0])
     use = ref.copy()
     for _ in range(3):
-        pix = good & use[:, None]
+        pix = use[star]
         if pix.sum() < 10:
             break
+        d, r = design[pix], r2_good[pix]
         for _ in range(2):  # clip the pixels far beyond the current noise
-            var = (theta * scale) @ np.stack([v[pix], mp[pix], model[pix] ** 2])
-            keep = r2[pix] <= clip**2 * var
-            args = (r2[pix][keep] / v0, v[pix][keep] / v0, mp[pix][keep] / peak,
-                    model[pix][keep] ** 2 / peak**2)
-            res = minimize(lambda t: _noise_likelihood(*args, t), theta, jac=True,
-                           method="L-BFGS-B", bounds=[(1e-3, None), (0.0, None), (0.0, None)])
-            theta = res.x
-        noise = PixelNoise(*(theta * scale))
+            keep = r <= clip**2 * (d @ theta)
+            theta = _fit_variance(r[keep], d[keep], theta)
+        noise = PixelNoise(*theta)
         chi = np.where(good, r2 / np.where(good, noise.variance(weights, model), 1.0), 0.0)
         reduced = chi.sum(axis=1) / np.maximum(good.sum(axis=1), 1)
-        new = ref & (reduced <= np.quantile(reduced[ref], _FLOOR_QUANTILE))
+        med = np.median(reduced[ref])
+        spread = 1.4826 * np.median(np.abs(reduced[ref] - med))
+        new = ref & (reduced <= med + 4.0 * spread)
         if (new == use).all():
             break
         use = new
-    return PixelNoise(*(float(t) for t in theta * scale))
+    return PixelNoise(*(float(t) for t in theta))
 
 
 def pixel_residuals(stamps, model, weights, reference=None):
@@ -301,3 +326,37 @@ def pixel_inverse_variance(weights, model, noise):
     as :func:`pixel_residuals` finds it), 0 where ``weights`` is 0."""
     good = weights > 0
     return np.where(good, 1.0 / np.where(good, noise.variance(weights, model), 1.0), 0.0)
+
+
+def contaminated_pixels(z, model, threshold=5.0, core=0.05, most=0.25):
+    """Pixels of each star's stamp that hold light its model does not (a neighbour missing
+    from the catalogue, a cosmic-ray hit, a bad pixel), outside the star's core.
+
+    ``z`` are the stars' standardised residuals (NaN where masked), ``model`` their fitted
+    model stamps. A pixel is contaminated where the residual, summed over its 3 x 3
+    neighbourhood (over the square root of the pixels summed: unit variance for pure
+    noise), or the pixel's own, departs by more than ``threshold`` (+1 for a single pixel);
+    the pixels around it are taken too (a 3 x 3 dilation). Only pixels where the model is
+    below ``core`` times its peak count (the star's core is the star: a departure there is
+    a defect of the star, judged by the outlier test), and a star with more than ``most``
+    of its pixels hit gets none (its model, not a neighbour, is wrong).
+
+    Returns
+    -------
+    ndarray of shape (n, p), bool
+    """
+    from scipy.ndimage import binary_dilation, uniform_filter
+
+    n, p = z.shape
+    s = int(round(np.sqrt(p)))
+    finite = np.isfinite(z).reshape(n, s, s)
+    zz = np.where(finite, z.reshape(n, s, s), 0.0)
+    count = 9.0 * uniform_filter(finite.astype(np.float64), size=(1, 3, 3), mode="constant")
+    summed = 9.0 * uniform_filter(zz, size=(1, 3, 3), mode="constant")
+    smooth = summed / np.sqrt(np.maximum(count, 1.0))
+    hit = (np.abs(smooth) > threshold) | (np.abs(zz) > threshold + 1.0)
+    hit = binary_dilation(hit, structure=np.ones((1, 3, 3), dtype=bool))
+    outer = (model < core * model.max(axis=1, keepdims=True)).reshape(n, s, s)
+    hit &= outer & finite
+    hit[hit.reshape(n, -1).mean(axis=1) > most] = False
+    return hit.reshape(n, p)

@@ -27,6 +27,7 @@ from ._file import read_model, save_model
 from ._galsim import to_galsim
 from ._noise import (
     coefficient_residuals,
+    contaminated_pixels,
     fit_interpolator,
     kriging_steps,
     leave_out_predict,
@@ -48,6 +49,25 @@ def _rows(keep, a, b):
     out = np.empty((len(keep),) + np.shape(a)[1:], dtype=np.result_type(a, b))
     out[keep], out[~keep] = a, b
     return out
+
+
+def _calibrated(weights, stamp_fit, noise, usable):
+    """The weights for the next round in the pixel noise the stars showed (``noise``, its
+    sky scale and Poisson term from the stars' models; not the model error), where it
+    departs from the given weights (a sky variance off by over 2%, or a Poisson term over
+    2% of the sky's at the typical star's peak); else ``weights`` as they are."""
+    if noise is None or stamp_fit is None:
+        return weights
+    w, model = stamp_fit.weights, stamp_fit.model
+    good = w > 0
+    v = np.median(1.0 / w[good]) if good.any() else 1.0
+    peak = np.median(np.max(np.where(good, model, 0.0), axis=1)[usable]) if usable.any() \
+        else 0.0
+    if abs(noise.sky - 1.0) <= 0.02 and noise.poisson * peak <= 0.02 * v:
+        return weights
+    sky_poisson = noise._replace(eps2=0.0)
+    out = np.where(good, 1.0 / np.where(good, sky_poisson.variance(w, model), 1.0), 0.0)
+    return np.where(usable[:, None], out, w)
 
 
 def _warm(template, fitted, on=True):
@@ -82,10 +102,14 @@ class PSFModel(RegressorMixin, BaseEstimator):
        ``outliers="chi2"`` (the default), a star is rejected when its pixels differ from its
        own fit on the basis, or its coefficients from their interpolation from the other
        stars (5-fold cross-prediction), by more than its noise and the model's own error
-       allow (:class:`~sklearn_psf.preprocessing.ChiSquareOutlierDetector`), or when that
-       departure and the star's pixel residual have the shape an unresolved companion gives
-       them (a larger size, an ellipticity along the separation; see the user guide); the
-       basis is then fitted
+       allow, judged against the other stars where they all depart from the noise law
+       (:class:`~sklearn_psf.preprocessing.ChiSquareOutlierDetector`; the pixel noise is
+       first learnt from the stars' residuals, ``pixel_noise_``), or when that departure
+       and the star's pixel residual have the shape an unresolved companion gives them (a
+       larger size, an ellipticity along the separation; see the user guide); at most the
+       detector's ``max_remove`` of the stars. Pixels outside a star's core that hold light
+       its model does not (an uncatalogued neighbour, a cosmic-ray hit) are masked
+       (``contaminated_pixels_``) and the star judged again; the basis is then fitted
        again without the rejected stars;
     3. fits ``interpolator`` on (positions, coefficients) of the kept stars, passing each
        star's coefficient noise when the interpolator takes it: the full covariance across
@@ -161,6 +185,16 @@ class PSFModel(RegressorMixin, BaseEstimator):
     outlier_score_ : ndarray of shape (n_stars,)
         The detector's ``score_samples`` (larger = more normal; log10 p-value for "chi2");
         NaN for unusable stars; None without outlier rejection.
+    pixel_noise_ : PixelNoise or None
+        With ``outliers="chi2"`` and a noise-aware basis, the stars' pixel noise learnt from
+        their residuals (``sky``: scale of the weights' variances, ``poisson``: a Poisson
+        term per unit of the model missing from them, ``1 / gain``; ``eps2``: the model's
+        relative error squared); real images rarely carry the right noise model (no gain,
+        other units, resampling). None otherwise.
+    contaminated_pixels_ : ndarray of shape (n_stars,), int
+        Pixels of each star's stamp masked after the first fit as holding light its model
+        does not (a neighbour missing from the catalogue, a cosmic-ray hit, a bad pixel;
+        outside the star's core), so that the star is cleaned rather than rejected.
 
     See Also
     --------
@@ -304,6 +338,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
 
         keep = np.ones(n, dtype=bool)
         fitted, fit_warnings = None, []  # the chi^2 test's interpolator and its warnings
+        contaminated = np.zeros(y.shape, dtype=bool)
         for round_ in range(2):
             basis, fitted_stars = self._fit_basis(clone(basis), y, weights, keep, X)
             coef, var, cov, flag, stamp_fit = self._project(basis, y, weights, keep,
@@ -315,12 +350,18 @@ class PSFModel(RegressorMixin, BaseEstimator):
                                  f"{k} components: need at least {k + 2}.")
             trusted = usable & keep
             # (the second round's fit starts from the first's: it is refitted in place)
-            inliers, score, fitted, fit_warnings = self._reject(
+            inliers, score, fitted, fit_warnings, hit, noise = self._reject(
                 detector, X, y, coef, var, cov, trusted, usable, template, stamp_fit, basis,
                 previous=fitted)
             mask = usable & inliers
-            if round_ == 1 or not noise_aware or (mask == trusted).all():
+            new = None if hit is None or round_ == 1 else hit & ~contaminated
+            if round_ == 1 or not noise_aware or ((mask == trusted).all()
+                                                   and (new is None or not new.any())):
                 break
+            if new is not None and new.any():  # the neighbours' light masked, not the star
+                contaminated |= new
+                y = np.where(contaminated, np.nan, y)
+            weights = _calibrated(weights, stamp_fit, noise, usable)
             keep = inliers  # fit the basis again without the rejected stars
             # (this round's per-star arrays go before the next round's)
             coef = var = cov = stamp_fit = None
@@ -353,6 +394,8 @@ class PSFModel(RegressorMixin, BaseEstimator):
         self.inlier_mask_ = mask
         self.fit_flag_ = flag
         self.outlier_score_ = score
+        self.contaminated_pixels_ = contaminated.sum(axis=1)
+        self.pixel_noise_ = noise
         self.n_components_ = k
         self.stamp_size_ = s
         self.X_fit_ = np.array(X, copy=True)
@@ -432,9 +475,11 @@ class PSFModel(RegressorMixin, BaseEstimator):
     def _reject(self, detector, X, y, coef, var, cov, trusted, usable, interp, stamp_fit,
                 basis=None, previous=None):
         """Inlier mask over all stars, the detector's score (NaN where unusable), the
-        interpolator fitted on the trusted stars (None unless the test is chi^2) and the
+        interpolator fitted on the trusted stars (None unless the test is chi^2), the
         warnings of that fit (``previous``, the previous round's, refitted from its
-        hyperparameters when given).
+        hyperparameters when given), the stars' contaminated pixels and their pixel noise
+        (None unless the stars' own fits are known; see :func:`contaminated_pixels` and
+        :func:`calibrate_pixel_noise`).
 
         The chi^2 test's references (leave-one-out or cross-predictions, model-error floors)
         come from the ``trusted`` stars only (the inliers of the previous round); every
@@ -443,7 +488,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
         n = len(X)
         inliers = np.ones(n, dtype=bool)
         if detector is None:
-            return inliers, None, None, []
+            return inliers, None, None, [], None, None
         idx = np.flatnonzero(usable)
         score = np.full(n, np.nan)
         if not isinstance(detector, ChiSquareOutlierDetector):
@@ -451,7 +496,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
             inliers[idx] = labels == 1
             if hasattr(detector, "score_samples"):
                 score[idx] = detector.score_samples(coef[idx])
-            return inliers, score, None, []
+            return inliers, score, None, [], None, None
         ref = trusted[idx]
         train = idx[ref]
         noise = None if var is None else var[train]
@@ -479,10 +524,12 @@ class PSFModel(RegressorMixin, BaseEstimator):
         detector.fit(z_coef)
         ok = detector.predict(z_coef) == 1
         score[idx] = detector.score_samples(z_coef)
-        pixels = None
+        pixels = hit = noise = None
         if stamp_fit is not None:
             data, model = np.where(np.isnan(y[idx]), 0.0, y[idx]), stamp_fit.model[idx]
             z_pix, noise = pixel_residuals(data, model, stamp_fit.weights[idx], reference=ref)
+            hit = np.zeros(y.shape, dtype=bool)
+            hit[idx] = contaminated_pixels(z_pix, model)
             pix = clone(detector).fit(z_pix)
             ok &= pix.predict(z_pix) == 1
             score[idx] = np.minimum(score[idx], pix.score_samples(z_pix))
@@ -501,7 +548,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
             ok = np.ones(len(idx), dtype=bool)
             ok[worst] = False
         inliers[idx] = ok
-        return inliers, score, full, caught
+        return inliers, score, full, caught, hit, noise
 
     def save(self, path, *, residuals=None, summary=None, overwrite: bool = False) -> None:
         """Write the fitted model to a self-describing FITS file (atomically).

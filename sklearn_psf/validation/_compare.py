@@ -11,7 +11,8 @@ from .._files import InputError
 from .._validation import as_stamps
 from ..metrics import FOURTH_RHO_NAMES, RHO_NAMES
 from ._external import PiffModel, PSFExModel, load_psf_model, model_kind
-from ._residuals import measure_residuals, rho_bins
+from ..measure import adaptive_moments
+from ._residuals import FIXED_WEIGHT_SIGMA, measure_residuals, moments_kind, rho_bins
 
 __all__ = ["validate_models", "COMPARISON_COLUMNS", "UNUSABLE_STAR_REASONS"]
 
@@ -63,6 +64,25 @@ def _usable_stars(cube, weights):
         counts[name] = int(np.count_nonzero(keep & tests[name]))
         keep &= ~tests[name]
     return keep, counts
+
+
+def _common_moments(cube, weights, predictions):
+    """The moments every model is measured with: adaptive ones, unless they fail on more
+    than half of the stars or of one model's stamps (then a fixed weight of sigma
+    :data:`FIXED_WEIGHT_SIGMA`, for all: undersampled stars, or a model whose wings make
+    adaptive moments diverge)."""
+    n = len(cube)
+    s = cube.shape[1]
+    w = None if weights is None else np.asarray(weights, np.float64).reshape(n, s, s)
+    d = np.where(np.isnan(cube), 0.0, cube)
+    if w is not None:
+        w = np.where(np.isnan(cube), 0.0, w)
+    stamps = [(d, w)] + [(np.asarray(p).reshape(n, s, s), None) for p in predictions]
+    for stamp, weight in stamps:
+        flags = np.asarray(adaptive_moments(stamp, weights=weight)["flag"])
+        if np.mean(flags != 0) > 0.5:
+            return FIXED_WEIGHT_SIGMA
+    return "adaptive"
 
 
 def _named_models(models, stamp_size, origin, chipnum):
@@ -152,6 +172,10 @@ def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6
         over each star's sigma^4) and ``rho1_mean_abs`` ... ``rho5_mean_abs``,
         ``rho_M4_mean_abs`` ... ``rho_TM22_mean_abs`` (mean |rho| over the separation bins;
         :func:`~sklearn_psf.metrics.fourth_moment_rho_statistics`).
+        ``table.meta`` holds ``left_out`` (see above) and ``moments`` (which moments
+        measured e and size: adaptive ones, or, when they fail on more than half of the
+        stars or of one model's stamps, a fixed Gaussian weight of sigma 1.5 pixels for
+        every model).
     results : dict
         ``{name: (residuals, summary)}`` of :func:`measure_residuals` for each model (for
         the figures, :func:`plot_model_comparison`).
@@ -200,16 +224,19 @@ def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6
             np.asarray(weights, dtype=np.float64).reshape(n, -1)[keep]
     named = _named_models(models, s, origin, chipnum)
     min_sep, max_sep = rho_bins(X, s)
-    results, rows = {}, []
+    predicted = {}
     for name, (model, kind) in named.items():
         width = np.shape(getattr(model, "X_fit_", np.zeros((0, 2))))[1]
         if width > X.shape[1]:
             raise InputError(f"model {name!r} has {width - 2} dimensions after x, y (catalogue "
                              f"keys) but X gives {X.shape[1] - 2}")
-        pred = _fit_size(model.predict(X[:, :width]), s)
-        table, summary = measure_residuals(X, cube, pred, weights=weights, wcs=wcs,
+        predicted[name] = _fit_size(model.predict(X[:, :width]), s)
+    moments = _common_moments(cube, weights, predicted.values())
+    results, rows = {}, []
+    for name, (model, kind) in named.items():
+        table, summary = measure_residuals(X, cube, predicted[name], weights=weights, wcs=wcs,
                                            min_sep=min_sep, max_sep=max_sep, nbins=nbins,
-                                           index=index)
+                                           index=index, moments=moments)
         results[name] = (table, summary)
         ok = np.asarray(table["flag"]) == 0
         row = {"model": name, "kind": kind,
@@ -233,6 +260,7 @@ def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6
         table[name].info.format = ".2e" if name.startswith(("rho", "dM")) \
             or name == "resid_rms" else ".4f"
     table.meta["left_out"] = left_out
+    table.meta["moments"] = moments_kind(None if moments == "adaptive" else moments)
     table.meta["rho_theta_units"] = next(
         (sm.get("rho_theta_units") for _, sm in results.values() if sm.get("rho_theta_units")),
         "pixel")

@@ -81,7 +81,7 @@ def _residuals_figure(results):
     for ax, (key, label) in zip(axes.ravel(), quantities):
         values = {}
         for model, (table, _) in results.items():
-            t = _measured(table)
+            t = table if key == "chi2_dof" else _measured(table)  # every star has a chi^2
             if key == "chi2_dof":
                 dof = np.asarray(t["dof"], float)
                 v = np.asarray(t["chi2"], float) / np.where(dof > 0, dof, np.nan)
@@ -253,6 +253,7 @@ def plot_model_comparison(results, *, amplify: float | None = None) -> dict:
     if any(sm.get("rho1") for sm in summaries):
         figures["rho"] = _rho_figure(results, units)
     figures["residuals"] = _residuals_figure(results)
-    figures["stamps"] = _stamps_figure(results)
-    figures["whiskers"] = _whiskers_figure(results, amplify)
+    if len(_measured(next(iter(results.values()))[0])):  # shapes measured: their figures
+        figures["stamps"] = _stamps_figure(results)
+        figures["whiskers"] = _whiskers_figure(results, amplify)
     return figures

@@ -73,15 +73,17 @@ class CrossValidation:
     Attributes
     ----------
     table : astropy.table.Table
-        One row per judged star: ``row`` (its row in the catalogue, 0-based), ``x``, ``y``
-        (0-based pixels), ``fold``, ``dof``, and for every model ``chi2_<name>`` (NaN where
-        the model could not be fitted or measured on it).
+        One row per star judged: ``row`` (its row in the catalogue, 0-based), ``x``, ``y``
+        (0-based pixels), ``snr`` (the catalogue's S/N, NaN without one), ``fold`` (from 0), ``dof``, ``judged`` (True where every PSFEx
+        setting accepts the star: the comparisons' stars), and for every model
+        ``chi2_<name>`` (NaN where the model could not be measured on it).
     models : list of str
         The models' names, this package's first.
     counts : dict
         ``n_rows`` (catalogue rows), ``n_selected`` (stars this package selects),
-        ``n_psfex`` (stars PSFEx accepts, per PSFEx setting), ``n_judged``, and ``n_fit``
-        (the stars each fold's model of this package rests on, per fold).
+        ``n_psfex`` (stars PSFEx accepts, per PSFEx setting), ``n_judged`` (stars in the
+        comparisons), and ``n_fit`` (the stars each fold's model of this package rests on,
+        per fold).
     """
 
     def __init__(self, table, models, counts):
@@ -92,13 +94,13 @@ class CrossValidation:
         (default the next model)."""
         a = self.models[0] if a is None else a
         b = self.models[1] if b is None else b
-        return paired_comparison(self.table[f"chi2_{a}"], self.table[f"chi2_{b}"],
-                                 self.table["dof"], **kwargs)
+        t = self.table[np.asarray(self.table["judged"], dtype=bool)]
+        return paired_comparison(t[f"chi2_{a}"], t[f"chi2_{b}"], t["dof"], **kwargs)
 
     def lines(self) -> list:
         """The comparison in words, one line per model against this package's."""
         ours = self.models[0]
-        t = self.table
+        t = self.table[np.asarray(self.table["judged"], dtype=bool)]
         out = [f"{len(t)} stars judged out of sample in {int(np.max(t['fold'])) + 1} folds "
                "(chi^2 of each raw star against the model moved to it by a fitted sub-pixel "
                "shift, with its flux and background fitted, in the star's pixel noise)"]
@@ -119,29 +121,6 @@ class CrossValidation:
                 f"difference of chi^2/dof {r['mean_diff']:+.4f} (95% bootstrap interval "
                 f"{lo:+.4f} to {hi:+.4f})")
         return out
-
-
-def _write_rows(path, out, keep):
-    """A copy of the FITS_LDAC catalogue ``path`` holding only the objects ``keep`` (bool)."""
-    from astropy.io import fits
-
-    with fits.open(path) as hdul:
-        hdus = [h.copy() for h in hdul]
-        heads = {i: (hdul.fileinfo(i)["datLoc"], hdul.fileinfo(i)["datSpan"])
-                 for i, h in enumerate(hdul) if h.name == "LDAC_IMHEAD"}
-    for i, h in enumerate(hdus):
-        if isinstance(h, fits.BinTableHDU) and h.name == "LDAC_OBJECTS":
-            hdus[i] = fits.BinTableHDU(h.data[keep], header=h.header, name=h.name)
-    fits.HDUList(hdus).writeto(out)
-    # the image header's cell byte for byte (astropy pads it with NUL bytes, which PSFEx
-    # 3.21 crashes on)
-    with fits.open(out) as hdul:
-        starts = {i: hdul.fileinfo(i)["datLoc"] for i in heads}
-    with open(path, "rb") as src, open(out, "r+b") as dst:
-        for i, (loc, span) in heads.items():
-            src.seek(loc)
-            dst.seek(starts[i])
-            dst.write(src.read(span))
 
 
 def _psfex_accepted(path, config, folder):
@@ -167,14 +146,16 @@ def cross_validate_catalog(catalog, *, n_folds: int = 5, psfex=None, fit_options
                            work_dir=None) -> CrossValidation:
     """K-fold cross-validation of this package's model (and PSFEx's) on a catalogue's stars.
 
-    The stars are those this package selects (:func:`fit_exposure`'s selection) and, when
-    PSFEx runs, that every PSFEx setting accepts on the whole catalogue; they are split at
-    random into ``n_folds`` folds. For each fold, every tool is fitted on the catalogue
-    without that fold's stars (its own selection and outlier rejection on what is left) and
-    judged on them: each star is judged once, out of sample, by every model, in the same
-    pixels and noise (:func:`validate_models`: chi^2 of the raw star against the model moved
-    to it by a fitted sub-pixel shift, flux and background fitted; neighbours masked as
-    :func:`fit_exposure` masks them).
+    The stars this package selects (:func:`fit_exposure`'s selection, with usable
+    VIGNETs) are split at random into ``n_folds`` folds. For each fold, every tool is fitted
+    on the catalogue without that fold's stars (its own selection and outlier rejection on
+    what is left: the catalogue written to a file, as PSFEx reads it) and judged on them:
+    each star is judged once, out of sample, by every model, in the same pixels and noise
+    (:func:`validate_models`: chi^2 of the raw star against the model moved to it by a
+    fitted sub-pixel shift, its flux and background fitted; neighbours masked as
+    :func:`fit_exposure` masks them). The comparisons (:meth:`CrossValidation.compare`)
+    are on the stars that every PSFEx setting accepts when run on the whole catalogue
+    (``FLAGS_PSF`` 0), the stars "both tools take".
 
     Parameters
     ----------
@@ -182,35 +163,48 @@ def cross_validate_catalog(catalog, *, n_folds: int = 5, psfex=None, fit_options
         A SExtractor FITS_LDAC catalogue with ``VIGNET`` stamps (PSFEx's input).
     n_folds : int, default=5
     psfex : dict, list of dict or None
-        PSFEx settings (e.g. ``{"PSFVAR_DEGREES": 2}``), one model per dict, each named
-        ``psfex`` (or ``psfex_<k>``); PSFEx must be installed. None: no PSFEx model.
+        PSFEx settings (e.g. ``{"PSFVAR_DEGREES": 2}``, a model named ``psfex``), a list of
+        them (named ``psfex_1``, ``psfex_2``, ...) or a dict of them by name; PSFEx must be
+        installed. None: no PSFEx model.
     fit_options : dict, optional
         Options of :func:`fit_exposure` for this package's model (``reserve`` is 0).
     models : dict, optional
-        ``{name: callable(fold, train_catalog_path) -> model}``: further models per fold (an
-        object with ``predict``, or a model file).
+        ``{name: callable(fold, train_catalog_path) -> model}``: further models per fold
+        (an object with ``predict``, or a model file), ``fold`` from 0.
     random_state : int, default=0
         Seed of the folds.
     progress : callable, optional
         Called with a short text as each fold starts.
     work_dir : str, optional
-        Folder for the folds' catalogues and PSFEx files (default a temporary folder,
-        removed afterwards).
+        Folder for the folds' training catalogues (``fold<k>_train.ldac``, k from 1) and
+        PSFEx's files (default a temporary folder, removed afterwards).
 
     Returns
     -------
     CrossValidation
+
+    Raises
+    ------
+    InputError
+        A catalogue without VIGNETs, or fewer selected stars than folds.
     """
     from sklearn.model_selection import KFold
 
-    from ..io import run_psfex, select_stars
+    from ..io import run_psfex, select_stars, write_catalog_rows
     from ._compare import validate_models
     from ._exposure import _mask_neighbours, fit_exposure, read_exposure
     from ._external import load_psf_model
 
     path = os.fspath(catalog)
     fit_options = {k: v for k, v in (fit_options or {}).items() if k != "reserve"}
-    configs = [] if psfex is None else [psfex] if isinstance(psfex, dict) else list(psfex)
+    if psfex is None:
+        psfex = {}
+    elif isinstance(psfex, dict) and not all(isinstance(v, dict) for v in psfex.values()):
+        psfex = {"psfex": psfex}
+    elif not isinstance(psfex, dict):
+        psfex = {("psfex" if len(psfex) == 1 else f"psfex_{k + 1}"): c
+                 for k, c in enumerate(psfex)}
+    configs = list(psfex.values())
     step = progress or (lambda text: None)
     inputs = read_exposure(catalog=path)
     table = inputs.catalog
@@ -221,68 +215,65 @@ def cross_validate_catalog(catalog, *, n_folds: int = 5, psfex=None, fit_options
     sel = {k: fit_options[k] for k in ("min_snr", "flag_mask", "isolation", "locus_width",
                                        "max_spread_model", "min_class_star")
            if k in fit_options}
-    flag_mask = sel.get("flag_mask", 0xfe)
-    keep, _ = select_stars(table, min_snr=sel.get("min_snr", 20.0),
-                           saturation=inputs.saturation, flag_mask=flag_mask,
-                           stamp_size=side, isolation=sel.get("isolation"),
-                           locus_width=sel.get("locus_width", "auto"),
-                           max_spread_model=sel.get("max_spread_model", 0.003),
-                           min_class_star=sel.get("min_class_star", 0.8), min_stars=0)
-    counts = {"n_rows": len(table), "n_selected": int(keep.sum()), "n_psfex": [],
-              "n_fit": []}
-    names = ["sklearn_psf"] + [("psfex" if len(configs) == 1 else f"psfex_{k + 1}")
-                               for k in range(len(configs))] + list(models or {})
+    flag_mask = sel.pop("flag_mask", 0xfe)
+    keep, _ = select_stars(table, saturation=inputs.saturation, flag_mask=flag_mask,
+                           stamp_size=side, min_stars=0, **sel)
+    stars_table = table.copy(copy_data=False)
+    if flag_mask is not None and "flags" in stars_table.colnames:
+        stars_table["flags"] = np.asarray(stars_table["flags"]).astype(np.int64) & int(flag_mask)
+    selected = np.flatnonzero(keep)
+    cut = inputs.cut_stamps(stars_table[selected], side)
+    selected = selected[np.asarray(cut.catalog["used"], dtype=bool)]
+    if len(selected) < n_folds:
+        raise InputError(f"{len(selected)} stars of {path} are selected with usable VIGNETs: "
+                         f"too few for {n_folds} folds")
+    names = ["sklearn_psf", *psfex, *(models or {})]
+    counts = {"n_rows": len(table), "n_selected": len(selected), "n_psfex": [], "n_fit": []}
+    fold_of = np.full(len(table), -1)
+    splits = KFold(n_folds, shuffle=True, random_state=random_state).split(selected)
+    for k, (_, test) in enumerate(splits):
+        fold_of[selected[test]] = k
+    accepted = np.ones(len(table), dtype=bool)
+    columns = {name: np.full(len(table), np.nan) for name in names}
+    dof = np.zeros(len(table), dtype=np.int64)
     with tempfile.TemporaryDirectory(prefix="sklearn_psf_cv_") as tmp:
         folder = tmp if work_dir is None else os.fspath(work_dir)
         os.makedirs(folder, exist_ok=True)
-        for k, config in enumerate(configs):
-            accepted = _psfex_accepted(path, config, os.path.join(folder, f"full_{k}"))
-            accepted = np.pad(accepted, (0, max(0, len(table) - len(accepted))))
-            counts["n_psfex"].append(int(accepted.sum()))
-            keep &= accepted[:len(table)]
-        judged = np.flatnonzero(keep)
-        if len(judged) < n_folds:
-            raise InputError(f"{len(judged)} stars are selected by every tool: too few for "
-                             f"{n_folds} folds")
-        fold_of = np.full(len(table), -1)
-        splits = KFold(n_folds, shuffle=True, random_state=random_state).split(judged)
-        for k, (_, test) in enumerate(splits):
-            fold_of[judged[test]] = k
-        columns = {name: np.full(len(table), np.nan) for name in names}
-        dof = np.zeros(len(table), dtype=np.int64)
-        stars_table = table.copy(copy_data=False)
-        if flag_mask is not None and "flags" in stars_table.colnames:
-            stars_table["flags"] = np.asarray(stars_table["flags"]).astype(np.int64) \
-                & int(flag_mask)
+        for j, config in enumerate(configs):
+            ok = _psfex_accepted(path, config, os.path.join(tmp, f"full_{j + 1}"))
+            ok = np.pad(ok, (0, max(0, len(table) - len(ok))))[:len(table)]
+            counts["n_psfex"].append(int(ok.sum()))
+            accepted &= ok
         for k in range(n_folds):
             step(f"fold {k + 1} of {n_folds}")
             test = np.flatnonzero(fold_of == k)
             train = os.path.join(folder, f"fold{k + 1}_train.ldac")
-            _write_rows(path, train, fold_of != k)
+            write_catalog_rows(path, train, fold_of != k, overwrite=True)
             fitted = {}
             fit = fit_exposure(catalog=train, reserve=0.0, **fit_options)
             fitted["sklearn_psf"] = fit.model
             counts["n_fit"].append(int(np.sum(fit.model.inlier_mask_)))
             for j, config in enumerate(configs):
-                out = os.path.join(folder, f"fold{k + 1}_psfex{j + 1}")
+                out = os.path.join(tmp, f"fold{k + 1}_psfex{j + 1}")
                 psf = run_psfex(train, out, config=config, overwrite=True)
                 fitted[names[1 + j]] = load_psf_model(psf, side)
             for name, make in (models or {}).items():
                 fitted[name] = make(k, train)
             stars = inputs.cut_stamps(stars_table[test], side)
-            used = np.asarray(stars.catalog["used"], dtype=bool)
-            _mask_neighbours(stars, table, test[used], [])
-            rows = test[used]
+            _mask_neighbours(stars, table, test, [])
             _, results = validate_models(stars.positions, stars.stamps, fitted,
                                          weights=stars.weights)
             for name, (res, _) in results.items():
-                index = rows[np.asarray(res["index"])]
+                index = test[np.asarray(res["index"])]
                 columns[name][index] = np.asarray(res["chi2"], float)
                 dof[index] = np.asarray(res["dof"])
-    rows = judged[dof[judged] > 0]
+    rows = selected[dof[selected] > 0]
+    snr = np.asarray(table["snr"], float)[rows] if "snr" in table.colnames else \
+        np.full(len(rows), np.nan)
     out = Table({"row": rows, "x": np.asarray(table["x"])[rows],
-                 "y": np.asarray(table["y"])[rows], "fold": fold_of[rows], "dof": dof[rows]})
+                 "y": np.asarray(table["y"])[rows], "snr": snr, "fold": fold_of[rows],
+                 "dof": dof[rows], "judged": accepted[rows]})
     for name in names:
         out[f"chi2_{name}"] = columns[name][rows]
-    counts["n_judged"] = len(judged)
+    counts["n_judged"] = int(accepted[rows].sum())
     return CrossValidation(out, names, counts)

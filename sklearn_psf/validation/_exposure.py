@@ -226,7 +226,9 @@ class ExposureFit:
     selection : dict
         The star selection's counts (:func:`~sklearn_psf.io.select_stars`), {} without one.
     stars : StarStamps
-        The stamps the model was fitted and validated on.
+        The stamps the model was fitted and validated on; with a catalogue, ``stars.rows``
+        holds each star's row in it (0-based), e.g. the reserved stars'
+        ``stars.rows[residuals["index"]]``.
     lines : list of str
         What was read and selected, in words (the start of :meth:`report`).
     image_shape : tuple
@@ -553,9 +555,11 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     lines.append(f"stars used: {stars.counts['used']} of {stars.counts['input']}"
                  + (" (skipped: " + ", ".join(f"{k} {v}" for k, v in skipped.items()) + ")"
                     if skipped else ""))
+    used = np.asarray(stars.catalog["used"], dtype=bool)
     if rows is not None and isolation is None:
-        _mask_neighbours(stars, full, rows[np.asarray(stars.catalog["used"], dtype=bool)],
-                         lines)
+        _mask_neighbours(stars, full, rows[used], lines)
+    if table is not None and inputs.catalog is not None:  # the stars' rows in the catalogue
+        stars.rows = (np.flatnonzero(used) if rows is None else rows[used])
     if stars.counts["used"] < MIN_STARS:
         raise InputError(f"{stars.counts['used']} stars of {source} are usable: too few for "
                          f"a PSF model (need {MIN_STARS})")
@@ -621,6 +625,22 @@ def _report(summary):
     lines.append(f"interpolator: {summary['interpolator']}; fitted stars: {summary['n_fit']}, "
                  f"outliers rejected: {summary['n_outliers']}, reserved: "
                  f"{summary['n_reserved']}")
+    if "pixel_noise" in summary:
+        noise = summary["pixel_noise"]
+        gain = summary.get("gain")
+        poisson = (f"a Poisson term of {noise['poisson']:.3g} per unit of flux (a gain of "
+                   f"{1 / noise['poisson']:.3g} in the stamps' units) missing from them"
+                   if noise["poisson"] > 0 else "no Poisson term missing from them")
+        lines.append(f"pixel noise learnt from the stars' residuals: {noise['sky']:.3g} times "
+                     f"the weights' variance, {poisson}, a model error of "
+                     f"{np.sqrt(noise['eps2']):.2%} of each pixel's value (header gain: "
+                     f"{'none' if gain is None else f'{gain:g}'}); the outlier test judges "
+                     "the stars in it, and against each other")
+    if summary.get("contaminated_stamps"):
+        lines.append(f"pixels masked as holding light the star's model does not (uncatalogued "
+                     f"neighbours, cosmic rays, defects; outside the cores): in "
+                     f"{summary['contaminated_stamps']} stamps (median "
+                     f"{summary['contaminated_median']} pixels)")
     if "n_components" in summary:
         lines.append(f"basis: {summary['n_components']} components: "
                      f"{summary['components_reason']}")

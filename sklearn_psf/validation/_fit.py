@@ -304,6 +304,14 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
     summary.update({"n_stars": n, "n_fit": len(fit_rows), "n_reserved": k,
                     "n_inliers": int(np.sum(model.inlier_mask_)),
                     "n_outliers": int(np.sum(~model.inlier_mask_))})
+    noise = getattr(model, "pixel_noise_", None)
+    if noise is not None:  # what the fit learnt of the stars' noise
+        summary["pixel_noise"] = {"sky": noise.sky, "poisson": noise.poisson,
+                                  "eps2": noise.eps2}
+    hit = getattr(model, "contaminated_pixels_", None)
+    if hit is not None and np.any(hit):
+        summary["contaminated_stamps"] = int(np.sum(hit > 0))
+        summary["contaminated_median"] = int(np.median(hit[hit > 0]))
     pred = model.predict(X[reserved]) if k else np.zeros((0, s * s))
     w_res = None if weights is None else w[reserved]
     sigma = offsets = None

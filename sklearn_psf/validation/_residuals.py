@@ -167,9 +167,11 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
     The stars are normalised (:class:`~sklearn_psf.preprocessing.StampNormalizer`: unit
     flux, adaptive centroid at the stamp centre) and measured with
     :func:`~sklearn_psf.measure.adaptive_moments`, like the model's stamps. Against the
-    stars' noise, each raw star stamp is compared with the model stamp moved to the star's
-    centroid and fitted in flux and a constant background: chi^2 per star over its unmasked
-    pixels (``dof`` = pixels - 4). rho1 to rho5 (Jarvis et al. 2016,
+    stars' noise, each raw star stamp is compared with the model stamp moved to the star by
+    a fitted sub-pixel shift (from the centroids' difference where adaptive moments
+    measure both) and fitted in flux and a constant background: chi^2 per star over its
+    unmasked pixels (``dof`` = pixels - 4), for every star with a usable stamp whether or
+    not its moments are measured. rho1 to rho5 (Jarvis et al. 2016,
     :func:`~sklearn_psf.metrics.rho_statistics`, T = 2 sigma^2) need 10 measured stars.
 
     Undersampled stars (under ~2 pixels per FWHM) defeat adaptive moments and re-centring
@@ -178,8 +180,8 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
     (:func:`~sklearn_psf.measure.fixed_moments`, sigma ``moments`` or 1.5 pixels) on the
     stars as they are (normalised to unit sum, not moved) and on ``predicted``, which must
     then be the model drawn at each star's sub-pixel position (e.g.
-    ``PSFModel.predict(X, offsets=...)``, as :func:`fit_and_validate` does); the chi^2 fits
-    flux and background only.
+    ``PSFModel.predict(X, offsets=...)``, as :func:`fit_and_validate` does); the chi^2's
+    shift then starts from none (a model drawn centred is moved to the star all the same).
 
     Parameters
     ----------
@@ -217,7 +219,7 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
         and spin-2 fourth moments of :func:`~sklearn_psf.measure.fourth_moments`, pixels^4,
         PIFF's definitions), ``resid_rms`` (pixel rms of the unit-flux residual
         stamp), ``chi2`` and ``dof`` (of the raw stamp against the model, see above; NaN
-        and 0 where it cannot be fitted), ``flag`` (0: both measured; 1: star's moments
+        and 0 where it cannot be fitted, e.g. no positive flux), ``flag`` (0: both measured; 1: star's moments
         failed; 2: model's), ``stamp_star``, ``stamp_model`` (normalised).
     summary : dict
         ``n_measured``, ``de1_mean``, ``de1_rms``, ``de2_mean``, ``de2_rms``, ``e_rms``
@@ -226,7 +228,7 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
         pixels^4, and ``dM22_rel_mean``, ``dM22_rel_rms``, ``dM4_rel_rms`` the same of the
         residuals over each star's sigma^4 (dimensionless: a Gaussian's M22 is 2 sigma^4; NaN
         for undersampled stars, whose fourth moments are not measured),
-        ``chi2_dof`` (sum of chi^2 over sum of dof of the measured stars: 1 for a model as
+        ``chi2_dof`` (sum of chi^2 over sum of dof of the stars with a chi^2: 1 for a model as
         good as the noise allows, when the weights are right), ``chi2_dof_median`` (median
         of the stars' chi^2 / dof), ``rho1`` to ``rho5`` (each a dict of ``theta``, ``xi``,
         ``sigma_xi``, ``npairs``, or None with fewer than 10 measured stars),
