@@ -68,41 +68,41 @@ def add_crossval_parser(sub):
 
 
 def _figure(cv):
-    """Per-star chi^2/dof of this package's model minus each other model's, against the
+    """Per-star chi^2 of this package's model relative to each other model's, against the
     star's S/N, and their histogram."""
     import matplotlib.pyplot as plt
     import numpy as np
 
     t = cv.table[np.asarray(cv.table["judged"], dtype=bool)]
-    dof = np.asarray(t["dof"], float)
-    ours = np.asarray(t[f"chi2_{cv.models[0]}"], float) / dof
+    ours = np.asarray(t[f"chi2_{cv.models[0]}"], float)
     snr = np.asarray(t["snr"], float)
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.2), layout="constrained")
-    diffs = []
+    fig, axes = plt.subplots(1, 2, figsize=(10.5, 4.2), layout="constrained")
+    rel = []
     for k, name in enumerate(cv.models[1:]):
-        diff = ours - np.asarray(t[f"chi2_{name}"], float) / dof
-        ok = np.isfinite(diff)
+        pct = 100.0 * (ours / np.asarray(t[f"chi2_{name}"], float) - 1.0)
+        ok = np.isfinite(pct)
         r = cv.compare(cv.models[0], name)
         lo, hi = r["mean_diff_ci"]
-        label = (f"{name}: ours lower on {r['a_lower']:.0%}; mean {r['mean_diff']:+.4f} "
-                 f"[{lo:+.4f}, {hi:+.4f}]")
+        label = (f"{name}: ours lower on {r['a_lower']:.0%} (p = {r['sign_p']:.1g}); summed "
+                 f"{100 * (r['sum_ratio'] - 1):+.2f}%")
         x = snr[ok] if np.isfinite(snr).any() else np.flatnonzero(ok)
-        axes[0].scatter(x, diff[ok], s=12, alpha=0.7, color=f"C{k}", label=label)
-        diffs.append((name, diff[ok]))
+        axes[0].scatter(x, pct[ok], s=12, alpha=0.7, color=f"C{k}", label=label)
+        rel.append((name, pct[ok]))
     axes[0].axhline(0, color="0.4", lw=1, ls="--")
+    axes[0].set_yscale("symlog", linthresh=1.0)
     axes[0].set(xscale="log" if np.isfinite(snr).any() else "linear",
                 xlabel="star's S/N (catalogue)" if np.isfinite(snr).any() else "star",
-                ylabel="chi^2/dof: ours minus other (< 0: ours closer)",
+                ylabel="chi^2 ours / other - 1 [%] (< 0: ours closer)",
                 title="each star, judged out of sample by both")
     axes[0].legend(fontsize=7, loc="lower left")
-    every = np.concatenate([d for _, d in diffs]) if diffs else np.zeros(1)
-    lim = np.nanpercentile(np.abs(every), 98) or 1.0
+    every = np.concatenate([d for _, d in rel]) if rel else np.zeros(1)
+    lim = max(float(np.nanpercentile(np.abs(every), 90)), 0.1)
     bins = np.linspace(-lim, lim, 31)
-    for k, (name, d) in enumerate(diffs):
+    for k, (name, d) in enumerate(rel):
         axes[1].hist(np.clip(d, -lim, lim), bins=bins, histtype="step", color=f"C{k}",
-                     lw=1.5, label=f"{name}: median {np.median(d):+.4f}")
+                     lw=1.5, label=f"{name}: median {np.median(d):+.3f}%")
     axes[1].axvline(0, color="0.4", lw=1, ls="--")
-    axes[1].set(xlabel="chi^2/dof: ours minus other (clipped at the 98th percentile)",
+    axes[1].set(xlabel="chi^2 ours / other - 1 [%] (the outer 10% piled at the edges)",
                 ylabel="stars", title="their distribution")
     axes[1].legend(fontsize=8)
     return fig

@@ -206,5 +206,19 @@ def run_validate(args) -> int:
           f"{table.meta['moments']} moments, size in pixels; |rho| mean over separations in "
           f"{units}):")
     _print_table(table)
+    if len(table) > 1:  # how sure the ranking is: the best model against each other, star by star
+        import numpy as np
+
+        from ..validation import paired_comparison
+
+        order = [str(m) for m in table["model"][np.argsort(table["rank"])]]
+        best = results[order[0]][0]
+        for other in order[1:]:
+            r = paired_comparison(best["chi2"], results[other][0]["chi2"], best["dof"])
+            if r["n"]:
+                print(f"{order[0]} against {other}, star by star: lower chi^2 on "
+                      f"{r['a_lower']:.0%} of {r['n']} stars (sign test p = {r['sign_p']:.2g}; "
+                      f"mean chi^2/dof difference {r['mean_diff']:+.4f}, 95% interval "
+                      f"{r['mean_diff_ci'][0]:+.4f} to {r['mean_diff_ci'][1]:+.4f})")
     print(f"Wrote {', '.join(written)}")
     return 0

@@ -74,8 +74,9 @@ class CrossValidation:
     ----------
     table : astropy.table.Table
         One row per star judged: ``row`` (its row in the catalogue, 0-based), ``x``, ``y``
-        (0-based pixels), ``snr`` (the catalogue's S/N, NaN without one), ``fold`` (from 0), ``dof``, ``judged`` (True where every PSFEx
-        setting accepts the star: the comparisons' stars), and for every model
+        (0-based pixels), ``snr`` (the catalogue's S/N, NaN without one), ``fold`` (from
+        0), ``dof``, ``judged`` (1 where every PSFEx
+        setting accepts the star: the comparisons' stars, else 0), and for every model
         ``chi2_<name>`` (NaN where the model could not be measured on it).
     models : list of str
         The models' names, this package's first.
@@ -272,7 +273,7 @@ def cross_validate_catalog(catalog, *, n_folds: int = 5, psfex=None, fit_options
         np.full(len(rows), np.nan)
     out = Table({"row": rows, "x": np.asarray(table["x"])[rows],
                  "y": np.asarray(table["y"])[rows], "snr": snr, "fold": fold_of[rows],
-                 "dof": dof[rows], "judged": accepted[rows]})
+                 "dof": dof[rows], "judged": accepted[rows].astype(np.int8)})
     for name in names:
         out[f"chi2_{name}"] = columns[name][rows]
     counts["n_judged"] = int(accepted[rows].sum())
