@@ -359,15 +359,17 @@ def _one_psf_stars(snr, seed):
 @pytest.mark.parametrize("mix", ["realistic", "100"])
 def test_pure_noise_top_eigenvalue_at_the_noise_edge(mix):
     """1000 stars of one PSF at the realistic S/N mix (20-1000) or at S/N 100: the largest
-    eigenvalue is noise and sits at 0.95-1.0 of the edge (measured 0.95-0.99 over 10 seeds),
-    with no spurious flux or centroid component above it."""
+    eigenvalue is noise and sits just below the edge, its 99th percentile (measured
+    0.933-0.967 of it over 10 seeds, on the PSF's core where the components live; 0.95-0.99
+    on the whole stamp, where the edge's finite-sample raise is relatively smaller), with no
+    spurious flux or centroid component above it."""
     from sklearn_psf.simulate import realistic_snr
 
     snr = realistic_snr(1000, random_state=3) if mix == "realistic" else np.full(1000, 100.0)
     stamps = _one_psf_stars(snr, 3)
     basis = StampPCA().fit(stamps, weights=np.ones_like(stamps))
     top = basis.explained_variance_[0] / basis.noise_edge_
-    assert 0.95 <= top <= 1.0, top
+    assert 0.9 <= top <= 1.0, top
     assert basis.n_components_ == 1  # the least it keeps
 
 

@@ -263,10 +263,11 @@ def calibrate_pixel_noise(stamps, model, weights, reference=None, clip=5.0) -> P
     cores. The variance of a pixel is taken as ``sky / w + poisson * max(model, 0) + eps2 *
     model^2`` (see :class:`PixelNoise`) and its three terms are fitted to the squared
     residuals of the ``reference`` stars' unmasked pixels (Gaussian likelihood, by Fisher
-    scoring; non-negative terms), pixels beyond ``clip`` standard deviations (cosmic-ray
-    hits, defects) left out, then the stars whose reduced chi^2 exceeds the others' (by more
-    than 4 robust standard deviations: blends, galaxies) left out and the fit repeated. Weights that
-    already hold the right noise give ``sky`` near 1 and ``poisson`` near 0.
+    scoring; non-negative terms), then again without the pixels beyond ``clip`` standard
+    deviations of that noise (cosmic-ray hits, defects), then the stars whose reduced
+    chi^2 exceeds the others' (by more than 4 robust standard deviations: blends,
+    galaxies) left out and the fit repeated. Weights that already hold the right noise
+    give ``sky`` near 1 and ``poisson`` near 0.
 
     Parameters
     ----------
@@ -296,7 +297,8 @@ def calibrate_pixel_noise(stamps, model, weights, reference=None, clip=5.0) -> P
         if pix.sum() < 10:
             break
         d, r = design[pix], r2_good[pix]
-        for _ in range(2):  # clip the pixels far beyond the current noise
+        theta = _fit_variance(r, d, theta)
+        for _ in range(2):  # then without the pixels far beyond that noise
             keep = r <= clip**2 * (d @ theta)
             theta = _fit_variance(r[keep], d[keep], theta)
         noise = PixelNoise(*theta)

@@ -213,3 +213,136 @@ def check_pixel_weights(weights, n_stamps: int, n_pixels: int, stamps=None):
     if stamps is not None:
         w[np.isnan(stamps)] = 0.0
     return w
+
+
+#: Lags (pixels, along each axis) of the noise correlation :func:`noise_correlation` measures.
+CORRELATION_LAGS = 2
+
+
+def noise_correlation(stamps, weights, border=4, max_lag=CORRELATION_LAGS, threshold=0.05):
+    """The correlation of the stamps' noise between neighbouring pixels, from their sky.
+
+    Resampled images (a reprojected survey frame, a mosaic, a scanned plate) carry noise
+    correlated over a few pixels; a colour sensor's raw mosaic, anticorrelated. Measured on
+    the pixels of each stamp's outer ``border`` rings (sky, the star's faint wings aside),
+    each standardised by its weight and its stamp's median removed, pixels beyond 5 sigma
+    (neighbours, defects) and masked ones left out: the mean product of pairs at each lag up
+    to ``max_lag`` along each axis, over the mean square.
+
+    Parameters
+    ----------
+    stamps, weights : ndarray of shape (n, s*s)
+        Stamps and their pixel weights (inverse variance, 0 = masked).
+    border : int, default=4
+    max_lag : int, default=2
+    threshold : float, default=0.05
+        Correlations below it in size (and within 4 times their sampling error of 0) count as
+        none.
+
+    Returns
+    -------
+    kernel : ndarray of shape (2 max_lag + 1, 2 max_lag + 1) or None
+        The correlation at each lag (1 at the centre, symmetric), or None when no lag's
+        correlation departs from 0 (white noise).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from scipy.ndimage import uniform_filter
+    >>> from sklearn_psf.preprocessing._noise import noise_correlation
+    >>> rng = np.random.default_rng(0)
+    >>> white = rng.normal(size=(200, 25, 25))
+    >>> noise_correlation(white.reshape(200, -1), np.ones((200, 625))) is None
+    True
+    >>> smooth = uniform_filter(white, size=(1, 2, 1))   # x-neighbours averaged along y
+    >>> k = noise_correlation(smooth.reshape(200, -1), np.ones((200, 625)))
+    >>> round(float(k[1, 2]), 1), round(float(k[2, 3]), 2)     # lag 1 along y, along x
+    (0.5, 0.0)
+    """
+    n, p = stamps.shape
+    s = int(round(np.sqrt(p)))
+    w = weights.reshape(n, s, s)
+    ring = np.zeros((s, s), dtype=bool)
+    ring[:border], ring[-border:], ring[:, :border], ring[:, -border:] = True, True, True, True
+    good = (w > 0) & ring
+    z = np.where(good, stamps.reshape(n, s, s), np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-masked rings
+        z = (z - _nanmedian(z.reshape(n, -1), axis=1)[:, None, None]) * np.sqrt(w)
+    good &= np.isfinite(z)
+    z = np.where(good, z, 0.0)
+    scale = np.sqrt((z**2).sum() / max(good.sum(), 1))
+    good &= np.abs(z) <= 5 * scale
+    z = np.where(good, z, 0.0)
+    power = (z**2).sum() / max(good.sum(), 1)
+    L = int(max_lag)
+    kernel = np.zeros((2 * L + 1, 2 * L + 1))
+    kernel[L, L] = 1.0
+    significant = False
+    for dy in range(0, L + 1):
+        for dx in range(-L, L + 1):
+            if dy == 0 and dx <= 0:
+                continue
+            a = z[:, :s - dy, max(0, -dx):s - max(0, dx)]
+            b = z[:, dy:, max(0, dx):s - max(0, -dx) if dx < 0 else s]
+            ga = good[:, :s - dy, max(0, -dx):s - max(0, dx)]
+            gb = good[:, dy:, max(0, dx):s - max(0, -dx) if dx < 0 else s]
+            pairs = ga & gb
+            count = int(pairs.sum())
+            if count < 100:
+                continue
+            rho = float((a * b)[pairs].sum() / count / power)
+            kernel[L + dy, L + dx] = kernel[L - dy, L - dx] = rho
+            significant |= abs(rho) > max(threshold, 4.0 / np.sqrt(count))
+    return kernel if significant else None
+
+
+def correlated_noise_factor(kernel, variances, star_weights, s, pixels=None, draws=3, seed=0):
+    """How much noise correlated as ``kernel`` raises the largest eigenvalue of the stars'
+    weighted covariance above white noise of the same variance (the ratio of the two, each
+    averaged over ``draws`` pure-noise samples of these stars, paired: the same white draws
+    filtered by the kernel's power spectrum). 1 for ``kernel`` None.
+
+    Parameters
+    ----------
+    kernel : ndarray of shape (2L+1, 2L+1) or None
+        From :func:`noise_correlation`.
+    variances : ndarray of shape (n,)
+        Each star's noise variance per pixel (of its normalised stamp).
+    star_weights : ndarray of shape (n,)
+        Each star's weight in the covariance.
+    s : int
+        Stamp side.
+    pixels : ndarray of shape (s*s,), bool, optional
+        The pixels the covariance is of (default all).
+    draws : int, default=3
+    seed : int, default=0
+
+    Returns
+    -------
+    float
+    """
+    if kernel is None:
+        return 1.0
+    from ._pca import _weighted_pca
+
+    L = kernel.shape[0] // 2
+    grid = np.zeros((s, s))
+    for dy in range(-L, L + 1):
+        for dx in range(-L, L + 1):
+            grid[dy % s, dx % s] += kernel[L + dy, L + dx]
+    psd = np.maximum(np.fft.rfft2(grid).real, 0.0)
+    psd *= grid[0, 0] * s * s / max(float(np.fft.irfft2(psd, s=(s, s))[0, 0] * s * s), 1e-300)
+    filt = np.sqrt(psd)
+    rng = np.random.default_rng(seed)
+    sd = np.sqrt(np.asarray(variances, dtype=np.float64))[:, None]
+    u = np.asarray(star_weights, dtype=np.float64)
+    top = np.zeros((2, draws))
+    for k in range(draws):
+        white = rng.standard_normal((len(sd), s, s))
+        tinted = np.fft.irfft2(np.fft.rfft2(white) * filt, s=(s, s))
+        for j, noise in enumerate((white, tinted)):
+            flat = noise.reshape(len(sd), -1)
+            top[j, k] = _weighted_pca(sd * (flat if pixels is None else flat[:, pixels]), u,
+                                      1)[2][0]
+    return float(top[1].mean() / top[0].mean())

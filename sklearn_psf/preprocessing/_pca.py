@@ -16,7 +16,8 @@ from sklearn.utils.validation import check_is_fitted, validate_data
 from ..measure import adaptive_moments, fixed_moments
 from ._normalize import fourier_shift, phase_ramp
 from .._validation import rows_text
-from ._noise import _nanmedian, check_pixel_weights, estimate_pixel_weights
+from ._noise import (_nanmedian, check_pixel_weights, correlated_noise_factor,
+                     estimate_pixel_weights, noise_correlation)
 
 __all__ = ["StampPCA", "StampFit", "StampFitWarning", "FIT_OK", "FIT_NO_CENTROID",
            "FIT_NO_FLUX"]
@@ -217,7 +218,16 @@ def _rings(s):
     return np.floor(np.hypot(xx, yy)).astype(np.int64).ravel()
 
 
-def radial_wings(mean, var, s):
+def _core(mean, s, level=1e-2):
+    """Where the mean stamp exceeds ``level`` of its peak, grown by one pixel: the PSF's
+    core, where its variations show (as :class:`SuperResolvedPCA`'s components' support)."""
+    from scipy.ndimage import binary_dilation
+
+    core = (mean > level * mean.max()).reshape(s, s)
+    return binary_dilation(core).ravel()
+
+
+def radial_wings(mean, var, s, correlation=1.0):
     """The mean PSF stamp with the noise of its faint wings taken out, ring by ring, and the
     radius of its support.
 
@@ -238,6 +248,9 @@ def radial_wings(mean, var, s):
     var : ndarray of shape (s*s,)
         Noise variance of each pixel of ``mean``.
     s : int
+    correlation : float, default=1
+        How much more noise a ring's average holds than its pixels' independent noise
+        would give (the sum of the noise's correlation over lags: 1 for white noise).
 
     Returns
     -------
@@ -248,7 +261,7 @@ def radial_wings(mean, var, s):
     count = np.bincount(ring).astype(np.float64)
     profile = np.bincount(ring, mean) / count
     dev = mean - profile[ring]
-    noise = np.bincount(ring, var) / count**2
+    noise = correlation * np.bincount(ring, var) / count**2
     excess = np.maximum(np.bincount(ring, dev**2 - var * (1.0 - 1.0 / count[ring])) / count,
                         0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -355,7 +368,11 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
        contributions are equal), raised by the Tracy-Widom 99th percentile for ``n_eff``
        stars, ``n_eff = (sum c)^2 / sum c^2`` from the contributions ``c_i``. Pure noise
        (stars of one PSF, 1000 stars at S/N 100 or 20-1000) puts the top eigenvalue at
-       0.95-0.99 of the edge. At most ``max_components``.
+       0.95-0.99 of the edge. Noise correlated between neighbouring pixels (a resampled
+       image, a scanned plate; measured on the stamps' borders) raises the edge by as much
+       as it raises pure noise's largest eigenvalue for these stars (simulated,
+       :func:`~sklearn_psf.preprocessing._noise.correlated_noise_factor`). At most
+       ``max_components``.
 
     The noise of the adaptive centroids needs no allowance: centring by the adaptive
     centroid of a near-Gaussian star takes the noise along the shift directions out, as the
@@ -405,16 +422,20 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         ``background_``.
 
     wings : "radial" or None, default="radial"
-        How the mean stamp's faint wings are estimated. "radial": where a pixel of the
-        weighted mean holds more noise than PSF (the wings of a large stamp, a real
-        catalogue's 63x63 VIGNETs around stars of S/N 30-300), the noise is taken out ring
-        by ring (:func:`radial_wings`: the azimuthal profile and each pixel's departure from
-        it kept in proportion to their signal), and the components end at the support
-        radius, where the profile falls below its pixels' noise. Every prediction would
-        otherwise carry the mean's pixel noise over the whole stamp: on the real DECam
-        catalogue of ``../shared/realdata`` that noise made the model lose to PSFEx on most
-        stars (see ``benchmarks/README.md``). None: every pixel's weighted mean (the
-        paper's).
+        Where the basis takes its shape from. "radial": the components live on the PSF's
+        core (the pixels where the mean exceeds 1% of its peak, grown by one pixel, as
+        :class:`SuperResolvedPCA`'s): their number is counted against the noise edge of
+        those pixels, and the stamps' other light (neighbours, a crowded field's unresolved
+        stars, sky structure) makes no component; and where a pixel of the weighted mean
+        holds more noise than PSF (the wings of a large stamp, a real catalogue's 63x63
+        VIGNETs around stars of S/N 30-300), the noise is taken out ring by ring
+        (:func:`radial_wings`: the azimuthal profile and each pixel's departure from it
+        kept in proportion to their signal), the components ending at the support radius,
+        where the profile falls below its pixels' noise. Every prediction would otherwise
+        carry the mean's pixel noise over the whole stamp: on the real DECam catalogue of
+        ``../shared/realdata`` that noise made the model lose to PSFEx on most stars (see
+        ``benchmarks/README.md``). None: the components and the mean over the whole stamp,
+        every pixel's weighted mean (the paper's).
 
     Attributes
     ----------
@@ -646,14 +667,14 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         ccov[~good] = np.nan
         return flux, coef, var, ccov, good
 
-    def _choose(self, lam, total, noise, contributions, p):
+    def _choose(self, lam, total, noise, contributions, p, raise_by=1.0):
         cap = lam.size
         if not isinstance(self.n_components, numbers.Integral):
             cap = min(int(self.max_components), cap)
         lam = lam[:cap]
         real = lam > 1e-12 * lam[0] if lam.size and lam[0] > 0 else np.zeros(lam.size, bool)
         if isinstance(self.n_components, str):
-            edge = noise_edge(contributions, p - 1, quantile=True)
+            edge = raise_by * noise_edge(contributions, p - 1, quantile=True)
             k = int(np.count_nonzero((lam > edge) & real))
         elif isinstance(self.n_components, numbers.Integral):
             edge = np.nan
@@ -715,6 +736,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         model = np.zeros((n, p))  # the stars' current model: fills their masked pixels
         pixel_var = _variances(w).mean(axis=1)
         w_given, poisson = w, _poisson_slope(d, w)
+        kernel = noise_correlation(d, w)  # correlated noise raises the noise edge
         for it in range(int(self.n_iter)):
             safe = np.where(usable, flux, 1.0)
             if a is None and (w == 0).any():
@@ -744,12 +766,21 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
             n_top = int(self.max_components) + 1
             if isinstance(self.n_components, numbers.Integral):
                 n_top = max(n_top, int(self.n_components))
-            mean, axes, lam, total = _weighted_pca(x[usable], u[usable], n_top)
+            core = np.ones(p, dtype=bool)
+            if self.wings == "radial":  # the components live on the PSF's core
+                core = _core(u[usable] @ x[usable] / u[usable].sum(), s)
+            mean, axes_core, lam, total = _weighted_pca(x[usable][:, core], u[usable], n_top)
+            mean = u[usable] @ x[usable] / u[usable].sum()
+            axes = np.zeros((len(axes_core), p))
+            axes[:, core] = axes_core
             noise = float((u * v).sum() / u.sum())
-            k, edge = self._choose(lam, total, noise, u[usable] * v[usable] / u.sum(), p)
+            raise_by = correlated_noise_factor(kernel, v[usable], u[usable], s, core)
+            k, edge = self._choose(lam, total, noise, u[usable] * v[usable] / u.sum(),
+                                   int(core.sum()), raise_by)
             axes, radius = axes[:k], np.inf
             if self.wings == "radial":  # the mean's faint wings: their signal, not its noise
-                mean, radius = radial_wings(mean, _mean_variance(w, scale, u), s)
+                mean, radius = radial_wings(mean, _mean_variance(w, scale, u), s,
+                                            1.0 if kernel is None else kernel.sum())
                 axes = np.where(_rings(s) < radius, axes, 0.0)
             mean = mean / mean.sum()
             comps = _sum_zero(axes, mean)
