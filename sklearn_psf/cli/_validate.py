@@ -27,8 +27,7 @@ def add_validate_parser(sub):
         "size (adaptive moments) of star minus model, the chi^2 of each raw star against the "
         "model in the star's noise, and rho1-rho5; print one table and write it "
         f"({OUTPUTS['table']}) with figures ({', '.join(_FIGURES)}) to the output folder. "
-        "Give stars none of the models was fitted on. PSFEx models "
-        "need GalSim (pip install 'sklearn-psf[galsim]'), PIFF models PIFF "
+        "Give stars none of the models was fitted on. PIFF models need PIFF "
         "(pip install 'sklearn-psf[piff]').",
     )
     p.add_argument("image", nargs="?",
