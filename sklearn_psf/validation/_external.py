@@ -10,22 +10,11 @@ import numpy as np
 from astropy.io import fits
 
 from .._files import InputError, one_line
+from .._optional import require
 from ..preprocessing import StampNormalizer
 from ._psfex import psfex_terms
 
 __all__ = ["PSFExModel", "PiffModel", "load_psf_model", "model_kind"]
-
-_INSTALL = {"piff": "pip install 'sklearn-psf[piff]' (or: pip install piff)"}
-
-
-def _require(module: str, what: str):
-    """Import an optional dependency, or fail saying how to install it."""
-    try:
-        return __import__(module)
-    except ImportError as exc:
-        raise ImportError(f"{what} needs the optional package {module!r}, which is not "
-                          f"installed: {_INSTALL[module]}.") from exc
-
 
 def _positions(X):
     X = np.asarray(X, dtype=np.float64)
@@ -224,7 +213,7 @@ class PiffModel:
     """
 
     def __init__(self, path, stamp_size=25, *, origin: int = 1, chipnum=None):
-        piff = _require("piff", "Reading a PIFF model")
+        piff = require("piff", "Reading a PIFF model")
         self.path = os.fspath(path)
         self.origin = int(origin)
         self.chipnum = chipnum
