@@ -190,6 +190,10 @@ def test_bad_input(data):
                                                                   weights=np.ones((20, S * S)))
     with pytest.raises(ValueError, match="square"):
         PSFModel(interpolator=knn).fit(X[:20], y[:20, :-1])
+    # one position column (e.g. x alone): refused with both shapes
+    with pytest.raises(ValueError, match=rf"n_features = 1.*X \(20, 1\) for stamps "
+                                         rf"\(20, {S * S}\)"):
+        PSFModel().fit(X[:20, :1], y[:20])
     # extra position columns (e.g. an exposure index) go to the interpolator as they are,
     # and predictions must then give as many
     three = PSFModel(interpolator=knn).fit(np.c_[X[:20], np.zeros(20)], y[:20])

@@ -1,6 +1,7 @@
 """Tests of sklearn_psf.study.report: summaries, verdicts from the numbers, files written."""
 
 import itertools
+import os
 import re
 from types import SimpleNamespace
 
@@ -230,8 +231,14 @@ def test_write_report_files_figures_and_markdown(tmp_path, capsys):
     # test_plotting, saved by test_maps_fall_back_...: keep this file fast
     every = {"fig_sim", "fig_ell", "fig_ecomp", "fig_coeffscomp", "fig_cor", "fig_corhsn",
              "fig_densell", "fig_densellvar", "fig_densellglob"} | heavy
-    paths = write_report(result, tmp_path / "out", stamps=stamps, dpi=30,
-                         figures=every - heavy)
+    umask = os.umask(0o027)  # every file with the user's umask (was 0600 for some)
+    try:
+        paths = write_report(result, tmp_path / "out", stamps=stamps, dpi=30,
+                             figures=every - heavy)
+    finally:
+        os.umask(umask)
+    assert {p.name: oct(p.stat().st_mode & 0o777) for p in paths} == \
+        {p.name: "0o640" for p in paths}
     assert capsys.readouterr().out == ""
     out = tmp_path / "out"
     names = [p.name for p in paths]

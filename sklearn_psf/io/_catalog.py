@@ -330,11 +330,15 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
                 xname, yname, convention = lower[xn], lower[yn], conv
                 break
         else:
+            radec = [f"{lower[a]}, {lower[d]}" for a, d in _SKY_COLUMNS
+                     if a in lower and d in lower]
+            hint = (f"; its (RA, Dec) columns {radec[0]} are read with sky=True (predict "
+                    "--radec, with the WCS of the model's image)" if radec else "")
             raise InputError(
                 f"{where} has no position columns: expected x, y (0-based) or "
                 "X_IMAGE, Y_IMAGE / XWIN_IMAGE, YWIN_IMAGE (SExtractor, 1-based), or give "
                 "x_col/y_col (--x-col/--y-col); columns found: "
-                f"{', '.join(table.colnames) or 'none'}."
+                f"{', '.join(table.colnames) or 'none'}{hint}."
             )
     if len(table) == 0:
         raise InputError(f"{where} has no rows (columns: {', '.join(table.colnames[:8])}"

@@ -239,6 +239,10 @@ class PSFModel(RegressorMixin, BaseEstimator):
                              ensure_all_finite=True)
         if y.ndim != 2:
             raise ValueError("y must hold flattened stamps of shape (n_stars, s*s).")
+        if X.shape[1] < 2:
+            raise ValueError(f"X has n_features = {X.shape[1]}: PSFModel needs the stars' "
+                             "positions (x, y), X of shape (n_stars, 2) (or more columns for "
+                             f"further dimensions); got X {X.shape} for stamps {y.shape}.")
         s = int(round(np.sqrt(y.shape[1])))
         if s * s != y.shape[1]:
             raise ValueError(
