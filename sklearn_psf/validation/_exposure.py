@@ -613,12 +613,19 @@ def _mask_neighbours(stars, catalog, rows, lines):
 
 def _report(summary):
     """The lines of the report after the selection: basis, residuals, verdict."""
+    from ..model._psf_model import MIN_LIKELIHOOD_STARS
+
     lines = []
     if "cv" in summary:
         lines.append("cross-validation (e rms): " + ", ".join(
             f"{r['scheme']} {r['e_rms']:.4f}" for r in summary["cv"])
             + f" -> {summary['scheme']}")
-    lines.append(f"interpolator: {summary['interpolator']}; fitted stars: {summary['n_fit']}, "
+    interpolator = summary["interpolator"]
+    if summary.get("spatial_model") == "constant":  # too few stars for its likelihood
+        interpolator = (f"a constant PSF ({summary['n_inliers']} stars kept are fewer than "
+                        f"the {MIN_LIKELIHOOD_STARS} that {interpolator}'s maximum likelihood "
+                        "needs; PSFEx lowers its degree likewise)")
+    lines.append(f"interpolator: {interpolator}; fitted stars: {summary['n_fit']}, "
                  f"outliers rejected: {summary['n_outliers']}, reserved: "
                  f"{summary['n_reserved']}")
     if "n_components" in summary:
