@@ -421,7 +421,7 @@ def test_a_wrong_model_is_flagged(tmp_path, sextractor_ldac, capsys):
 
 
 def test_too_few_stars_names_each_cut_and_its_option(tmp_path, sextractor_ldac, capsys):
-    code, out, err = _run(["fit", "--stars", sextractor_ldac["path"], "--min-snr", "400",
+    code, out, err = _run(["fit", "--stars", sextractor_ldac["path"], "--min-snr", "2000",
                            "-o", tmp_path / "m.fits"], capsys)
     _one_line_error(code, err, r"0 of the 205 sources .* pass the star selection: too few .*"
                     r"low_snr 200 \(--min-snr\), saturated 3 \(--saturation\)")

@@ -355,6 +355,9 @@ def _selection_lines(counts, n_kept, head, max_spread_model, min_class_star):
         lines.append(f"  size-magnitude locus: {size} {counts['locus_radius']:.3g} pixels "
                      f"(median over the selected stars), accepted within +-"
                      f"{counts['locus_width']:.1%} (median; wider at low S/N)")
+    if counts.get("snr_from") == "vignets":
+        lines.append("  S/N: in a Gaussian window on the VIGNETs, as Source Extractor's SNR_WIN "
+                     "(the catalogue has none; its fluxes' S/N is lower for faint stars)")
     cuts = {"class_star": f"CLASS_STAR >= {min_class_star:g}",
             "spread_model": f"|SPREAD_MODEL| <= {max_spread_model:g}"}
     for name, fraction in counts.get("not_applied", {}).items():
