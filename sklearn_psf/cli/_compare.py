@@ -293,6 +293,7 @@ def _compare(args) -> int:
         result.surveys = survey_table()
         result.tuning = tuning
         result.config["quick"] = bool(args.quick)
+        result.config["studies"] = list(studies)  # (the report's summary names them)
         result.config["reference"] = args.reference
         for path in earlier:  # no figure of the earlier run stays next to the new report
             path.unlink(missing_ok=True)
