@@ -113,5 +113,8 @@ def write_atomic(path, write, overwrite: bool = True):
 
 def write_fits_atomic(hdul, path, overwrite: bool = False) -> None:
     """Write an HDU list to ``path`` with :func:`write_atomic`."""
-    write_atomic(os.fspath(path), lambda tmp: hdul.writeto(tmp, overwrite=True),
-                 overwrite=overwrite)
+    def write(tmp):
+        with open(tmp, "wb") as f:
+            hdul.writeto(f)
+
+    write_atomic(os.fspath(path), write, overwrite=overwrite)

@@ -21,6 +21,7 @@ from sklearn_psf.preprocessing import StampNormalizer
 from sklearn_psf.simulate import make_psf_field
 from sklearn_psf.validation import (
     PSFExModel,
+    PSFQualityWarning,
     fit_and_validate,
     load_psf_model,
     measure_residuals,
@@ -255,7 +256,11 @@ def test_measure_residuals_flags_unusable_stars_and_checks_shapes(field):
 
 def test_fit_and_validate_reports_chi2_in_the_stars_noise(field):
     X, stamps, w = field["X"], field["stamps"], field["weights"]
-    _, table, summary = fit_and_validate(X, stamps, weights=w, reserve=0.3, random_state=0)
+    # chi^2 near 1 per pixel, while the ellipticity, far better measured at S/N 200, shows
+    # the model's own error beyond the noise (2.4 times): the verdict says so
+    with pytest.warns(PSFQualityWarning, match="ellipticity residuals are .* times"):
+        _, table, summary = fit_and_validate(X, stamps, weights=w, reserve=0.3,
+                                             random_state=0)
     assert "chi2" in table.colnames and (table["dof"][table["flag"] == 0] > 0).all()
     assert 0.9 < summary["chi2_dof"] < 1.3  # measured 1.06: noise plus the model's error
 

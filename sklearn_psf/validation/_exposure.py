@@ -457,11 +457,20 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     >>> side = int(np.sqrt(stamps.shape[1]))
     >>> cat = Table({"x": field.stars["x"], "y": field.stars["y"],
     ...              "VIGNET": stamps.reshape(-1, side, side)})
-    >>> fit = fit_exposure(catalog=cat, select=False, reserve=0.2)
+    >>> import warnings
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     fit = fit_exposure(catalog=cat, select=False, reserve=0.2)
     >>> fit.summary["n_reserved"], fit.summary["n_fit"]
     (12, 48)
     >>> fit.report()[0]
     'sources in the catalogue: 60 (0-based x, y)'
+
+    48 stars are too few for this PSF's variations: the verdict warns that the reserved stars'
+    residuals exceed their noise.
+
+    >>> [w.category.__name__ for w in caught]
+    ['PSFQualityWarning']
     """
     from ..io import celestial_wcs, find_stars, select_stars
     from ..model import INTERPOLATORS, PSFModel, make_interpolator
