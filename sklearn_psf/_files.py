@@ -7,7 +7,7 @@ import linecache
 import os
 import tempfile
 
-__all__ = ["InputError", "check_memory", "one_line", "write_fits_atomic"]
+__all__ = ["InputError", "check_memory", "one_line", "write_atomic", "write_fits_atomic"]
 
 
 class InputError(ValueError):
@@ -78,25 +78,27 @@ def one_line(exc) -> str:
     return " ".join(str(exc).split())
 
 
-def write_fits_atomic(hdul, path, overwrite: bool = False) -> None:
-    """Write an HDU list to ``path`` through a temporary file in the same folder.
+def write_atomic(path, write, overwrite: bool = True):
+    """Write ``path`` through a temporary file in the same folder: ``write(tmp)`` writes the
+    file at the temporary path ``tmp`` (which exists, empty).
 
     The temporary file is renamed over ``path`` (``os.replace``) only once it is complete;
     on any error it is removed, so ``path`` is never left half-written. The file gets the
-    permissions the user's umask gives new files (not the temporary file's 0600).
+    permissions the user's umask gives new files (not the temporary file's 0600). Returns
+    ``path``.
     """
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
+    folder = os.path.dirname(os.path.abspath(os.fspath(path)))
     if os.path.exists(path) and not overwrite:
-        raise FileExistsError(f"{path!r} already exists: pass overwrite=True to replace it.")
+        raise FileExistsError(f"{os.fspath(path)!r} already exists: pass overwrite=True to "
+                              "replace it.")
     if not os.path.isdir(folder):
-        raise FileNotFoundError(f"The folder {folder!r} of {path!r} does not exist.")
+        raise FileNotFoundError(f"The folder {folder!r} of {os.fspath(path)!r} does not exist.")
     fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp",
                                dir=folder)
+    os.close(fd)
     try:
-        with os.fdopen(fd, "wb") as f:
-            hdul.writeto(f)
-            f.flush()
+        write(tmp)
+        with open(tmp, "rb+") as f:
             os.fsync(f.fileno())
         umask = os.umask(0)
         os.umask(umask)
@@ -106,3 +108,13 @@ def write_fits_atomic(hdul, path, overwrite: bool = False) -> None:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+    return path
+
+
+def write_fits_atomic(hdul, path, overwrite: bool = False) -> None:
+    """Write an HDU list to ``path`` with :func:`write_atomic`."""
+    def write(tmp):
+        with open(tmp, "wb") as f:
+            hdul.writeto(f)
+
+    write_atomic(os.fspath(path), write, overwrite=overwrite)

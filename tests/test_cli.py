@@ -4,6 +4,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from sklearn_psf.cli import main
@@ -94,6 +95,60 @@ def test_unreachable_scheduler_is_a_one_line_error(tmp_path, capsys):
                  "-o", str(tmp_path)])
     err = capsys.readouterr().err
     assert code == 2 and "Dask scheduler" in err and len(err.strip().splitlines()) == 1
+
+
+def test_missing_optional_package_is_an_input_error_before_any_output(tmp_path, capsys,
+                                                                    monkeypatch):
+    """An option or a model file that needs a package not installed (Dask for --scheduler,
+    PIFF for a PIFF model): exit 2 with its pip install line in one line, before any file or
+    folder is made."""
+    from astropy.io import fits
+
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    monkeypatch.setitem(sys.modules, "piff", None)
+    piff_file, stars = tmp_path / "model.piff", tmp_path / "stars.csv"
+    header = fits.Header([("HIERARCH PIFF_VERSION", "1.3")])
+    fits.HDUList([fits.PrimaryHDU(header=header)]).writeto(piff_file)
+    stars.write_text("x,y\n10,20\n")
+    new = tmp_path / "new" / "out"
+    runs = {
+        "compare": ["compare", *SMALL, "--scheduler", "tcp://127.0.0.1:9", "-o", str(new)],
+        "fit": ["fit", "--stars", str(stars), "--scheduler", "tcp://127.0.0.1:9",
+                "-o", str(new / "m.fits")],
+        "validate": ["validate", "--stars", str(stars), "-m", str(piff_file), "-o", str(new)],
+    }
+    for command, argv in runs.items():
+        assert main(argv) == 2, command
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1, err
+        extra = "piff" if command == "validate" else "dask"
+        assert f"pip install 'sklearn-psf[{extra}]'" in err, err
+        assert sorted(os.listdir(tmp_path)) == ["model.piff", "stars.csv"], command
+
+
+def test_failing_commands_leave_no_empty_folder(tmp_path, capsys):
+    """A command that fails after making its output folder removes it (and the parents it
+    made) when nothing was written there; an existing folder stays."""
+    stars = tmp_path / "stars.csv"
+    stars.write_text("x,y\n10,20\n")
+    model = tmp_path / "m.psf"
+    from sklearn_psf.validation import write_psfex
+
+    write_psfex(model, np.ones((1, 5, 5)), (0.0, 0.0), (1.0, 1.0))
+    new = tmp_path / "a" / "b"
+    failing = [
+        ["compare", *SMALL, "--schemes", "kriging,splines", "-o", str(new)],
+        ["compare", *SMALL, "--reference", "nowhere.fits", "-o", str(new)],
+        ["validate", "--stars", str(stars), "-m", str(model), "-o", str(new)],  # no image
+    ]
+    for argv in failing:
+        assert main(argv) == 2, argv
+        assert len(capsys.readouterr().err.strip().splitlines()) == 1
+        assert not (tmp_path / "a").exists(), argv
+    kept = tmp_path / "kept"
+    kept.mkdir()
+    assert main(["validate", "--stars", str(stars), "-m", str(model), "-o", str(kept)]) == 2
+    assert kept.is_dir()
 
 
 def test_help_imports_neither_the_study_nor_matplotlib():

@@ -19,6 +19,7 @@ from sklearn_psf.io import (
     FITSHeaderWarning,
     load_model,
     read_model_validation,
+    write_ldac,
 )
 from sklearn_psf.simulate import write_example_exposure
 from sklearn_psf.measure import adaptive_moments
@@ -114,7 +115,11 @@ def test_bad_inputs_exit_2(tmp_path, exposure, capsys):
         (["fit", exposure["image"], "--hdu", "SCI", "--stars", tmp_path / "far.csv", "-o", out],
          r"All 3 catalogue positions fall outside the image"),
         (["fit", exposure["image"], "--hdu", "SCI", "--stars", tmp_path / "cols.csv", "-o", out],
-         r"no position columns.*columns found: ra, dec"),
+         r"no position columns.*columns found: ra, dec; its \(RA, Dec\) columns ra, dec are "
+         r"read with sky=True \(predict --radec"),
+        (["fit", tmp_path / "cat.ldac", "-o", out],
+         r"holds no 2-D image HDU .*FITS_LDAC catalogue: give it as the star catalogue "
+         r"\(fit --stars CATALOG"),
         (["fit", tmp_path / "garbage.fits", "-o", out], r"Could not read .*FITS"),
         (["fit", tmp_path / "trunc.fits", "-o", out], r"Could not read .*FITS"),
         (["fit", tmp_path / "missing.fits", "-o", out], r"does not exist"),
@@ -129,6 +134,7 @@ def test_bad_inputs_exit_2(tmp_path, exposure, capsys):
         tmp_path / "far.csv", format="ascii.csv")
     Table({"ra": [1.0], "dec": [2.0]}).write(tmp_path / "cols.csv", format="ascii.csv")
     (tmp_path / "garbage.fits").write_bytes(os.urandom(6000))
+    write_ldac(tmp_path / "cat.ldac", Table({"X_IMAGE": [10.0], "Y_IMAGE": [20.0]}))
     data = open(exposure["image"], "rb").read()
     (tmp_path / "trunc.fits").write_bytes(data[: len(data) // 2])
     for args, pattern in cases:
@@ -137,6 +143,11 @@ def test_bad_inputs_exit_2(tmp_path, exposure, capsys):
         assert not out.exists() and not (tmp_path / "p.fits").exists()
     leftovers = [n for n in os.listdir(tmp_path) if n.endswith(".tmp")]
     assert leftovers == []
+    # --debug anywhere on the command line shows the traceback (the error is raised)
+    for args in (["--debug", "fit", tmp_path / "cat.ldac", "-o", out],
+                 ["fit", tmp_path / "cat.ldac", "--debug", "-o", out]):
+        with pytest.raises(ValueError, match="FITS_LDAC catalogue"):
+            main([str(a) for a in args])
     # argparse errors: exit 2 as well
     for args in (["fit", noise, "-o", out, "--reserve", "1.5"],
                  ["fit", noise, "-o", out, "--stamp-size", "3"],
@@ -410,7 +421,7 @@ def test_a_wrong_model_is_flagged(tmp_path, sextractor_ldac, capsys):
 
 
 def test_too_few_stars_names_each_cut_and_its_option(tmp_path, sextractor_ldac, capsys):
-    code, out, err = _run(["fit", "--stars", sextractor_ldac["path"], "--min-snr", "400",
+    code, out, err = _run(["fit", "--stars", sextractor_ldac["path"], "--min-snr", "2000",
                            "-o", tmp_path / "m.fits"], capsys)
     _one_line_error(code, err, r"0 of the 205 sources .* pass the star selection: too few .*"
                     r"low_snr 200 \(--min-snr\), saturated 3 \(--saturation\)")

@@ -11,7 +11,8 @@ from sklearn_psf.cli import main
 from sklearn_psf.io import CatalogColumnWarning, draw_psf, extrapolation_flags, load_model, \
     read_model_validation
 from sklearn_psf.simulate import make_psf_field
-from sklearn_psf.validation import fit_exposure, key_columns, validate_models
+from sklearn_psf.validation import (PSFQualityWarning, fit_exposure, key_columns,
+                                    validate_models)
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +58,8 @@ def test_fit_with_keys_then_predict_equals_the_library(tmp_path, chromatic, caps
     assert np.isfinite(model.X_fit_).all()
 
     # the library call: same stars, same model, same PSFs at the galaxies (any case of the key)
-    with pytest.warns(CatalogColumnWarning):
+    with pytest.warns(CatalogColumnWarning), \
+            pytest.warns(PSFQualityWarning, match="exceed their measurement noise"):
         fit = fit_exposure(catalog=str(paths["stars"]), select=False, keys=["g_i"])
     assert fit.summary["keys"] == ["G_I"]
     assert_allclose(fit.model.X_fit_, model.X_fit_)

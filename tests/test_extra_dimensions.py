@@ -32,6 +32,10 @@ from sklearn_psf.model import PSFModel, make_default_interpolator
 from sklearn_psf.simulate import make_psf_field
 
 
+# the checks' random data have no spatial correlation to find, and duplicated rows: warned by
+# design (the fallbacks are asserted in tests/test_interpolate*.py)
+@pytest.mark.filterwarnings("ignore::sklearn_psf.interpolate.ShortRangeWarning")
+@pytest.mark.filterwarnings("ignore::sklearn_psf.interpolate.DuplicateStarsWarning")
 @parametrize_with_checks([IsotropicScaler(n_positions=2),
                           KrigingRegressor(range="auto", extra_scaling="auto",
                                            extra_drift="linear")],

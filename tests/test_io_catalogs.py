@@ -18,6 +18,7 @@ from sklearn_psf.io import (
     select_stars,
     write_ldac,
 )
+from sklearn_psf.io._select import _windowed_snr
 from sklearn_psf.simulate import write_example_ldac
 from sklearn_psf.measure import adaptive_moments
 from sklearn_psf.validation import fit_and_validate
@@ -127,6 +128,8 @@ def test_vignette_rejections_and_errors():
         extract_vignettes(cat, 9, saturation=1.0)
 
 
+@pytest.mark.filterwarnings("ignore::sklearn_psf.validation.PSFQualityWarning")  # (the
+# truth checks the model here; the verdict, at 2.0 times the noise, is borderline)
 def test_fit_on_vignettes_recovers_truth(ldac):
     """The model fitted on the selected vignettes alone reproduces the true PSF shapes."""
     cat = read_catalog(ldac["catalog"])
@@ -220,6 +223,8 @@ def test_contaminants_cost_less_than_ten_percent(tmp_path):
     assert dirty < 1.10 * clean, (dirty, clean)
 
 
+@pytest.mark.filterwarnings("ignore::sklearn_psf.interpolate.ShortRangeWarning")  # (40
+# stars of a constant PSF: no spatial correlation to find, by design)
 def test_fit_and_validate_passes_weights_only_where_accepted():
     from sklearn_psf.model import PSFModel
 
@@ -304,10 +309,12 @@ def test_locus_selects_point_sources_whatever_class_star_says(sextractor_ldac):
 
 def test_too_few_stars_error_names_each_cut_and_its_parameter(sextractor_ldac):
     cat = read_catalog(sextractor_ldac["path"])
+    # (no SNR_WIN: the S/N in its window on the VIGNETs, in the sky noise, is 1.3-1.6e4 for
+    # the saturated stars)
     with pytest.raises(ValueError, match=r"0 of 205 sources pass the star selection, fewer "
                        r"than 1: .*flags 2 \(flag_mask\), low_snr 203 \(min_snr\)"):
-        select_stars(cat, min_snr=1e4)
-    keep, _ = select_stars(cat, min_snr=1e4, min_stars=0)
+        select_stars(cat, min_snr=1e6)
+    keep, _ = select_stars(cat, min_snr=1e6, min_stars=0)
     assert not keep.any()
     keep, counts = select_stars(cat, flag_mask=0xfe)   # PSFEx's: FLAGS 3 = 1 + 2 rejected
     assert counts["flags"] == 2
@@ -349,3 +356,39 @@ def test_real_decam_catalogue(realdata):
     assert keep[galaxies].mean() <= 0.01     # measured 0 of 177
     assert 150 <= keep.sum() <= 260          # 225; PSFEx-style selection: 217
     assert counts["not_applied"] == {}       # SPREAD_MODEL agrees with the locus here
+
+
+def test_snr_without_snr_win_is_measured_in_its_window():
+    """Without SNR_WIN, MAGERR_AUTO alone gives 2.5 / ln 10 / MAGERR (99: unmeasured), and
+    select_stars measures the S/N in SNR_WIN's Gaussian window on the VIGNETs: Gaussian stars
+    in white noise get their matched-filter S/N, F / (2 sqrt(pi) sigma_psf sigma_sky)."""
+    rng = np.random.default_rng(3)
+    n, side, s_psf, sky = 400, 31, 1.6, 5.0
+    snr_true = rng.uniform(10, 40, n)
+    flux = snr_true * 2 * np.sqrt(np.pi) * s_psf * sky
+    yy, xx = np.mgrid[0:side, 0:side] - side // 2
+    dx, dy = rng.uniform(-0.5, 0.5, (2, n))
+    psf = np.exp(-0.5 * ((xx - dx[:, None, None])**2 + (yy - dy[:, None, None])**2) / s_psf**2)
+    stamps = flux[:, None, None] * psf / (2 * np.pi * s_psf**2)
+    stamps += rng.normal(0, sky, stamps.shape)
+    magerr = 2.5 / np.log(10) / (0.67 * snr_true)   # a Kron aperture's S/N: lower
+    magerr[0] = 99.0
+    mag = np.where(np.arange(n) == 0, 99.0, 20.0)
+    table = Table({"X_IMAGE": 100.0 + dx + 1, "Y_IMAGE": 100.0 + dy + 1 + 40 * np.arange(n),
+                   "MAG_AUTO": mag, "MAGERR_AUTO": magerr,
+                   "FLUX_RADIUS": np.full(n, 1.1774 * s_psf), "VIGNET": stamps})
+    cat = read_catalog(table)
+    assert cat.meta["snr_from_fluxes"] and np.isnan(cat["snr"][0])
+    assert_allclose(cat["snr"][1:], 0.67 * snr_true[1:], rtol=1e-12)
+    keep, counts = select_stars(cat, min_snr=20.0, min_stars=0, isolation=0)
+    assert counts["snr_from"] == "vignets"
+    # the window's S/N against the truth (the sky noise measured on each VIGNET's border):
+    # measured ratio median 1.005, rms 0.086 (the S/N of an S/N 10-40 star is itself noisy)
+    ratio = _windowed_snr(cat, np.arange(n), np.full(n, np.nan)) / snr_true
+    assert abs(np.median(ratio) - 1) < 0.02 and np.std(ratio) < 0.12
+    # the cut: the stars clearly below 20 dropped, those clearly above kept (MAGERR_AUTO's
+    # S/N, 0.67 times the truth, would drop every star below 30)
+    assert keep[snr_true > 25].mean() > 0.97 and not keep[snr_true < 15].any()
+    # with SNR_WIN given, it is used as it is
+    table["SNR_WIN"] = snr_true
+    assert "snr_from" not in select_stars(read_catalog(table), min_stars=0, isolation=0)[1]

@@ -168,7 +168,9 @@ def test_default_model_uses_kriging_interpolator(data):
         with pytest.raises(ImportError):
             PSFModel().fit(X[:50], y[:50])
         return
-    model = PSFModel().fit(X, y)
+    # noisy stars: the default model is noise-aware (on noiseless stamps the weights that
+    # their borders give, and with them its chi^2 test and its Kriging's noise, are void)
+    model = PSFModel().fit(X, y + np.random.default_rng(2).normal(0.0, 0.5, y.shape))
     assert type(model.interpolator_[-1]).__name__ == "KrigingRegressor"
     assert model.score(Xt, yt) > 0.9
 
@@ -191,6 +193,10 @@ def test_bad_input(data):
                                                                   weights=np.ones((20, S * S)))
     with pytest.raises(ValueError, match="square"):
         PSFModel(interpolator=knn).fit(X[:20], y[:20, :-1])
+    # one position column (e.g. x alone): refused with both shapes
+    with pytest.raises(ValueError, match=rf"n_features = 1.*X \(20, 1\) for stamps "
+                                         rf"\(20, {S * S}\)"):
+        PSFModel().fit(X[:20, :1], y[:20])
     # extra position columns (e.g. an exposure index) go to the interpolator as they are,
     # and predictions must then give as many
     three = PSFModel(interpolator=knn).fit(np.c_[X[:20], np.zeros(20)], y[:20])

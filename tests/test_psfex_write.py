@@ -1,7 +1,5 @@
 """Writing a fitted model as a PSFEx ``.psf`` file: read back by GalSim and Source Extractor."""
 
-import os
-
 import numpy as np
 import pytest
 from astropy.io import fits
@@ -21,8 +19,6 @@ from sklearn_psf.io import (  # noqa: E402
 from sklearn_psf.model import PSFModel, make_interpolator  # noqa: E402
 from sklearn_psf.validation import PSFExModel, psfex_terms, to_psfex, write_psfex  # noqa: E402
 
-REAL = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "realdata",
-                    "DECam_00241238_01_psfcat.psf")
 
 
 @pytest.fixture(scope="module")
@@ -147,9 +143,9 @@ def test_even_stamps_padded_to_psfex_centre(tmp_path):
         to_psfex(PSFModel(), tmp_path / "x.psf")
 
 
-@pytest.mark.skipif(not os.path.exists(REAL), reason="shared/realdata (a real PSFEx file) absent")
-def test_real_psfex_file_round_trip(tmp_path):
+def test_real_psfex_file_round_trip(tmp_path, realdata):
     """PSFEx 3.17's own file, read with GalSim and written back by write_psfex: same file."""
+    REAL = str(realdata("DECam_00241238_01_psfcat.psf"))
     hdu = fits.open(REAL)[1]
     ref = galsim.des.DES_PSFEx(REAL)
     h = hdu.header

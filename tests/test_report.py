@@ -1,6 +1,7 @@
 """Tests of sklearn_psf.study.report: summaries, verdicts from the numbers, files written."""
 
 import itertools
+import os
 import re
 from types import SimpleNamespace
 
@@ -230,8 +231,14 @@ def test_write_report_files_figures_and_markdown(tmp_path, capsys):
     # test_plotting, saved by test_maps_fall_back_...: keep this file fast
     every = {"fig_sim", "fig_ell", "fig_ecomp", "fig_coeffscomp", "fig_cor", "fig_corhsn",
              "fig_densell", "fig_densellvar", "fig_densellglob"} | heavy
-    paths = write_report(result, tmp_path / "out", stamps=stamps, dpi=30,
-                         figures=every - heavy)
+    umask = os.umask(0o027)  # every file with the user's umask (was 0600 for some)
+    try:
+        paths = write_report(result, tmp_path / "out", stamps=stamps, dpi=30,
+                             figures=every - heavy)
+    finally:
+        os.umask(umask)
+    assert {p.name: oct(p.stat().st_mode & 0o777) for p in paths} == \
+        {p.name: "0o640" for p in paths}
     assert capsys.readouterr().out == ""
     out = tmp_path / "out"
     names = [p.name for p in paths]
@@ -416,3 +423,33 @@ def test_multipole_sensitivity_matches_sigma_sys2():
         expected = sigma_sys2(theta, shear_bias_bound(2e-6 * np.exp(-theta / 5)), ell_max=lmax)
         assert table[f"ell_max={lmax:g}"][0] == pytest.approx(expected, rel=5e-3)
     assert table["ell_max=3000"][0] < table["ell_max=20000"][0]
+
+
+def test_report_opens_with_a_summary_of_what_was_found(tmp_path):
+    """report.md's first section is the summary: the ranking (from the medians), which scheme
+    meets which survey, the defaults against the paper's kriging, the findings' counts."""
+    scores = make_scores({("default", "polynomial"): (0.03, 5e-6, 1e-4),
+                          ("default", "kriging"): (0.01, 1e-6, 1e-5),
+                          ("default", "delaunay"): (0.015, 3e-6, 2e-5),
+                          ("default", "psfmodel-default"): (0.009, 9e-7, 9e-6),
+                          ("default", "shepard"): (0.02, 4e-6, 3e-5)}, n_sim=3)
+    result = make_result(scores, config={"quick": True, "studies": ["exposures"]})
+    write_report(result, tmp_path, figures=False)
+    text = (tmp_path / "report.md").read_text()
+    sections = re.findall(r"^## (.+)$", text, re.M)
+    assert sections[0] == "Summary"
+    summary = text.split("## Summary")[1].split("\n## ")[0]
+    s = summarize(scores)
+    med = {str(r["scheme"]): r["e_rms_median"] for r in s}
+    order = sorted(med, key=med.get)
+    assert f"best {order[0]} {_fmt(med[order[0]])}, {order[1]} {_fmt(med[order[1]])}" in summary
+    assert f"worst {order[-1]} {_fmt(med[order[-1]])}" in summary
+    assert "A `--quick` run: 3 simulations" in summary and "underpowered" in summary
+    verdicts = survey_verdicts(scores)
+    cfhtls = [str(r["scheme"]) for r in verdicts if r["survey"] == "CFHTLS" and r["meets"]]
+    assert f"met by {len(cfhtls)} of 5 schemes ({', '.join(cfhtls)})" in summary
+    change = 100 * (med["psfmodel-default"] - med["kriging"]) / med["kriging"]
+    assert f"{abs(change):.1f}% below the paper's kriging" in summary
+    findings = check_findings(result)
+    assert f"**The paper's findings** ({len(findings)};" in summary
+    assert "Further sections at the end: the multi-exposure study." in summary

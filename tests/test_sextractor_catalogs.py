@@ -9,8 +9,6 @@ where ``source-extractor`` or ``psfex`` is not installed (Debian: ``apt-get inst
 source-extractor psfex``) or without ``../shared/realdata``.
 """
 
-import os
-
 import numpy as np
 import pytest
 from astropy.io import fits
@@ -27,8 +25,6 @@ needs_sex = pytest.mark.skipif(SEX is None, reason="Source Extractor (source-ext
                                "not installed")
 needs_psfex = pytest.mark.skipif(SEX is None or PSFEX is None,
                                  reason="Source Extractor or PSFEx is not installed")
-REALDATA = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "realdata")
-DECAM = os.path.join(REALDATA, "DECam_00241238_01_psfcat.ldac.fits")
 
 #: The true PSF (pixel scale 1): a sheared Moffat.
 PSF = galsim.Moffat(beta=3.0, fwhm=3.0).shear(e1=0.03, e2=-0.02)
@@ -119,8 +115,8 @@ def test_fit_on_ascii_catalogue_with_12_apertures(image, tmp_path, capsys):
     assert abs(mom.moments_sigma / truth.moments_sigma - 1) < 0.05
 
 
-@pytest.mark.skipif(not os.path.exists(DECAM), reason="../shared/realdata is absent")
-def test_decam_psfex_input_with_12_apertures():
+def test_decam_psfex_input_with_12_apertures(realdata):
+    DECAM = str(realdata("DECam_00241238_01_psfcat.ldac.fits"))
     cat = read_catalog(DECAM)
     raw = Table.read(DECAM, hdu="LDAC_OBJECTS")
     assert raw["FLUX_APER"].shape == (117, 12)

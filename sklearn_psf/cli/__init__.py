@@ -33,13 +33,16 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="sklearn-psf", description="PSF modelling and interpolation (Berge et al. 2012)."
     )
-    parser.add_argument("--debug", action="store_true",
-                        help="show the traceback of an error (also: SKLEARN_PSF_DEBUG=1)")
+    debug = "show the traceback of an error (also: SKLEARN_PSF_DEBUG=1)"
+    parser.add_argument("--debug", action="store_true", help=debug)
     sub = parser.add_subparsers(dest="command", required=True)
     add_compare_parser(sub)
     _add_fit_parsers(sub)
     add_validate_parser(sub)
     add_crossval_parser(sub)
+    for command in sub.choices.values():  # --debug after the command name too
+        command.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                             help=debug)
     return parser
 
 

@@ -147,11 +147,40 @@ def _about(path):
         raise CLIInputError(f"{path}: {exc}") from None
 
 
-def _check_output(path):
+def _remove_empty(folders):
+    """Remove each of ``folders`` (deepest first) that is empty."""
+    for folder in folders:
+        with contextlib.suppress(OSError):
+            os.rmdir(folder)
+
+
+@contextlib.contextmanager
+def _output_folder(path):
+    """Create the output folder ``path`` (and its missing parents) for a command's run,
+    checking it can be written; when the command fails, the folders it created that are
+    still empty are removed: a failed command leaves no empty folder behind."""
+    created, parent = [], os.path.abspath(path)
+    while not os.path.exists(parent):
+        created.append(parent)
+        parent = os.path.dirname(parent)
     try:
         os.makedirs(path, exist_ok=True)
         with tempfile.NamedTemporaryFile(dir=path):
             pass
     except OSError as exc:
+        _remove_empty(created)
         raise CLIInputError(
             f"cannot write to the output folder {path!r}: {exc.strerror or exc}") from None
+    try:
+        yield
+    except BaseException:
+        _remove_empty(created)
+        raise
+
+
+def _check_optional(module, what):
+    """An optional package the command's options need, checked before any output is made
+    (a one-line error with its ``pip install`` line, exit status 2)."""
+    from .._optional import check_installed
+
+    check_installed(module, what)

@@ -6,7 +6,8 @@ import argparse
 from dataclasses import replace
 from functools import partial
 
-from ._common import CLIInputError, _check_output, _n_jobs, _positive, _positive_int
+from ._common import (CLIInputError, _check_optional, _n_jobs, _output_folder, _positive,
+                      _positive_int)
 from ._parallel import dask_backend, local_pool, prepare_workers
 
 #: Sizes of ``sklearn-psf compare``: ``"paper"`` (the default) and ``"quick"`` (``--quick``);
@@ -197,7 +198,15 @@ def _selected(names, available, what):
 
 
 def run_compare(args) -> int:
-    """Run ``sklearn-psf compare``: the study, its report, a summary on the terminal."""
+    """Run ``sklearn-psf compare``: the study, its report, a summary on the terminal; a run
+    that fails leaves no empty output folder."""
+    if args.scheduler is not None:
+        _check_optional("distributed", "--scheduler")
+    with _output_folder(args.output):
+        return _compare(args)
+
+
+def _compare(args) -> int:
     import numpy as np
     from joblib import delayed
     from tqdm.auto import tqdm
@@ -216,7 +225,6 @@ def run_compare(args) -> int:
     schemes = {n: all_schemes[n] for n in names}
     study_schemes = {n: all_schemes[n] for n in STUDY_SCHEMES}
     n_jobs = args.n_jobs or (-1 if args.scheduler else _default_n_jobs())
-    _check_output(args.output)
     earlier = _check_earlier_run(args.output, args.overwrite)
     reference = _load_reference(args.reference)
 
@@ -285,6 +293,7 @@ def run_compare(args) -> int:
         result.surveys = survey_table()
         result.tuning = tuning
         result.config["quick"] = bool(args.quick)
+        result.config["studies"] = list(studies)  # (the report's summary names them)
         result.config["reference"] = args.reference
         for path in earlier:  # no figure of the earlier run stays next to the new report
             path.unlink(missing_ok=True)

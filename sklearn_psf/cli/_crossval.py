@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import os
 
-from ._common import CLIInputError, _about, _check_input, _non_negative, _positive_int
+from ._common import (CLIInputError, _about, _check_input, _check_optional, _non_negative,
+                      _output_folder, _positive_int)
 
 #: Files ``crossval`` writes in its output folder (the figure only without --no-plots).
 OUTPUTS = {"table": "crossval.csv", "figure": "crossval.png"}
@@ -134,14 +135,21 @@ def run_crossval(args) -> int:
         raise CLIInputError("nothing to compare with: PSFEx is not installed (or --no-psfex) "
                             "and no -m model is given")
     config = {"NTHREADS": 1, **dict(args.psfex_config)}
-    psfex = {f"psfex_d{d}": {**config, "PSFVAR_DEGREES": d} for d in (args.psfex_degrees or [2])} \
+    degrees = args.psfex_degrees or [2]
+    psfex = {f"psfex_d{d}": {**config, "PSFVAR_DEGREES": d} for d in degrees} \
         if run_psfex else None
-    try:
-        os.makedirs(out, exist_ok=True)
-    except OSError as exc:
-        raise CLIInputError(f"cannot create the output folder {out!r}: "
-                            f"{exc.strerror or exc}") from None
+    for path in args.model:
+        with _about(path):
+            from ..validation import model_kind
 
+            if model_kind(path.format(fold=1)) == "piff":
+                _check_optional("piff", f"Reading the PIFF model {path!r}")
+    with _output_folder(out):
+        return _crossval(args, out, psfex)
+
+
+def _crossval(args, out, psfex) -> int:
+    """The run of ``crossval`` once its inputs are checked and its folder made."""
     from tqdm.auto import tqdm
 
     from ..validation import cross_validate_catalog

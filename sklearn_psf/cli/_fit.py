@@ -11,9 +11,9 @@ import os
 import sys
 from typing import NamedTuple
 
-from ._common import (CLIInputError, _about, _bits, _check_input, _check_output_file,
-                      _fraction, _n_jobs, _non_negative, _positive, _positive_int,
-                      _stamp_size, _width)
+from ._common import (CLIInputError, _about, _bits, _check_input, _check_optional,
+                      _check_output_file, _fraction, _n_jobs, _non_negative, _positive,
+                      _positive_int, _stamp_size, _width)
 
 
 #: The schemes ``fit --interpolator`` takes (sklearn_psf.model.INTERPOLATORS, listed here so
@@ -265,6 +265,8 @@ def _fit_jobs(args):
 
 
 def _fit(args):
+    if args.scheduler is not None:
+        _check_optional("distributed", "--scheduler")
     jobs = _fit_jobs(args)
     inputs = [*args.image, *(args.stars or ())]
     for job in jobs:

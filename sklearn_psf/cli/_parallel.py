@@ -45,10 +45,9 @@ def dask_backend(scheduler):
     if scheduler is None:
         yield
         return
-    try:
-        from distributed import Client
-    except ImportError:
-        raise CLIInputError("--scheduler needs Dask: pip install 'sklearn-psf[dask]'") from None
+    from .._optional import require
+
+    Client = require("distributed", "--scheduler").Client
     import joblib
 
     try:

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import os
 
-from ._common import (CLIInputError, _about, _bits, _check_not_input, _non_negative,
-                      _positive, _stamp_size)
+from ._common import (CLIInputError, _about, _bits, _check_input, _check_not_input,
+                      _check_optional, _non_negative, _output_folder, _positive, _stamp_size)
 
 #: Files ``validate`` writes in its output folder (figures only without --no-plots).
 OUTPUTS = {"table": "validation.csv", "rho": "validation_rho.png",
@@ -27,8 +27,7 @@ def add_validate_parser(sub):
         "size (adaptive moments) of star minus model, the chi^2 of each raw star against the "
         "model in the star's noise, and rho1-rho5; print one table and write it "
         f"({OUTPUTS['table']}) with figures ({', '.join(_FIGURES)}) to the output folder. "
-        "Give stars none of the models was fitted on. PSFEx models "
-        "need GalSim (pip install 'sklearn-psf[galsim]'), PIFF models PIFF "
+        "Give stars none of the models was fitted on. PIFF models need PIFF "
         "(pip install 'sklearn-psf[piff]').",
     )
     p.add_argument("image", nargs="?",
@@ -138,6 +137,9 @@ def run_validate(args) -> int:
     for path in args.model:
         if not os.path.isfile(path):
             raise CLIInputError(f"model file {path!r} does not exist")
+    _check_input(args.stars, "catalogue")
+    if args.image is not None:
+        _check_input(args.image, "image")
     if (args.x_col is None) != (args.y_col is None):
         raise CLIInputError("give both --x-col and --y-col, or neither")
     out = args.output
@@ -150,17 +152,20 @@ def run_validate(args) -> int:
     if existing and not args.overwrite:
         raise CLIInputError(f"{out!r} already holds {', '.join(existing)} (an earlier run): "
                             "give another folder or --overwrite")
-    try:
-        os.makedirs(out, exist_ok=True)
-    except OSError as exc:
-        raise CLIInputError(f"cannot create the output folder {out!r}: "
-                            f"{exc.strerror or exc}") from None
-
-    from ..validation import model_kind, validate_models
+    from ..validation import model_kind
 
     for path in args.model:
         with _about(path):
-            model_kind(path)
+            if model_kind(path) == "piff":
+                _check_optional("piff", f"Reading the PIFF model {path!r}")
+    with _output_folder(out):
+        return _validate(args, out)
+
+
+def _validate(args, out) -> int:
+    """The run of ``validate`` once its inputs are checked and its folder made."""
+    from ..validation import validate_models
+
     cut, wcs, line = _stars(args)
     print(line)
     X = cut.positions

@@ -22,7 +22,8 @@ class RankDeficientWarning(UserWarning):
 
 
 class FewStarsWarning(UserWarning):
-    """Too few stars for the fitted statistics (e.g. a Kriging sill) to mean much."""
+    """Too few stars for the fitted statistics (e.g. a Kriging sill) to mean much, or for
+    the interpolator's maximum likelihood (``PSFModel`` then fits a constant PSF)."""
 
 
 class ShortRangeWarning(UserWarning):

@@ -97,6 +97,7 @@ from ._sextractor import (
     find_program,
     run_psfex,
     run_sextractor,
+    write_sextractor_config,
 )
 from ._select import (PSFEX_FLAG_MASK, SELECTION_OPTIONS, SELECTION_REASONS, neighbour_masks,
                       select_stars)
@@ -145,6 +146,7 @@ __all__ = [
     "read_psf_stamps",
     "run_psfex",
     "run_sextractor",
+    "write_sextractor_config",
     "save_model",
     "select_stars",
     "sky_to_pixel",

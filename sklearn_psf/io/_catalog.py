@@ -302,8 +302,10 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
     below), ``flags`` (``FLAGS``, ``FLAG``; non-zero skips the star when stamps
     are cut), ``peak`` (``FLUX_MAX``), ``flux_radius``, ``class_star``, ``spread_model``,
     ``background`` (read by :func:`select_stars`); without ``SNR``/``SNR_WIN``, the S/N is
-    the largest of ``FLUX_AUTO / FLUXERR_AUTO`` and each aperture's ``FLUX_APER /
-    FLUXERR_APER`` (the estimate nearest the windowed S/N). Other columns, e.g.
+    the largest of ``FLUX_AUTO / FLUXERR_AUTO``, each aperture's ``FLUX_APER /
+    FLUXERR_APER`` and ``2.5 / ln 10 / MAGERR_AUTO`` (or ``MAGERR_APER``) (the estimate
+    nearest the windowed S/N), and ``meta["snr_from_fluxes"]`` is True: with ``VIGNET``s,
+    :func:`select_stars` then measures a windowed S/N on them instead. Other columns, e.g.
     ``VIGNET``, are kept as they are. A ``FLUX_RADIUS`` that is 0 (or NaN) in every row is left
     out with a :class:`CatalogColumnWarning`.
 
@@ -407,11 +409,15 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
                 xname, yname, convention = lower[xn], lower[yn], conv
                 break
         else:
+            radec = [f"{lower[a]}, {lower[d]}" for a, d in _SKY_COLUMNS
+                     if a in lower and d in lower]
+            hint = (f"; its (RA, Dec) columns {radec[0]} are read with sky=True (predict "
+                    "--radec, with the WCS of the model's image)" if radec else "")
             raise InputError(
                 f"{where} has no position columns: expected x, y (0-based) or "
                 "X_IMAGE, Y_IMAGE / XWIN_IMAGE, YWIN_IMAGE (SExtractor, 1-based), or give "
                 "x_col/y_col (--x-col/--y-col); columns found: "
-                f"{', '.join(table.colnames) or 'none'}."
+                f"{', '.join(table.colnames) or 'none'}{hint}."
             )
     if len(table) == 0:
         raise InputError(f"{where} has no rows (columns: {', '.join(table.colnames[:8])}"
@@ -428,22 +434,12 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
                                     integer=std == "flags")
                 break
     if "snr" not in out.colnames:  # the best of the fluxes' S/N: closest to SNR_WIN's
-        ratios = []
-        for flux, err in (("flux_auto", "fluxerr_auto"), ("flux_aper", "fluxerr_aper")):
-            if flux in lower and err in lower:
-                try:
-                    f, e = (np.ma.filled(np.ma.asarray(table[lower[c]]).astype(np.float64),
-                                         np.nan).reshape(len(table), -1) for c in (flux, err))
-                except (TypeError, ValueError):
-                    raise InputError(f"{where}: column {lower[flux]!r} or {lower[err]!r} does "
-                                     "not hold numbers.") from None
-                if f.shape == e.shape:
-                    with np.errstate(divide="ignore", invalid="ignore"):
-                        ratios.append(np.where(e > 0, f / e, np.nan))
+        ratios = _flux_snr(table, lower, where)
         if ratios:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows stay NaN
                 out["snr"] = np.nanmax(np.hstack(ratios), axis=1)
+            out.meta["snr_from_fluxes"] = True  # (select_stars prefers the VIGNETs' window)
     dropped = set()
     if "flux_radius" in out.colnames and not (np.asarray(out["flux_radius"]) > 0).any():
         warnings.warn(
@@ -463,6 +459,33 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
     if "image_header" in table.meta:
         out.meta["image_header"] = table.meta["image_header"]
     return out
+
+
+#: (value, error, kind) column pairs giving a S/N without SNR/SNR_WIN: fluxes (S/N = flux /
+#: error) and magnitudes (S/N = 2.5 / ln 10 / error, as SExtractor derives MAGERR).
+_SNR_PAIRS = (("flux_auto", "fluxerr_auto", "flux"), ("flux_aper", "fluxerr_aper", "flux"),
+              ("mag_auto", "magerr_auto", "mag"), ("mag_aper", "magerr_aper", "mag"))
+
+
+def _flux_snr(table, lower, where):
+    """Each S/N the catalogue's fluxes or magnitudes give (arrays (n, k), one column per
+    aperture), in :data:`_SNR_PAIRS` order."""
+    ratios = []
+    for value, err, kind in _SNR_PAIRS:
+        if value in lower and err in lower:
+            try:
+                v, e = (np.ma.filled(np.ma.asarray(table[lower[c]]).astype(np.float64),
+                                     np.nan).reshape(len(table), -1) for c in (value, err))
+            except (TypeError, ValueError):
+                raise InputError(f"{where}: column {lower[value]!r} or {lower[err]!r} does "
+                                 "not hold numbers.") from None
+            if v.shape == e.shape:
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    snr = v / e if kind == "flux" else 2.5 / np.log(10.0) / e
+                    # (SExtractor writes 99 for the magnitudes it could not measure)
+                    bad = ~(e > 0) | ((kind == "mag") & ~(np.abs(v) < 90))
+                ratios.append(np.where(bad, np.nan, snr))
+    return ratios
 
 
 def _numbers(column, name, where, integer=False):

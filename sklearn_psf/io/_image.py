@@ -119,7 +119,10 @@ def _select(hdul, key, path, what):
         for h in hdul:
             if h.is_image and h.data is not None and np.ndim(h.data) == 2:
                 return h
-        raise _FileError(f"{path!r} holds no 2-D image HDU (HDUs: {_describe(hdul)}).")
+        hint = ("; it is a SExtractor FITS_LDAC catalogue: give it as the star catalogue "
+                "(fit --stars CATALOG, with its VIGNET stamps no image is needed)"
+                if any(h.name == "LDAC_OBJECTS" for h in hdul) else "")
+        raise _FileError(f"{path!r} holds no 2-D image HDU (HDUs: {_describe(hdul)}){hint}.")
     try:
         h = hdul[key]
     except (KeyError, IndexError):

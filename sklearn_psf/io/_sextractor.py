@@ -14,7 +14,8 @@ import tempfile
 from pathlib import Path
 
 __all__ = ["DEFAULT_SEXTRACTOR_CONFIG", "DEFAULT_SEXTRACTOR_PARAMS", "ProgramError",
-           "ProgramNotFoundError", "find_program", "run_psfex", "run_sextractor"]
+           "ProgramNotFoundError", "find_program", "run_psfex", "run_sextractor",
+           "write_sextractor_config"]
 
 _EXECUTABLES = {"source-extractor": ("source-extractor", "sex"), "psfex": ("psfex",)}
 
@@ -119,6 +120,104 @@ def _nnw_file(exe):
     return None
 
 
+#: Columns of ``spread.param`` (:func:`write_sextractor_config`): Source Extractor's model
+#: fitting with a ``.psf`` (``PSF_NAME``), for ``SPREAD_MODEL`` star/galaxy separation.
+_SPREAD_PARAMS = ("NUMBER", "XWIN_IMAGE", "YWIN_IMAGE", "FLUX_AUTO", "FLUXERR_AUTO",
+                  "MAG_AUTO", "FLAGS", "FLUX_RADIUS", "SPREAD_MODEL", "SPREADERR_MODEL")
+
+
+def _settings_and_columns(params, config, vignet, exe):
+    """The settings (:data:`DEFAULT_SEXTRACTOR_CONFIG` updated with ``config``) and output
+    columns (vector columns sized to the apertures and flux fractions) of a run."""
+    settings = dict(DEFAULT_SEXTRACTOR_CONFIG)
+    settings.update({str(k).upper(): v for k, v in (config or {}).items()})
+    n_aper = _n_values(settings["PHOT_APERTURES"])
+    n_frac = _n_values(settings["PHOT_FLUXFRAC"])
+    columns = list(DEFAULT_SEXTRACTOR_PARAMS if params is None else params)
+    if params is None and vignet is not None:
+        columns.insert(0, f"VIGNET({int(vignet[0])},{int(vignet[1])})")
+    sized = {"FLUX_APER": n_aper, "FLUXERR_APER": n_aper, "MAG_APER": n_aper,
+             "MAGERR_APER": n_aper, "FLUX_RADIUS": n_frac}
+    columns = [f"{c}({sized[c]})" if c in sized else c for c in (s.strip() for s in columns)]
+    if "CLASS_STAR" in {c.split("(")[0] for c in columns} and "STARNNW_NAME" not in settings:
+        nnw = None if exe is None else _nnw_file(exe)
+        if nnw is None and exe is not None:
+            raise ProgramError("CLASS_STAR needs SExtractor's default.nnw, not found beside "
+                               f"{exe}: pass config={{'STARNNW_NAME': path}}.")
+        settings["STARNNW_NAME"] = str(nnw) if nnw is not None else "default.nnw"
+    return settings, columns
+
+
+def _write_files(folder, name, settings, columns, skip=()):
+    """``name.param``, ``name.conv`` and ``name.sex`` (every setting but ``skip``) in
+    ``folder``; their paths."""
+    folder = Path(folder)
+    paths = {kind: folder / f"{name}.{kind}" for kind in ("sex", "param", "conv")}
+    paths["param"].write_text("\n".join(columns) + "\n")
+    paths["conv"].write_text(_FILTER)
+    settings = {**settings, "FILTER_NAME": settings.get("FILTER_NAME", paths["conv"].name),
+                "PARAMETERS_NAME": paths["param"].name}
+    paths["sex"].write_text("".join(f"{k} {_value(v)}\n" for k, v in settings.items()
+                                    if k not in skip))
+    return paths
+
+
+def write_sextractor_config(folder=".", *, config=None, vignet=(35, 35),
+                            overwrite: bool = False) -> dict:
+    """Write the Source Extractor configuration of :func:`run_sextractor` (PSFEx's usual
+    recipe) to ``folder``, for the command line.
+
+    ``prepsfex.sex`` (:data:`DEFAULT_SEXTRACTOR_CONFIG` with ``config``, ``CATALOG_TYPE
+    FITS_LDAC``, the star/galaxy network ``default.nnw`` of the installed Source Extractor),
+    ``prepsfex.param`` (:data:`DEFAULT_SEXTRACTOR_PARAMS` with ``VIGNET``: the catalogue
+    PSFEx and ``sklearn-psf fit`` read), ``prepsfex.conv`` (the detection filter) and
+    ``spread.param`` (the columns of Source Extractor's model fitting with a ``.psf``,
+    ``SPREAD_MODEL`` and ``SPREADERR_MODEL``, with ``-PARAMETERS_NAME spread.param
+    -PSF_NAME ccd.psf``). The user guide's recipe "From Source Extractor to a .psf that
+    Source Extractor uses" runs with them as printed.
+
+    Parameters
+    ----------
+    folder : str or os.PathLike, default="."
+        Created if needed.
+    config : dict, optional
+        Settings overriding :data:`DEFAULT_SEXTRACTOR_CONFIG` (as :func:`run_sextractor`'s).
+    vignet : (int, int), default=(35, 35)
+        Size of the ``VIGNET`` column.
+    overwrite : bool, default=False
+        Replace existing files.
+
+    Returns
+    -------
+    paths : dict
+        ``"sex"``, ``"param"``, ``"conv"``, ``"spread_param"``: the files written.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from sklearn_psf.io import write_sextractor_config
+    >>> paths = write_sextractor_config(tempfile.mkdtemp())
+    >>> sorted(p.name for p in paths.values())
+    ['prepsfex.conv', 'prepsfex.param', 'prepsfex.sex', 'spread.param']
+    >>> "VIGNET(35,35)" in paths["param"].read_text()
+    True
+    """
+    folder = Path(folder)
+    names = ("prepsfex.sex", "prepsfex.param", "prepsfex.conv", "spread.param")
+    existing = [n for n in names if (folder / n).exists()]
+    if existing and not overwrite:
+        raise FileExistsError(f"{str(folder / existing[0])!r} already exists: pass "
+                              "overwrite=True.")
+    folder.mkdir(parents=True, exist_ok=True)
+    settings, columns = _settings_and_columns(None, config, vignet,
+                                              find_program("source-extractor"))
+    settings["CATALOG_TYPE"] = "FITS_LDAC"
+    paths = _write_files(folder, "prepsfex", settings, columns)
+    paths["spread_param"] = folder / "spread.param"
+    paths["spread_param"].write_text("\n".join(_SPREAD_PARAMS) + "\n")
+    return paths
+
+
 def run_sextractor(image_path, catalog_path, *, weight_path=None, params=None, config=None,
                    vignet=(35, 35), catalog_type: str = "FITS_LDAC",
                    overwrite: bool = False) -> Path:
@@ -182,32 +281,12 @@ def run_sextractor(image_path, catalog_path, *, weight_path=None, params=None, c
     catalog_path = Path(catalog_path)
     if catalog_path.exists() and not overwrite:
         raise FileExistsError(f"{str(catalog_path)!r} already exists: pass overwrite=True.")
-    settings = dict(DEFAULT_SEXTRACTOR_CONFIG)
-    settings.update({str(k).upper(): v for k, v in (config or {}).items()})
-    n_aper = _n_values(settings["PHOT_APERTURES"])
-    n_frac = _n_values(settings["PHOT_FLUXFRAC"])
-    columns = list(DEFAULT_SEXTRACTOR_PARAMS if params is None else params)
-    if params is None and vignet is not None:
-        columns.insert(0, f"VIGNET({int(vignet[0])},{int(vignet[1])})")
-    sized = {"FLUX_APER": n_aper, "FLUXERR_APER": n_aper, "MAG_APER": n_aper,
-             "MAGERR_APER": n_aper, "FLUX_RADIUS": n_frac}
-    columns = [f"{c}({sized[c]})" if c in sized else c for c in (s.strip() for s in columns)]
+    settings, columns = _settings_and_columns(params, config, vignet, exe)
+    settings["CATALOG_TYPE"] = catalog_type
     with tempfile.TemporaryDirectory(prefix="sklearn_psf_sex_") as tmp:
         tmp = Path(tmp)
-        (tmp / "psf.param").write_text("\n".join(columns) + "\n")
-        (tmp / "psf.conv").write_text(_FILTER)
-        settings.setdefault("FILTER_NAME", "psf.conv")
-        settings["PARAMETERS_NAME"] = "psf.param"
-        settings["CATALOG_TYPE"] = catalog_type
-        if "CLASS_STAR" in {c.split("(")[0] for c in columns} and "STARNNW_NAME" not in settings:
-            nnw = _nnw_file(exe)
-            if nnw is None:
-                raise ProgramError("CLASS_STAR needs SExtractor's default.nnw, not found beside "
-                                   f"{exe}: pass config={{'STARNNW_NAME': path}}.")
-            settings["STARNNW_NAME"] = str(nnw)
-        (tmp / "psf.sex").write_text("".join(f"{k} {_value(v)}\n" for k, v in settings.items()
-                                             if k not in ("WEIGHT_IMAGE", "STARNNW_NAME",
-                                                          "PSF_NAME")))
+        _write_files(tmp, "psf", settings, columns,
+                     skip=("WEIGHT_IMAGE", "STARNNW_NAME", "PSF_NAME"))
         cmd = [exe, str(image_path.resolve()), "-c", "psf.sex", "-CATALOG_NAME", "out.cat"]
         for key in ("STARNNW_NAME", "PSF_NAME"):   # paths: one argument each (spaces)
             if key in settings:

@@ -181,3 +181,10 @@ def make_interpolator(name: str = "kriging"):
     if name not in makers:
         raise ValueError(f"Unknown interpolator {name!r}: choose one of {list(INTERPOLATORS)}.")
     return makers[name]()
+
+
+def _constant_interpolator():
+    """A PSF constant over the field: the noise-weighted mean of the coefficients (what
+    :class:`~sklearn_psf.model.PSFModel` fits when the stars are too few for its
+    interpolator)."""
+    return make_pipeline(MinMaxScaler(), PolynomialRegressor(degree=0))

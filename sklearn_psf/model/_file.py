@@ -90,7 +90,7 @@ from sklearn.preprocessing import MinMaxScaler
 from .._files import one_line, write_fits_atomic
 from ..interpolate import ExposureKrigingRegressor
 from .._version import __version__
-from ._defaults import make_default_interpolator
+from ._defaults import _constant_interpolator, make_default_interpolator
 from ._noise import fit_interpolator, kriging_steps
 
 __all__ = ["save_model", "read_model", "read_model_validation", "MODEL_FORMAT",
@@ -402,6 +402,8 @@ def _model_hdus(model, *, summary=None, prefix="", exposure=False):
     starts = {key: state for key, state in starts.items() if state is not None}
     if starts:
         spec["warm_starts"] = starts
+    if getattr(model, "spatial_model_", "interpolator") != "interpolator":
+        spec["spatial_model"] = model.spatial_model_  # too few stars: a constant PSF
     if summary is not None:
         spec["validation_summary"] = summary
     rows = [(key, json.dumps(value, default=_json_default, allow_nan=True))
@@ -556,6 +558,9 @@ def _read(header, content, path, model_class, version):
     if detector is not None:
         detector.fit(coef[np.isfinite(coef).all(axis=1)])
     interp = _default_interpolator(version) if interpolator is None else clone(interpolator)
+    spatial = spec.get("spatial_model", "interpolator")
+    if spatial == "constant":
+        interp = _constant_interpolator()
     if version < 4 and isinstance(interp, ExposureKrigingRegressor):
         interp._per_axis_scaling = True  # as fitted then: each axis scaled to [0, 1]
     # (format 6: a fit that started from the previous outlier round's hyperparameters
@@ -589,6 +594,7 @@ def _read(header, content, path, model_class, version):
     model.coefficients_ = coef
     model.coefficient_var_ = var
     model.coefficient_cov_ = cov
+    model.spatial_model_ = spatial
     return model
 
 

@@ -6,19 +6,9 @@ import numbers
 
 import numpy as np
 
+from .._optional import require
+
 __all__ = ["to_galsim"]
-
-_GALSIM = "pip install 'sklearn-psf[galsim]' (or: pip install galsim)"
-
-
-def _galsim():
-    try:
-        import galsim
-    except ImportError as exc:
-        raise ImportError(f"to_galsim needs the optional package 'galsim', which is not "
-                          f"installed: {_GALSIM}.") from exc
-    return galsim
-
 
 def _local_wcs(galsim, wcs, x, y):
     """GalSim local WCS (a uniform Jacobian) at the 0-based pixel (x, y)."""
@@ -105,7 +95,7 @@ def to_galsim(model, x: float, y: float, *, wcs=None, x_interpolant=None,
     >>> round(float(final.array.sum()), 3)
     1.0
     """
-    galsim = _galsim()
+    galsim = require("galsim", "to_galsim")
     x, y = float(x), float(y)
     if not (np.isfinite(x) and np.isfinite(y)):
         raise ValueError(f"The position must be finite, got ({x}, {y}).")

@@ -19,10 +19,12 @@ from ..preprocessing import (
     SuperResolvedPCA,
     stamp_fwhm,
 )
+from ..interpolate import FewStarsWarning
+from ..interpolate._kriging import _MIN_ML_STARS
 from ..preprocessing._superres import UNDERSAMPLED_FWHM
 from .._validation import rows_text
 from ._companions import COMPANION_P_VALUE, companion_log_p
-from ._defaults import make_default_basis, make_default_interpolator
+from ._defaults import _constant_interpolator, make_default_basis, make_default_interpolator
 from ._file import read_model, save_model
 from ._galsim import to_galsim
 from ._noise import (
@@ -42,6 +44,24 @@ class UnusableStarsWarning(UserWarning):
     """Some stars could not be fitted on the basis (no centroid or no positive flux) and
     were left out; ``PSFModel.fit_flag_`` tells which."""
 
+
+
+#: Fewest stars an interpolator fitting hyperparameters by maximum likelihood (a Kriging with
+#: an "auto" range, nugget, ...) is given: with fewer, PSFModel fits a constant PSF.
+MIN_LIKELIHOOD_STARS = _MIN_ML_STARS
+
+#: The Kriging parameters that, left to "auto", are fitted by maximum likelihood.
+_LIKELIHOOD_PARAMS = ("range", "nugget", "noise_scale", "anisotropy_scaling",
+                      "anisotropy_angle")
+
+
+def _too_few_for(interpolator, n_stars):
+    """Whether ``n_stars`` are too few for the maximum likelihood of ``interpolator``'s
+    Kriging steps (any of their hyperparameters left to be fitted)."""
+    if n_stars >= MIN_LIKELIHOOD_STARS:
+        return False
+    return any(isinstance(step.get_params(deep=False).get(name), str)
+               for _, step in kriging_steps(interpolator) for name in _LIKELIHOOD_PARAMS)
 
 
 def _rows(keep, a, b):
@@ -195,6 +215,14 @@ class PSFModel(RegressorMixin, BaseEstimator):
         Pixels of each star's stamp masked after the first fit as holding light its model
         does not (a neighbour missing from the catalogue, a cosmic-ray hit, a bad pixel;
         outside the star's core), so that the star is cleaned rather than rejected.
+    spatial_model_ : str
+        The spatial freedom the fit gave the PSF, which follows the number of stars (as
+        PSFEx lowers its polynomial's degree): ``"interpolator"``, the interpolator as
+        given; ``"constant"`` when the stars kept were fewer than its maximum likelihood
+        needs (10 for a Kriging with hyperparameters to fit, as the default's): the
+        PSF is then the same over the field, the noise-weighted mean of the stars'
+        coefficients (a polynomial of degree 0), with a
+        :class:`~sklearn_psf.interpolate.FewStarsWarning` saying so.
 
     See Also
     --------
@@ -273,6 +301,10 @@ class PSFModel(RegressorMixin, BaseEstimator):
                              ensure_all_finite=True)
         if y.ndim != 2:
             raise ValueError("y must hold flattened stamps of shape (n_stars, s*s).")
+        if X.shape[1] < 2:
+            raise ValueError(f"X has n_features = {X.shape[1]}: PSFModel needs the stars' "
+                             "positions (x, y), X of shape (n_stars, 2) (or more columns for "
+                             f"further dimensions); got X {X.shape} for stamps {y.shape}.")
         s = int(round(np.sqrt(y.shape[1])))
         if s * s != y.shape[1]:
             raise ValueError(
@@ -330,6 +362,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
         # (unfitted: each fit clones it or warm-starts the previous round's)
         template = make_default_interpolator() if self.interpolator is None else clone(
             self.interpolator)
+        spatial = "interpolator"
         detector = self._make_outliers()
         noise_aware = hasattr(basis, "project")
         n = X.shape[0]
@@ -349,6 +382,8 @@ class PSFModel(RegressorMixin, BaseEstimator):
                 raise ValueError(f"{int(usable.sum())} usable stars are too few for a basis of "
                                  f"{k} components: need at least {k + 2}.")
             trusted = usable & keep
+            if spatial == "interpolator" and _too_few_for(template, int(trusted.sum())):
+                template, spatial, fitted = _constant_interpolator(), "constant", None
             # (the second round's fit starts from the first's: it is refitted in place)
             inliers, score, fitted, fit_warnings, hit, noise = self._reject(
                 detector, X, y, coef, var, cov, trusted, usable, template, stamp_fit, basis,
@@ -376,6 +411,15 @@ class PSFModel(RegressorMixin, BaseEstimator):
                 f"Outlier rejection kept {kept} of {n} stars: too few to interpolate. Use a "
                 "milder detector (e.g. a larger p_value or alpha) or outliers=None."
             )
+        if spatial == "interpolator" and _too_few_for(template, kept):
+            template, spatial, fitted = _constant_interpolator(), "constant", None
+        if spatial == "constant":
+            warnings.warn(
+                f"{kept} stars are fewer than the {MIN_LIKELIHOOD_STARS} that the "
+                "interpolator's maximum likelihood needs: the PSF is modelled as constant "
+                "over the field (the noise-weighted mean of the stars' coefficients), as "
+                "PSFEx lowers its polynomial's degree with few stars.", FewStarsWarning,
+                stacklevel=2)
         if fitted is not None and (mask == trusted).all():
             # the chi^2 test's fit is on exactly these stars: it is the model, with its
             # warnings (those of fits on other stars are not the model's)
@@ -402,6 +446,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
         self.coefficients_ = coef
         self.coefficient_var_ = var
         self.coefficient_cov_ = cov
+        self.spatial_model_ = spatial
         return self
 
     @staticmethod

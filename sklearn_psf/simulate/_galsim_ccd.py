@@ -19,6 +19,7 @@ from astropy.io import fits
 from astropy.table import Table
 
 from .._files import write_fits_atomic
+from .._optional import require
 from ._random_field import as_generator
 
 __all__ = ["GalSimCCD", "render_galsim_ccd"]
@@ -27,12 +28,7 @@ _LAM_NM, _DIAM_M, _OBSCURATION = 700.0, 4.0, 0.3  # a 4-m telescope in the i ban
 
 
 def _galsim():
-    try:
-        import galsim
-    except ImportError as exc:  # pragma: no cover - galsim is a test dependency
-        raise ImportError("render_galsim_ccd needs GalSim: pip install galsim "
-                          "(or 'sklearn-psf[galsim]').") from exc
-    return galsim
+    return require("galsim", "render_galsim_ccd")
 
 
 class _GroundPSF:

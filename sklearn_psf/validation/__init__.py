@@ -15,11 +15,11 @@ stars with the correlation scorers. The figures (:func:`plot_stamp_residuals`,
 
 Models of other tools on the same stars: :func:`validate_models` measures the same residuals
 (:func:`measure_residuals`: e1, e2, size, chi^2 in the stars' noise, rho1 to rho5) of this
-package's models, PSFEx ``.psf`` files (:class:`PSFExModel`, read with GalSim's
-``galsim.des.DES_PSFEx``) and PIFF files (:class:`PiffModel`, read with ``piff.read``) on one
+package's models, PSFEx ``.psf`` files (:class:`PSFExModel`, drawn as GalSim's
+``galsim.des.DES_PSFEx`` draws them, without GalSim) and PIFF files (:class:`PiffModel`, read with ``piff.read``) on one
 set of reserved stars, in one table and one set of figures (:func:`plot_model_comparison`);
-``sklearn-psf validate`` on the command line. GalSim and PIFF are optional:
-``pip install 'sklearn-psf[galsim]'`` or ``'sklearn-psf[piff]'``.
+``sklearn-psf validate`` on the command line. PIFF is optional:
+``pip install 'sklearn-psf[piff]'``.
 """
 
 from ._figures import (

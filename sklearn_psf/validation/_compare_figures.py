@@ -6,7 +6,7 @@ import numpy as np
 
 from .._validation import as_stamps
 from ..metrics import RHO_NAMES
-from ._figures import _whisker
+from ._figures import _log_errorbars, _whisker
 
 __all__ = ["plot_model_comparison"]
 
@@ -27,26 +27,15 @@ def _rho_figure(results, units):
 
     fig, axes = plt.subplots(2, 3, figsize=(13, 7.5), layout="constrained")
     axes = axes.ravel()
-    n_models = len(results)
     for j, name in enumerate(RHO_NAMES):
         ax = axes[j]
-        drawn = False
+        drawn = []
         for k, (model, (_, summary)) in enumerate(results.items()):
             r = summary.get(name)
             if not r:
                 continue
-            theta, xi = np.asarray(r["theta"], float), np.asarray(r["xi"], float)
-            err = np.asarray(r["sigma_xi"], float)
-            theta = theta * (1 + 0.04 * (k - (n_models - 1) / 2))  # side by side
-            st = _style(k)
-            pos = xi > 0
-            ax.errorbar(theta[pos], xi[pos], yerr=err[pos], ls="none", ms=5, label=model, **st)
-            ax.errorbar(theta[~pos], -xi[~pos], yerr=err[~pos], ls="none", ms=5, mfc="none",
-                        **st)
-            drawn = drawn or bool(np.isfinite(xi).any())
-        ax.set_xscale("log")
-        if drawn:
-            ax.set_yscale("log")
+            drawn.append((r, {**_style(k), "ms": 5, "label": model}))
+        _log_errorbars(ax, drawn)  # (lower bars clipped at the log axis' bottom)
         ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_title(rf"$\rho_{name[-1]}$", fontsize=12)
         ax.set_xlabel(rf"separation $\theta$ [{units}]")

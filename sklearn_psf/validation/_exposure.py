@@ -357,6 +357,9 @@ def _selection_lines(counts, n_kept, head, max_spread_model, min_class_star):
         lines.append(f"  size-magnitude locus: {size} {counts['locus_radius']:.3g} pixels "
                      f"(median over the selected stars), accepted within +-"
                      f"{counts['locus_width']:.1%} (median; wider at low S/N)")
+    if counts.get("snr_from") == "vignets":
+        lines.append("  S/N: in a Gaussian window on the VIGNETs, as Source Extractor's SNR_WIN "
+                     "(the catalogue has none; its fluxes' S/N is lower for faint stars)")
     cuts = {"class_star": f"CLASS_STAR >= {min_class_star:g}",
             "spread_model": f"|SPREAD_MODEL| <= {max_spread_model:g}"}
     for name, fraction in counts.get("not_applied", {}).items():
@@ -456,11 +459,20 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     >>> side = int(np.sqrt(stamps.shape[1]))
     >>> cat = Table({"x": field.stars["x"], "y": field.stars["y"],
     ...              "VIGNET": stamps.reshape(-1, side, side)})
-    >>> fit = fit_exposure(catalog=cat, select=False, reserve=0.2)
+    >>> import warnings
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     fit = fit_exposure(catalog=cat, select=False, reserve=0.2)
     >>> fit.summary["n_reserved"], fit.summary["n_fit"]
     (12, 48)
     >>> fit.report()[0]
     'sources in the catalogue: 60 (0-based x, y)'
+
+    48 stars are too few for this PSF's variations: the verdict warns that the reserved stars'
+    residuals exceed their noise.
+
+    >>> [w.category.__name__ for w in caught]
+    ['PSFQualityWarning']
     """
     from ..io import celestial_wcs, find_stars, select_stars
     from ..model import INTERPOLATORS, PSFModel, make_interpolator
@@ -617,12 +629,19 @@ def _mask_neighbours(stars, catalog, rows, lines):
 
 def _report(summary):
     """The lines of the report after the selection: basis, residuals, verdict."""
+    from ..model._psf_model import MIN_LIKELIHOOD_STARS
+
     lines = []
     if "cv" in summary:
         lines.append("cross-validation (e rms): " + ", ".join(
             f"{r['scheme']} {r['e_rms']:.4f}" for r in summary["cv"])
             + f" -> {summary['scheme']}")
-    lines.append(f"interpolator: {summary['interpolator']}; fitted stars: {summary['n_fit']}, "
+    interpolator = summary["interpolator"]
+    if summary.get("spatial_model") == "constant":  # too few stars for its likelihood
+        interpolator = (f"a constant PSF ({summary['n_inliers']} stars kept are fewer than "
+                        f"the {MIN_LIKELIHOOD_STARS} that {interpolator}'s maximum likelihood "
+                        "needs; PSFEx lowers its degree likewise)")
+    lines.append(f"interpolator: {interpolator}; fitted stars: {summary['n_fit']}, "
                  f"outliers rejected: {summary['n_outliers']}, reserved: "
                  f"{summary['n_reserved']}")
     if "pixel_noise" in summary:

@@ -9,25 +9,12 @@ import warnings
 import numpy as np
 from astropy.io import fits
 
-from .._files import InputError
+from .._files import InputError, one_line
+from .._optional import require
 from ..preprocessing import StampNormalizer
+from ._psfex import psfex_terms
 
 __all__ = ["PSFExModel", "PiffModel", "load_psf_model", "model_kind"]
-
-_INSTALL = {
-    "galsim": "pip install 'sklearn-psf[galsim]' (or: pip install galsim)",
-    "piff": "pip install 'sklearn-psf[piff]' (or: pip install piff)",
-}
-
-
-def _require(module: str, what: str):
-    """Import an optional dependency, or fail saying how to install it."""
-    try:
-        return __import__(module)
-    except ImportError as exc:
-        raise ImportError(f"{what} needs the optional package {module!r}, which is not "
-                          f"installed: {_INSTALL[module]}.") from exc
-
 
 def _positions(X):
     X = np.asarray(X, dtype=np.float64)
@@ -60,14 +47,88 @@ def _normalised(cube, what):
         return StampNormalizer().fit_transform(flat)
 
 
-class PSFExModel:
-    """A PSFEx model (``.psf`` file), read with GalSim's ``galsim.des.DES_PSFEx``.
+def _lanczos3(u):
+    """GalSim's ``Lanczos(3)`` kernel, made to conserve a constant: its weights at any
+    sub-pixel shift sum to 1 (GalSim's ``conserve_dc=True`` does so to ~1e-5)."""
+    def raw(t):
+        return np.where(np.abs(t) < 3.0, np.sinc(t) * np.sinc(t / 3.0), 0.0)
 
-    ``predict(X)`` draws the PSF at each position on the pixel grid (``method='no_pixel'``:
-    the model already includes the pixel response) in a stamp of ``stamp_size`` pixels, then
-    normalises it as :meth:`PSFModel.predict <sklearn_psf.model.PSFModel.predict>` stamps
-    are: unit sum, adaptive centroid on the centre pixel. Needs GalSim (``pip install
-    'sklearn-psf[galsim]'``).
+    frac = u - np.round(u)
+    return raw(u) / sum(raw(frac - k) for k in range(-3, 4))
+
+
+def _resampling(n_model, n_stamp, samp):
+    """Weights (n_stamp, n_model) of the model's pixels at each stamp pixel along one axis:
+    planes sampled every ``samp`` image pixels, interpolated with Lanczos-3 at the centres
+    of image pixels, both arrays centred on their middle (``(n - 1) / 2``), as GalSim's
+    ``InterpolatedImage`` drawn with ``method='no_pixel'``."""
+    stamp = (np.arange(n_stamp) - (n_stamp - 1) / 2.0) / samp
+    model = np.arange(n_model) - (n_model - 1) / 2.0
+    return _lanczos3(stamp[:, None] - model[None, :])
+
+
+def _read_psfex(path):
+    """``(planes (n_terms, ny, nx), degree, polzero, polscal, psf_samp)`` of a ``.psf`` file:
+    PSFEx's layout (HDU 1, ``PSF_MASK`` and the ``POL*`` keywords); an InputError naming
+    the file otherwise."""
+    def bad(why):
+        return InputError(f"{path!r} is not a PSFEx .psf file this package can read: {why}.")
+
+    try:
+        with fits.open(path, memmap=False) as hdul:
+            if len(hdul) < 2 or not isinstance(hdul[1], fits.BinTableHDU) \
+                    or "PSF_MASK" not in hdul[1].columns.names:
+                raise bad("no PSF_MASK table in HDU 1")
+            h = hdul[1].header
+            planes = np.array(hdul[1].data["PSF_MASK"][0], dtype=np.float64)
+    except OSError as exc:
+        raise bad(one_line(exc)) from None
+    if planes.ndim == 2:
+        planes = planes[None]
+    n_axes = int(h.get("POLNAXIS", 0))
+    if n_axes == 0:  # PSFVAR_DEGREES 0: a constant PSF, no POL* keywords
+        degree, polzero, polscal = 0, (0.0, 0.0), (1.0, 1.0)
+    else:
+        names = (str(h.get("POLNAME1", "")), str(h.get("POLNAME2", "")))
+        if n_axes != 2 or int(h.get("POLNGRP", 1)) != 1 \
+                or not (names[0].startswith("X") and names[0].endswith("IMAGE")
+                        and names[1].startswith("Y") and names[1].endswith("IMAGE")):
+            raise bad(f"its polynomial is of {n_axes} context parameters "
+                      f"({', '.join(str(h.get(f'POLNAME{k}')) for k in range(1, n_axes + 1))}"
+                      "): only the positions (X*_IMAGE, Y*_IMAGE) are read")
+        try:
+            degree = int(h["POLDEG1"])
+            polzero = (float(h["POLZERO1"]), float(h["POLZERO2"]))
+            polscal = (float(h["POLSCAL1"]), float(h["POLSCAL2"]))
+        except KeyError as exc:
+            raise bad(f"keyword {exc.args[0]} missing") from None
+        if 0.0 in polscal:
+            raise bad("POLSCAL is 0")
+    if planes.ndim != 3 or len(planes) != (degree + 1) * (degree + 2) // 2:
+        raise bad(f"PSF_MASK of shape {planes.shape} for a polynomial of degree {degree}, "
+                  f"which has {(degree + 1) * (degree + 2) // 2} terms")
+    if not np.isfinite(planes).all():
+        raise bad("PSF_MASK holds NaN or infinite values")
+    samp = float(h.get("PSF_SAMP", 1.0))
+    if not samp > 0:
+        raise bad(f"PSF_SAMP is {samp}")
+    return planes, degree, polzero, polscal, samp
+
+
+class PSFExModel:
+    """A PSFEx model (``.psf`` file), read and drawn without GalSim.
+
+    The PSF at a position is PSFEx's: the ``PSF_MASK`` planes weighted by the polynomial
+    terms of the position (:func:`~sklearn_psf.validation.psfex_terms`, with ``POLZERO`` and
+    ``POLSCAL``), sampled every ``PSF_SAMP`` image pixels. ``predict(X)`` resamples it to
+    image pixels as GalSim's ``galsim.des.DES_PSFEx`` draws it with ``method='no_pixel'``
+    (the model already includes the pixel response): Lanczos-3 interpolation, the planes'
+    middle ``(n - 1) / 2`` on the stamp's centre pixel. The stamps are then normalised as
+    :meth:`PSFModel.predict <sklearn_psf.model.PSFModel.predict>` stamps are: unit sum,
+    adaptive centroid on the centre pixel. Files of PSFEx itself (``PSFVAR_DEGREES`` 0 to
+    any degree in ``X*_IMAGE``, ``Y*_IMAGE``, any ``PSF_SAMP``) and of
+    :func:`~sklearn_psf.validation.write_psfex` are read; a polynomial in other catalogue
+    columns (``PSFVAR_KEYS`` such as a magnitude) is refused.
 
     Parameters
     ----------
@@ -104,45 +165,24 @@ class PSFExModel:
     """
 
     def __init__(self, path, stamp_size=None, *, origin: int = 1):
-        galsim = _require("galsim", "Reading a PSFEx model")
-        import galsim.des  # noqa: F401  (the subpackage is not imported by galsim itself)
-
         self.path = os.fspath(path)
         self.origin = int(origin)
-        try:
-            with fits.open(self.path, memmap=False) as hdul:
-                hdu = hdul[1].copy()
-            if hdu.header.get("POLNAXIS") == 0:
-                # PSFVAR_DEGREES 0 (a constant PSF): PSFEx writes no POL* axes, which GalSim
-                # wants; a polynomial of degree 0 in (X_IMAGE, Y_IMAGE) is the same PSF
-                hdu.header.update({"POLNAXIS": 2, "POLNGRP": 1, "POLNAME1": "X_IMAGE",
-                                   "POLNAME2": "Y_IMAGE", "POLZERO1": 0.0, "POLZERO2": 0.0,
-                                   "POLSCAL1": 1.0, "POLSCAL2": 1.0, "POLGRP1": 1,
-                                   "POLGRP2": 1, "POLDEG1": 0})
-            self._psfex = galsim.des.DES_PSFEx(hdu)
-        except (OSError, KeyError, IndexError) as exc:
-            raise InputError(f"{self.path!r} is not a PSFEx .psf file GalSim can read: "
-                             f"{exc}") from None
-        self.degree_ = int(self._psfex.fit_order)
-        self.sampling_ = float(self._psfex.sample_scale)
+        (self._planes, self.degree_, self._polzero, self._polscal,
+         self.sampling_) = _read_psfex(self.path)
         if stamp_size is None:
-            side = int(np.ceil(self._psfex.basis.shape[-1] * self.sampling_))
+            side = int(np.ceil(self._planes.shape[-1] * self.sampling_))
             stamp_size = side + 1 - side % 2
         self.stamp_size_ = _odd_size(stamp_size)
+        _, ny, nx = self._planes.shape
+        self._wy = _resampling(ny, self.stamp_size_, self.sampling_)
+        self._wx = _resampling(nx, self.stamp_size_, self.sampling_)
 
     def predict(self, X) -> np.ndarray:
         """Normalised PSF stamps (n, stamp_size_**2) at 0-based positions X (n, 2)."""
-        import galsim
-
         X = _positions(X) + self.origin
-        s = self.stamp_size_
-        out = np.empty((len(X), s, s))
-        image = galsim.ImageD(s, s, scale=1.0)
-        for i, (x, y) in enumerate(X):
-            psf = self._psfex.getPSF(galsim.PositionD(x, y))
-            psf.drawImage(image=image, method="no_pixel")
-            out[i] = image.array
-        return _normalised(out, "PSFEx")
+        terms = psfex_terms(X, self.degree_, self._polzero, self._polscal)
+        planes = np.tensordot(terms, self._planes, axes=(1, 0))  # (n, ny, nx)
+        return _normalised(self._wy @ planes @ self._wx.T, "PSFEx")
 
 
 class PiffModel:
@@ -173,7 +213,7 @@ class PiffModel:
     """
 
     def __init__(self, path, stamp_size=25, *, origin: int = 1, chipnum=None):
-        piff = _require("piff", "Reading a PIFF model")
+        piff = require("piff", "Reading a PIFF model")
         self.path = os.fspath(path)
         self.origin = int(origin)
         self.chipnum = chipnum

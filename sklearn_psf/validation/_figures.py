@@ -12,8 +12,19 @@ __all__ = ["plot_stamp_residuals", "plot_whiskers", "plot_rho1", "plot_rho_stati
            "plot_psf_maps", "plot_residuals_against"]
 
 
+#: The stamps' stretch: linear within this fraction of the peak, logarithmic above (asinh):
+#: a PSF's wings at a few % of its peak stay visible next to its core.
+_ASINH_WIDTH = 0.02
+
+
 def plot_stamp_residuals(residuals, n: int = 5, pixel_scale: float | None = None):
     """Reserved stars, model PSFs at their positions and residuals (one column per star).
+
+    Each column is drawn relative to its model's peak, so that faint and bright stars look
+    alike: the star and the model on an asinh stretch (linear within 2% of the peak,
+    logarithmic above, so the wings show next to the core), the residual star - model, in %
+    of the peak, on a symmetric scale of its own (its 99.5th percentile of ``|star - model|``:
+    one hot pixel or one bright star does not set the scale of the others).
 
     Parameters
     ----------
@@ -37,10 +48,11 @@ def plot_stamp_residuals(residuals, n: int = 5, pixel_scale: float | None = None
     >>> g = np.exp(-(xx**2 + yy**2) / 4.0).ravel(); g /= g.sum()
     >>> t = Table({"x": [1.0, 2.0], "y": [3.0, 4.0], "stamp_star": [g, g],
     ...            "stamp_model": [g * 0.99, g]})
-    >>> len(plot_stamp_residuals(t).axes)  # 3 rows x 2 stars, 3 colour bars
+    >>> len(plot_stamp_residuals(t).axes)  # 3 rows x 2 stars, 1 + 2 colour bars
     9
     """
     import matplotlib.pyplot as plt
+    from matplotlib.colors import AsinhNorm
 
     if len(residuals) == 0:
         raise ValueError("No reserved stars to plot.")
@@ -51,25 +63,33 @@ def plot_stamp_residuals(residuals, n: int = 5, pixel_scale: float | None = None
     half = s / 2 * (pixel_scale or 1.0)
     extent = (-half, half, -half, half)
     m = len(idx)
-    fig, axes = plt.subplots(3, m, figsize=(2.1 * m + 0.8, 6.4), squeeze=False,
+    fig, axes = plt.subplots(3, m, figsize=(2.2 * m + 1.0, 7.2), squeeze=False,
                              layout="constrained")
-    vmax = float(max(star.max(), model.max()))
-    rmax = float(np.abs(star - model).max()) or 1.0
+    peak = np.array([float(model[j].max()) or float(star[j].max()) or 1.0 for j in range(m)])
+    norm = AsinhNorm(linear_width=_ASINH_WIDTH, vmin=-2 * _ASINH_WIDTH, vmax=1.0)
     for j in range(m):
-        for i, (img, kw) in enumerate((
-                (star[j], {"cmap": "magma", "vmin": 0, "vmax": vmax}),
-                (model[j], {"cmap": "magma", "vmin": 0, "vmax": vmax}),
-                (star[j] - model[j], {"cmap": "RdBu_r", "vmin": -rmax, "vmax": rmax}))):
-            im = axes[i, j].imshow(img, origin="lower", extent=extent,
-                                   interpolation="nearest", **kw)
-            axes[i, j].tick_params(labelsize=6)
-            if j == m - 1:
-                fig.colorbar(im, ax=axes[i, :], shrink=0.8)
+        for i, img in enumerate((star[j], model[j])):
+            im = axes[i, j].imshow(img / peak[j], origin="lower", extent=extent, cmap="magma",
+                                   norm=norm, interpolation="nearest")
+        resid = 100.0 * (star[j] - model[j]) / peak[j]
+        lim = float(np.percentile(np.abs(resid), 99.5)) or 1.0
+        rim = axes[2, j].imshow(resid, origin="lower", extent=extent, cmap="RdBu_r",
+                                vmin=-lim, vmax=lim, interpolation="nearest")
+        bar = fig.colorbar(rim, ax=axes[2, j], location="bottom", shrink=0.9, aspect=15)
+        bar.ax.tick_params(labelsize=6)
+        bar.set_label("% of the peak", fontsize=7)
+        for ax in axes[:, j]:
+            ax.tick_params(labelsize=6)
         axes[0, j].set_title(f"({residuals['x'][idx[j]]:.0f}, {residuals['y'][idx[j]]:.0f})",
                              fontsize=8)
+    bar = fig.colorbar(im, ax=axes[:2, :], shrink=0.8)
+    bar.set_ticks([-0.03, 0.0, 0.03, 0.1, 0.3, 1.0])
+    bar.set_ticklabels(["-0.03", "0", "0.03", "0.1", "0.3", "1"])
+    bar.set_label("fraction of the model's peak (asinh stretch)", fontsize=8)
     for i, label in enumerate(("reserved star", "model", "star - model")):
         axes[i, 0].set_ylabel(label)
-    fig.suptitle("Reserved stars, model and residuals (unit flux)")
+    fig.suptitle("Reserved stars, model and residuals (each column relative to its model's "
+                 "peak)")
     return fig
 
 
@@ -120,20 +140,66 @@ def plot_whiskers(residuals, amplify: float = 5.0, length: float | None = None):
     span = max(np.ptp(x), np.ptp(y), 1.0)
     emax = float(max(np.hypot(e1s, e2s).max(), np.hypot(e1m, e2m).max(), 1e-3))
     scale = length or span / 12.0 / emax
-    fig, axes = plt.subplots(1, 3, figsize=(13, 4.4), sharex=True, sharey=True,
-                             layout="constrained")
+    # panels of the field's shape (a whisker's half-length of margin): a tall CCD gets tall,
+    # narrow panels side by side, with no wide gaps between them
+    pad = 0.6 * span / 12.0 * max(1.0, amplify * float(np.hypot(e1s - e1m, e2s - e2m).max())
+                                  / emax)
+    limits = ((x.min() - pad, x.max() + pad), (y.min() - pad, y.max() + pad))
+    ratio = float(np.clip(np.ptp(limits[1]) / np.ptp(limits[0]), 0.2, 5.0))
+    height = 4.2 if ratio >= 1 else float(np.clip(4.2 * ratio, 1.5, 4.2))
+    width = float(np.clip(height / ratio, 1.3, 5.0))
+    fig, axes = plt.subplots(1, 3, figsize=(3 * width + 1.4, height + 1.1), sharex=True,
+                             sharey=True, layout="constrained")
     _whisker(axes[0], x, y, e1s, e2s, scale, "k", "stars")
     _whisker(axes[1], x, y, e1m, e2m, scale, "C0", "model")
     _whisker(axes[2], x, y, e1s - e1m, e2s - e2m, scale * amplify, "C3", "residual")
     titles = ("reserved stars", "model at the stars", f"star - model (x{amplify:g})")
     for ax, title in zip(axes, titles):
-        ax.set_title(title)
+        ax.set_title(title, fontsize=10)
+        ax.set_xlim(*limits[0])
+        ax.set_ylim(*limits[1])
         ax.set_aspect("equal")
         ax.set_xlabel("x [pixel]")
-        ax.margins(0.05)
+        ax.tick_params(labelsize=7)
     axes[0].set_ylabel("y [pixel]")
-    fig.suptitle(f"PSF ellipticity (whisker of e = 0.05: {0.05 * scale:.0f} pixels)")
+    fig.suptitle(f"PSF ellipticity (whisker of e = 0.05: {0.05 * scale:.0f} pixels)",
+                 fontsize=10)
     return fig
+
+
+def _log_errorbars(ax, series, spread: float = 0.04):
+    """Correlation functions with their error bars on log-log axes: ``|xi|`` (open symbols
+    where negative), each lower bar clipped at the axis' bottom where ``|xi| - sigma`` is not
+    positive (the value is consistent with 0), the vertical range that of the points and
+    upper bars (not of the lower bars, which a log axis cannot show).
+
+    ``series``: ``(r, style)`` pairs, ``r`` a dict with ``theta``, ``xi``, ``sigma_xi`` and
+    ``style`` the ``errorbar`` keywords (``color``, ``label``...); series are shifted along
+    theta by ``spread`` (relative) to stand side by side."""
+    data = []
+    for k, (r, style) in enumerate(series):
+        theta, xi = np.asarray(r["theta"], float), np.asarray(r["xi"], float)
+        err = np.nan_to_num(np.asarray(r["sigma_xi"], float), nan=0.0)
+        ok = np.isfinite(xi) & (xi != 0) & np.isfinite(theta)
+        shift = 1 + spread * (k - (len(series) - 1) / 2)
+        data.append((theta[ok] * shift, np.abs(xi[ok]), err[ok], xi[ok] > 0, style))
+    values = np.concatenate([d[1] for d in data]) if data else np.zeros(0)
+    ax.set_xscale("log")
+    if not values.size:
+        return
+    bottom = float(values.min()) / 4.0
+    top = float(max(np.max(d[1] + d[2]) if d[1].size else 0.0 for d in data)) * 1.5
+    for theta, value, err, positive, style in data:
+        lower = np.minimum(err, value - bottom * 1.0001)
+        negative = ~positive
+        labelled = positive if positive.any() else negative
+        for sel, face in ((positive, style.get("color")), (negative, "none")):
+            kw = {"marker": "o", "ls": "none", **style,
+                  "label": style.get("label") if sel is labelled else None}
+            ax.errorbar(theta[sel], value[sel], yerr=[lower[sel], err[sel]], mfc=face,
+                        capsize=0, **kw)
+    ax.set_yscale("log")
+    ax.set_ylim(bottom, top)
 
 
 def plot_rho1(summary):
@@ -160,16 +226,8 @@ def plot_rho1(summary):
     r = summary.get("rho1")
     if not r:
         raise ValueError("The summary has no rho1 (fewer than 10 measured reserved stars).")
-    theta, xi = np.asarray(r["theta"], float), np.asarray(r["xi"], float)
-    err = np.asarray(r["sigma_xi"], float)
     fig, ax = plt.subplots(figsize=(5.5, 4), layout="constrained")
-    pos = xi > 0
-    ax.errorbar(theta[pos], xi[pos], yerr=err[pos], fmt="o", color="C0", label=r"$\rho_1 > 0$")
-    ax.errorbar(theta[~pos], -xi[~pos], yerr=err[~pos], fmt="o", mfc="none", color="C0",
-                label=r"$-\rho_1$ ($\rho_1 < 0$)")
-    ax.set_xscale("log")
-    if np.any(np.abs(xi[np.isfinite(xi)]) > 0):
-        ax.set_yscale("log")
+    _log_errorbars(ax, [(r, {"color": "C0", "label": r"$|\rho_1|$"})])
     ax.set_xlabel(r"separation $\theta$ [pixel]")
     ax.set_ylabel(r"$|\rho_1(\theta)|$")
     ax.set_title("rho1 of the reserved stars (star - model)")
@@ -224,20 +282,9 @@ def plot_rho_statistics(summary):
     if fourth:  # the fourth moments' (over sigma^4): spin 2, spin 0
         panels += [(axes[1, 0], ("rho_M4", "rho_eM4")), (axes[1, 1], ("rho_M22", "rho_TM22"))]
     for ax, names in panels:
-        for k, name in enumerate(names):
-            r = summary.get(name)
-            if not r:
-                continue
-            theta, xi = np.asarray(r["theta"], float), np.asarray(r["xi"], float)
-            err = np.asarray(r["sigma_xi"], float)
-            theta = theta * (1 + 0.03 * (k - 1))  # side by side
-            pos = xi > 0
-            label, color = labels[name]
-            ax.errorbar(theta[pos], xi[pos], yerr=err[pos], fmt="o", color=color, label=label)
-            ax.errorbar(theta[~pos], -xi[~pos], yerr=err[~pos], fmt="o", mfc="none",
-                        color=color)
-        ax.set_xscale("log")
-        ax.set_yscale("log")
+        _log_errorbars(ax, [(summary[name], {"color": labels[name][1],
+                                            "label": labels[name][0]})
+                           for name in names if summary.get(name)], spread=0.03)
         ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel(rf"separation $\theta$ [{summary.get('rho_theta_units', 'pixel')}]")
         ax.set_ylabel(r"$|\rho(\theta)|$ (open: negative)")
@@ -246,7 +293,8 @@ def plot_rho_statistics(summary):
         axes[1, 0].set_title("fourth moments, spin 2: M4 = M31 + i M13 (over sigma^4)",
                              fontsize=9)
         axes[1, 1].set_title("fourth moments, spin 0: M22 (over sigma^4)", fontsize=9)
-    fig.suptitle("rho statistics of the reserved stars (Jarvis et al. 2016)")
+    fig.suptitle("rho statistics of the reserved stars (Jarvis et al. 2016); error bars "
+                 "reaching the bottom axis: consistent with 0", fontsize=11)
     return fig
 
 
@@ -318,12 +366,20 @@ def plot_psf_maps(model, shape, n_grid: int = 20):
              "model")
     axes[0].set_title(f"model ellipticity, {moments} moments\n(longest whisker: |e| = "
                       f"{emax:.3f})")
-    im = axes[1].imshow(sigma, origin="lower", extent=(0, nx, 0, ny), cmap="viridis",
-                        aspect="equal")
-    fig.colorbar(im, ax=axes[1], label=r"$\sigma$ [pixel]", shrink=0.8)
+    # the size's variation over the chip, in % of its median: a colour bar of the variation
+    # (0.03% over a CCD or 3%), not of the size itself around an offset
+    median = float(np.nanmedian(sigma))
+    change = 100.0 * (sigma / median - 1.0)
+    lim = float(np.nanmax(np.abs(change))) or 1e-6
+    im = axes[1].imshow(change, origin="lower", extent=(0, nx, 0, ny), cmap="RdBu_r",
+                        vmin=-lim, vmax=lim, aspect="equal")
+    bar = fig.colorbar(im, ax=axes[1], shrink=0.8,
+                       label=rf"$\sigma$ / median $-$ 1 [%] (median {median:.3f} px)")
+    bar.formatter.set_useOffset(False)
     stars = np.asarray(getattr(model, "X_fit_", np.zeros((0, 2))))
-    axes[1].plot(stars[:, 0], stars[:, 1], ".", color="w", ms=2, label="fitted stars")
-    axes[1].set_title(f"model size\n(sigma of the {moments} moments)")
+    axes[1].plot(stars[:, 0], stars[:, 1], ".", color="k", ms=2, label="fitted stars")
+    axes[1].set_title(f"model size (sigma of the {moments} moments)\n"
+                      f"{np.nanmin(sigma):.4f}-{np.nanmax(sigma):.4f} px; dots: fitted stars")
     for ax in axes:
         ax.set_xlim(0, nx)
         ax.set_ylim(0, ny)

@@ -182,7 +182,8 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
         ``rho_theta_units``, ``rho1_mean_abs``, the fourth moments' residuals and their
         correlation functions (``dM22_rel_mean``, ``dM22_rel_rms``, ``dM4_rel_rms``,
         ``rho_M4``, ``rho_eM4``, ``rho_M22``, ``rho_TM22``: see :func:`measure_residuals`),
-        ``moments`` ("adaptive", or the fixed
+        ``spatial_model`` (the model's ``spatial_model_``: "constant" when its stars were
+        too few for the interpolator), ``moments`` ("adaptive", or the fixed
         weight of the moments of undersampled stars, see 4.), ``n_reserved_outliers`` and
         ``reserved_outliers`` (their rows in X), and, with candidates,
         ``cv`` (list of per-scheme mean/std scores) and ``scheme`` (the chosen one). The
@@ -303,7 +304,8 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
     k = len(reserved)
     summary.update({"n_stars": n, "n_fit": len(fit_rows), "n_reserved": k,
                     "n_inliers": int(np.sum(model.inlier_mask_)),
-                    "n_outliers": int(np.sum(~model.inlier_mask_))})
+                    "n_outliers": int(np.sum(~model.inlier_mask_)),
+                    "spatial_model": getattr(model, "spatial_model_", "interpolator")})
     noise = getattr(model, "pixel_noise_", None)
     if noise is not None:  # what the fit learnt of the stars' noise
         summary["pixel_noise"] = {"sky": noise.sky, "poisson": noise.poisson,

@@ -209,7 +209,8 @@ def model_verdict(model, X, stamps, weights, reserved, residuals, random_state=0
                 np.mean(d4[fine, 0] ** 2) / np.mean(noise4[fine, 0] ** 2)))
             out["dM4_resid_over_noise"] = float(np.sqrt(
                 np.mean(d4[fine, 1:] ** 2) / np.mean(noise4[fine, 1:] ** 2)))
-    if out["chi2_total"] >= out["chi2_total_constant"]:
+    if out["chi2_total"] >= out["chi2_total_constant"] and \
+            getattr(model, "spatial_model_", None) != "constant":  # (a constant is no better)
         out["warnings"].append(
             f"the model fits its {n} reserved stars no better than a constant PSF fitted on "
             f"the same stars (chi^2 summed over them {out['chi2_total']:.4g} against "

@@ -67,7 +67,8 @@ def plot_sigma_sys_vs_exposures(result, surveys=None):
     ratios = list(dict.fromkeys(v for v, _ in regimes))
     dithers = list(dict.fromkeys(d for _, d in regimes))
     fig, axes = plt.subplots(len(ratios), len(dithers), squeeze=False, sharex=True, sharey=True,
-                             figsize=(3.3 * len(dithers) + 2.4, 2.6 * len(ratios) + 0.9))
+                             figsize=(max(3.6 * len(dithers), 6.0), 2.6 * len(ratios) + 1.8),
+                             layout="constrained")
     table = survey_table() if surveys is None else surveys
     all_scores = result.scores
     styles = {"per-exposure": ("C0", "o"), "pooled": ("C3", "s"), "oracle": ("0.3", "^")}
@@ -102,9 +103,9 @@ def plot_sigma_sys_vs_exposures(result, surveys=None):
     for ax in axes[:, 0]:
         ax.set_ylabel(r"$\sigma^2_{\rm sys}$ (exposure-averaged)", fontsize=8)
     handles, labels = axes[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, fontsize=7, loc="upper left", bbox_to_anchor=(0.80, 0.95),
+    # below the panels, inside the figure: no label runs off its right edge
+    fig.legend(handles, labels, fontsize=7, loc="outside lower center", ncols=2,
                frameon=False)
-    fig.suptitle("PSF systematics against the number of exposures (median over simulations, "
-                 "16-84% band)", fontsize=9)
-    fig.tight_layout(rect=(0, 0, 0.80, 0.96))
+    fig.suptitle("PSF systematics against the number of exposures\n(median over "
+                 "simulations, 16-84% band)", fontsize=9)
     return fig

@@ -2,28 +2,19 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 from astropy.io import fits
 from astropy.table import Table
 
+from ..._files import write_atomic
 
 
 def _atomic(path: Path, write):
-    """Call ``write(tmp_path)`` then rename the temporary file onto ``path``."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
-    return path
+    """``write(tmp)`` to a temporary path, renamed onto ``path`` once complete, with the
+    permissions of the user's umask (:func:`sklearn_psf._files.write_atomic`)."""
+    return write_atomic(path, write)
 
 
 #: Units of the result tables' dimensional columns (FITS TUNIT; the rest are dimensionless).

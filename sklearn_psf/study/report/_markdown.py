@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._names import DEFAULT_MODEL
+from .._names import DEFAULT_MODEL, ORACLE
 from ..plotting._common import _unique_in_order
 from ._files import _jsonable
 from ._findings import check_findings
@@ -49,6 +49,8 @@ def _markdown(result, config, schemes, figure_entries, notes, written):
               "galaxy-PSFs, where the true PSF is known. Residuals are model minus truth; "
               "statistics are over simulations (median and 16-84% range).", ""]
 
+    findings = check_findings(result, config)
+    lines += _summary_section(result, summary, config, findings)
     lines += _measured_section(result)
 
     # configuration
@@ -136,7 +138,7 @@ def _markdown(result, config, schemes, figure_entries, notes, written):
     # findings
     lines += ["## The paper's findings checked against these data", ""]
     rows = [[f["finding"], f["verdict"] + f.get("power", ""), f["evidence"]]
-            for f in check_findings(result, config)]
+            for f in findings]
     lines += [_md_table(["finding (Bergé et al. 2012)", "verdict", "evidence"], rows), ""]
 
     tuning = getattr(result, "tuning", None)
@@ -155,6 +157,72 @@ def _markdown(result, config, schemes, figure_entries, notes, written):
         lines += ["## Notes", ""] + [f"- {n}" for n in notes] + [""]
     lines += ["## Files", ""] + [f"- `{Path(p).name}`" for p in written] + ["- `report.md`", ""]
     return "\n".join(lines)
+
+
+def _summary_section(result, summary, config, findings):
+    """What was found, first: the ranking against the optimum, the surveys' verdicts, the
+    library's defaults and the paper's findings, each pointing to its section below."""
+    base = summary[np.asarray(summary["config"]).astype(str) == config]
+    if len(base) == 0 or "e_rms_median" not in base.colnames:
+        return []
+    study = getattr(result, "config", None) or {}
+    n_sim = int(base["n_simulations"].max())
+    lines = ["## Summary", ""]
+    if study.get("quick") or n_sim < MIN_SIMULATIONS:
+        lines += [f"{'A `--quick` run: ' if study.get('quick') else ''}{n_sim} simulation"
+                  f"{'s' if n_sim != 1 else ''} of the `{config}` configuration, fewer than "
+                  f"the {MIN_SIMULATIONS} a verdict needs: the verdicts are underpowered.", ""]
+    ratios = oracle_ratios(result, config)
+    ratio = {} if ratios is None else {str(r["scheme"]): r["e_rms_ratio_median"]
+                                       for r in ratios}
+    ranked = sorted((r for r in base if str(r["scheme"]) != ORACLE
+                     and np.isfinite(r["e_rms_median"])), key=lambda r: r["e_rms_median"])
+
+    def entry(r):
+        scheme = str(r["scheme"])
+        return f"{scheme} {_fmt(r['e_rms_median'])}" + (
+            f" ({ratio[scheme]:.2f}x the oracle)" if scheme in ratio else "")
+
+    if ranked:
+        best = ", ".join(entry(r) for r in ranked[:3])
+        lines += [f"- **Ranking** (median e_rms at the galaxy-PSFs, `{config}`; "
+                  "\"Summary per scheme\"): best " + best
+                  + (f"; worst {entry(ranked[-1])}" if len(ranked) > 3 else "")
+                  + (f". The optimum on the same fields, `{ORACLE}`: "
+                     f"{_fmt(float(base[np.asarray(base['scheme']) == ORACLE]['e_rms_median'][0]))}"
+                     if ORACLE in np.asarray(base["scheme"]).astype(str) else "") + "."]
+    if "sigma_sys2" in result.scores.colnames:
+        verdicts = survey_verdicts(result.scores, getattr(result, "surveys", None), config)
+        parts = []
+        for survey in _unique_in_order(verdicts["survey"]):
+            rows = verdicts[np.asarray(verdicts["survey"]) == survey]
+            met = [str(r["scheme"]) for r in rows if r["meets"] and str(r["scheme"]) != ORACLE]
+            parts.append(f"{survey} (sigma_sys^2 < {_fmt(rows['requirement'][0])}): "
+                         + (f"met by {len(met)} of {len(rows) - (ORACLE in rows['scheme'])} "
+                            f"schemes ({', '.join(met)})" if met else "met by none"))
+        lines += ["- **Survey requirements** (median sigma_sys^2 against each survey's limit; "
+                  "\"Survey requirements\"): " + "; ".join(parts) + "."]
+    rows = {str(r["scheme"]): r for r in base}
+    paper = next((s for s in ("kriging", "delaunay", "polynomial") if s in rows), None)
+    if DEFAULT_MODEL in rows and paper is not None:
+        d, p = rows[DEFAULT_MODEL]["e_rms_median"], rows[paper]["e_rms_median"]
+        lines += [f"- **The library's defaults** (`{DEFAULT_MODEL}`, \"The library's defaults "
+                  f"against the paper's settings\"): e_rms {_fmt(d)}, "
+                  f"{abs(100 * (d - p) / p):.1f}% {'above' if d > p else 'below'} the paper's "
+                  f"{paper} ({_fmt(p)})."]
+    words = {"agrees": "agree", "disagrees": "disagree", "inconclusive": "inconclusive",
+             "not tested": "not tested"}
+    counts = {word: sum(f["verdict"] == v for f in findings) for v, word in words.items()}
+    against = [f["finding"] for f in findings if f["verdict"] == "disagrees"]
+    lines += [f"- **The paper's findings** ({len(findings)}; \"The paper's findings checked "
+              "against these data\"): " + ", ".join(f"{n} {v}" for v, n in counts.items() if n)
+              + (". Disagreeing: " + "; ".join(against) if against else "") + "."]
+    later = [name for key, name in (("exposures", "the multi-exposure study"),
+                                     ("colour", "the colour study"))
+             if key in (study.get("studies") or ())]
+    if later:
+        lines += [f"- Further sections at the end: {' and '.join(later)}."]
+    return lines + [""]
 
 
 # ----------------------------------------------------------------------------- synthetic data
