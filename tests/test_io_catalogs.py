@@ -225,6 +225,7 @@ def test_contaminants_cost_less_than_ten_percent(tmp_path):
 
 @pytest.mark.filterwarnings("ignore::sklearn_psf.interpolate.ShortRangeWarning")  # (40
 # stars of a constant PSF: no spatial correlation to find, by design)
+@pytest.mark.filterwarnings("ignore::sklearn_psf.validation.PSFQualityWarning")  # one PSF
 def test_fit_and_validate_passes_weights_only_where_accepted():
     from sklearn_psf.model import PSFModel
 

@@ -76,6 +76,13 @@ def data():
     return X, y, Xt, psf_field(Xt)
 
 
+def _noisy(y, seed):
+    """Noisy stars (sky noise 0.5, peaks 5-60): the default model is noise-aware, and on
+    noiseless stamps the weights their borders give (and with them its chi^2 test and its
+    Kriging's noise) are void."""
+    return y + np.random.default_rng(seed).normal(0.0, 0.5, y.shape)
+
+
 def test_predicts_held_out_stamps_kriging_beats_linear(data):
     X, y, Xt, yt = data
     X0, y0 = X.copy(), y.copy()
@@ -168,9 +175,7 @@ def test_default_model_uses_kriging_interpolator(data):
         with pytest.raises(ImportError):
             PSFModel().fit(X[:50], y[:50])
         return
-    # noisy stars: the default model is noise-aware (on noiseless stamps the weights that
-    # their borders give, and with them its chi^2 test and its Kriging's noise, are void)
-    model = PSFModel().fit(X, y + np.random.default_rng(2).normal(0.0, 0.5, y.shape))
+    model = PSFModel().fit(X, _noisy(y, 2))
     assert type(model.interpolator_[-1]).__name__ == "KrigingRegressor"
     assert model.score(Xt, yt) > 0.9
 
@@ -182,8 +187,7 @@ def test_bad_input(data):
     Xn[3, 0] = np.nan
     with pytest.raises(ValueError, match="NaN"):
         PSFModel(interpolator=knn).fit(Xn, y[:20])
-    # noisy stars (on noiseless ones a chi^2 test has no scale to judge them by)
-    yn = y[:20] + np.random.default_rng(1).normal(0.0, 0.5, y[:20].shape)
+    yn = _noisy(y[:20], 1)
     yn[4, 7] = np.nan  # a masked pixel: fine for the default basis, not for the paper's
     with pytest.raises(ValueError, match="rows 4"):
         PSFModel(interpolator=knn, basis=make_paper_basis()).fit(X[:20], yn)
@@ -230,6 +234,7 @@ def test_grid_search_reaches_the_default_interpolator_and_basis(data):
     from sklearn.model_selection import GridSearchCV
 
     X, y, _, _ = data
+    y = _noisy(y, 3)
     model = PSFModel()
     search = GridSearchCV(model, {"interpolator__krigingregressor__range": [0.2, 0.6],
                                   "basis__n_components": [2, "noise"]}, cv=3)

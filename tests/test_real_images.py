@@ -8,6 +8,10 @@ from astropy.table import Table
 
 from sklearn_psf.io import find_program
 
+# (real images' verdicts: the Kriging finds no spatial correlation at these stars' S/N)
+pytestmark = [pytest.mark.filterwarnings("ignore::sklearn_psf.interpolate.ShortRangeWarning"),
+              pytest.mark.filterwarnings("ignore::sklearn_psf.validation.PSFQualityWarning")]
+
 needs_psfex = pytest.mark.skipif(find_program("psfex") is None,
                                  reason="PSFEx is not installed (apt-get install psfex)")
 needs_sextractor = pytest.mark.skipif(find_program("source-extractor") is None,

@@ -219,21 +219,21 @@ def check_pixel_weights(weights, n_stamps: int, n_pixels: int, stamps=None):
 CORRELATION_LAGS = 2
 
 
-def noise_correlation(stamps, weights, border=4, max_lag=CORRELATION_LAGS, threshold=0.05):
-    """The correlation of the stamps' noise between neighbouring pixels, from their sky.
+def noise_correlation(z, max_lag=CORRELATION_LAGS, threshold=0.05):
+    """The correlation of the stamps' noise between neighbouring pixels.
 
     Resampled images (a reprojected survey frame, a mosaic, a scanned plate) carry noise
     correlated over a few pixels; a colour sensor's raw mosaic, anticorrelated. Measured on
-    the pixels of each stamp's outer ``border`` rings (sky, the star's faint wings aside),
-    each standardised by its weight and its stamp's median removed, pixels beyond 5 sigma
-    (neighbours, defects) and masked ones left out: the mean product of pairs at each lag up
-    to ``max_lag`` along each axis, over the mean square.
+    standardised residuals ``z`` (each star's stamp less its model, over its noise; NaN
+    where left out, e.g. masked pixels and the stars' cores, where the PSF's own variations
+    would pass for correlated noise), pixels beyond 5 sigma (neighbours, defects) left out:
+    the mean product of pairs at each lag up to ``max_lag`` along each axis, over the mean
+    square.
 
     Parameters
     ----------
-    stamps, weights : ndarray of shape (n, s*s)
-        Stamps and their pixel weights (inverse variance, 0 = masked).
-    border : int, default=4
+    z : ndarray of shape (n, s*s)
+        Standardised residuals, NaN where left out.
     max_lag : int, default=2
     threshold : float, default=0.05
         Correlations below it in size (and within 4 times their sampling error of 0) count as
@@ -252,24 +252,17 @@ def noise_correlation(stamps, weights, border=4, max_lag=CORRELATION_LAGS, thres
     >>> from sklearn_psf.preprocessing._noise import noise_correlation
     >>> rng = np.random.default_rng(0)
     >>> white = rng.normal(size=(200, 25, 25))
-    >>> noise_correlation(white.reshape(200, -1), np.ones((200, 625))) is None
+    >>> noise_correlation(white.reshape(200, -1)) is None
     True
-    >>> smooth = uniform_filter(white, size=(1, 2, 1))   # x-neighbours averaged along y
-    >>> k = noise_correlation(smooth.reshape(200, -1), np.ones((200, 625)))
+    >>> smooth = uniform_filter(white, size=(1, 2, 1)) * np.sqrt(2)  # averaged along y
+    >>> k = noise_correlation(smooth.reshape(200, -1))
     >>> round(float(k[1, 2]), 1), round(float(k[2, 3]), 2)     # lag 1 along y, along x
     (0.5, 0.0)
     """
-    n, p = stamps.shape
+    n, p = z.shape
     s = int(round(np.sqrt(p)))
-    w = weights.reshape(n, s, s)
-    ring = np.zeros((s, s), dtype=bool)
-    ring[:border], ring[-border:], ring[:, :border], ring[:, -border:] = True, True, True, True
-    good = (w > 0) & ring
-    z = np.where(good, stamps.reshape(n, s, s), np.nan)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-masked rings
-        z = (z - _nanmedian(z.reshape(n, -1), axis=1)[:, None, None]) * np.sqrt(w)
-    good &= np.isfinite(z)
+    z = np.asarray(z, dtype=np.float64).reshape(n, s, s)
+    good = np.isfinite(z)
     z = np.where(good, z, 0.0)
     scale = np.sqrt((z**2).sum() / max(good.sum(), 1))
     good &= np.abs(z) <= 5 * scale
@@ -283,10 +276,9 @@ def noise_correlation(stamps, weights, border=4, max_lag=CORRELATION_LAGS, thres
         for dx in range(-L, L + 1):
             if dy == 0 and dx <= 0:
                 continue
-            a = z[:, :s - dy, max(0, -dx):s - max(0, dx)]
-            b = z[:, dy:, max(0, dx):s - max(0, -dx) if dx < 0 else s]
-            ga = good[:, :s - dy, max(0, -dx):s - max(0, dx)]
-            gb = good[:, dy:, max(0, dx):s - max(0, -dx) if dx < 0 else s]
+            lo, hi = max(0, -dx), s - max(0, dx)  # columns of the first pixel of each pair
+            a, ga = z[:, :s - dy, lo:hi], good[:, :s - dy, lo:hi]
+            b, gb = z[:, dy:, lo + dx:hi + dx], good[:, dy:, lo + dx:hi + dx]
             pairs = ga & gb
             count = int(pairs.sum())
             if count < 100:
@@ -295,6 +287,34 @@ def noise_correlation(stamps, weights, border=4, max_lag=CORRELATION_LAGS, thres
             kernel[L + dy, L + dx] = kernel[L - dy, L - dx] = rho
             significant |= abs(rho) > max(threshold, 4.0 / np.sqrt(count))
     return kernel if significant else None
+
+
+def standardised_residuals(x, mean, scale, weights, level=1e-2):
+    """Residuals of normalised stamps from their mean over their noise, NaN on masked
+    pixels and on the mean's core (where it exceeds ``level`` of its peak: the PSF's own
+    variations are there), for :func:`noise_correlation`.
+
+    Parameters
+    ----------
+    x : ndarray of shape (n, p)
+        Normalised stamps: the raw ones divided by ``scale`` (at each star's phase for
+        undersampled stars).
+    mean : ndarray of shape (p,) or (n, p)
+        Their mean (at each star's phase, for undersampled stars).
+    scale : ndarray of shape (n,)
+        Each stamp's normalisation (its flux).
+    weights : ndarray of shape (n, p)
+        The raw stamps' pixel weights (inverse variance, 0 = masked).
+    level : float, default=0.01
+
+    Returns
+    -------
+    ndarray of shape (n, p)
+    """
+    mean = np.broadcast_to(mean, x.shape)
+    z = (x - mean) * np.sqrt(weights) * np.asarray(scale, dtype=np.float64)[:, None]
+    outer = mean < level * mean.max(axis=1, keepdims=True)
+    return np.where((weights > 0) & outer, z, np.nan)
 
 
 def correlated_noise_factor(kernel, variances, star_weights, s, pixels=None, draws=3, seed=0):

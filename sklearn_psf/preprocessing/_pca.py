@@ -17,7 +17,7 @@ from ..measure import adaptive_moments, fixed_moments
 from ._normalize import fourier_shift, phase_ramp
 from .._validation import rows_text
 from ._noise import (_nanmedian, check_pixel_weights, correlated_noise_factor,
-                     estimate_pixel_weights, noise_correlation)
+                     estimate_pixel_weights, noise_correlation, standardised_residuals)
 
 __all__ = ["StampPCA", "StampFit", "StampFitWarning", "FIT_OK", "FIT_NO_CENTROID",
            "FIT_NO_FLUX"]
@@ -736,7 +736,6 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         model = np.zeros((n, p))  # the stars' current model: fills their masked pixels
         pixel_var = _variances(w).mean(axis=1)
         w_given, poisson = w, _poisson_slope(d, w)
-        kernel = noise_correlation(d, w)  # correlated noise raises the noise edge
         for it in range(int(self.n_iter)):
             safe = np.where(usable, flux, 1.0)
             if a is None and (w == 0).any():
@@ -766,6 +765,9 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
             n_top = int(self.max_components) + 1
             if isinstance(self.n_components, numbers.Integral):
                 n_top = max(n_top, int(self.n_components))
+            # noise correlated between pixels (resampling) raises the noise edge
+            kernel = noise_correlation(standardised_residuals(
+                x[usable], u[usable] @ x[usable] / u[usable].sum(), scale[usable], w[usable]))
             core = np.ones(p, dtype=bool)
             if self.wings == "radial":  # the components live on the PSF's core
                 core = _core(u[usable] @ x[usable] / u[usable].sum(), s)

@@ -21,7 +21,7 @@ from ._pca import (
     _variances,
     _weighted_pca,
 )
-from ._noise import correlated_noise_factor, noise_correlation
+from ._noise import correlated_noise_factor, noise_correlation, standardised_residuals
 from ._normalize import phase_ramp
 
 __all__ = ["SuperResolvedPCA", "stamp_fwhm", "UNDERSAMPLED_FWHM"]
@@ -841,8 +841,9 @@ class SuperResolvedPCA(StampPCA):
             n_top = max(n_top, int(self.n_components))
         centre, axes, lam, total = _weighted_pca(resid[usable], u[usable], n_top)
         noise = float((u * v).sum() / u.sum())
-        raise_by = correlated_noise_factor(noise_correlation(d, w), v[usable], u[usable],
-                                           self.stamp_size_)
+        kernel = noise_correlation(standardised_residuals(
+            (d / flux[:, None])[usable], drawn[usable], flux[usable], w[usable]))
+        raise_by = correlated_noise_factor(kernel, v[usable], u[usable], self.stamp_size_)
         k, edge = self._choose(lam, total, noise, u[usable] * v[usable] / u.sum(), p,
                                raise_by)
         coef = (resid - centre) @ axes[:k].T
