@@ -335,9 +335,13 @@ def contaminated_pixels(z, model, threshold=5.0, core=0.05, most=0.25):
     from the catalogue, a cosmic-ray hit, a bad pixel), outside the star's core.
 
     ``z`` are the stars' standardised residuals (NaN where masked), ``model`` their fitted
-    model stamps. A pixel is contaminated where the residual, summed over its 3 x 3
-    neighbourhood (over the square root of the pixels summed: unit variance for pure
-    noise), or the pixel's own, departs by more than ``threshold`` (+1 for a single pixel);
+    model stamps. Each ring's mean residual about the stamp's centre is taken out first (a
+    departure common to a ring is the model's wings, not a neighbour). A pixel is
+    contaminated where the residual, summed over its 3 x 3
+    neighbourhood (over the square root of the pixels summed: unit variance for white
+    noise; over the sums' robust spread outside the cores where that is larger, for noise
+    correlated between pixels), or the pixel's own, departs by more than ``threshold`` (+1
+    for a single pixel);
     the pixels around it are taken too (a 3 x 3 dilation). Only pixels where the model is
     below ``core`` times its peak count (the star's core is the star: a departure there is
     a defect of the star, judged by the outlier test), and a star with more than ``most``
@@ -352,13 +356,24 @@ def contaminated_pixels(z, model, threshold=5.0, core=0.05, most=0.25):
     n, p = z.shape
     s = int(round(np.sqrt(p)))
     finite = np.isfinite(z).reshape(n, s, s)
-    zz = np.where(finite, z.reshape(n, s, s), 0.0)
-    count = 9.0 * uniform_filter(finite.astype(np.float64), size=(1, 3, 3), mode="constant")
+    # a ring's common departure is the model's (its wings), not a neighbour's: taken out
+    yy, xx = np.mgrid[0:s, 0:s] - (s - 1) / 2.0
+    ring = np.floor(np.hypot(xx, yy)).astype(np.int64).ravel()
+    rings = ring.max() + 1
+    index = (np.arange(n)[:, None] * rings + ring[None, :]).ravel()
+    zf = np.where(np.isfinite(z), z, 0.0).ravel()
+    count = np.bincount(index, np.isfinite(z).ravel(), minlength=n * rings)
+    common = np.bincount(index, zf, minlength=n * rings) / np.maximum(count, 1)
+    zz = np.where(finite, (zf - common[index]).reshape(n, s, s), 0.0)
+    near = 9.0 * uniform_filter(finite.astype(np.float64), size=(1, 3, 3), mode="constant")
     summed = 9.0 * uniform_filter(zz, size=(1, 3, 3), mode="constant")
-    smooth = summed / np.sqrt(np.maximum(count, 1.0))
+    smooth = summed / np.sqrt(np.maximum(near, 1.0))
+    outer = (model < core * model.max(axis=1, keepdims=True)).reshape(n, s, s) & finite
+    if outer.any():  # noise correlated between pixels (resampling) adds up in the sums
+        spread = 1.4826 * np.median(np.abs(smooth[outer]))
+        smooth = smooth / max(spread, 1.0)
     hit = (np.abs(smooth) > threshold) | (np.abs(zz) > threshold + 1.0)
     hit = binary_dilation(hit, structure=np.ones((1, 3, 3), dtype=bool))
-    outer = (model < core * model.max(axis=1, keepdims=True)).reshape(n, s, s)
-    hit &= outer & finite
+    hit &= outer
     hit[hit.reshape(n, -1).mean(axis=1) > most] = False
     return hit.reshape(n, p)
