@@ -5,6 +5,7 @@ from __future__ import annotations
 import numbers
 
 import numpy as np
+from scipy import fft as sfft
 from scipy.fft import next_fast_len
 
 from sklearn.utils.validation import check_is_fitted
@@ -475,64 +476,82 @@ class SuperResolvedPCA(StampPCA):
 
     def _normal(self, u, a, offsets, band, keep, projected=None):
         """The normal operator x -> sum_n a_n a_n^T (x) D_n^T W_n D_n x of the fine images'
-        least squares (D_n: star n's band-limited draw, W_n: its pixel weights ``u``, less
-        the projection ``projected`` = (Ju, pinv(Ju J^T)) of its own parameters), with
+        least squares (D_n: star n's draw, held to ``band``; W_n: its pixel weights ``u``,
+        less the projection ``projected`` = (Ju, pinv(Ju J^T)) of its own parameters), with
         ``keep`` on both sides.
 
         Drawing a band-limited image at the pixels of a star at offset t samples its Fourier
         series at the points z = o + f r - f t, so in frequency the weighted sum over the
         stars is a convolution: (D^T W D x)^(k) = f^4 / S^2 B(k) sum_k' G(k - k') B(k')
-        x^(k'), with G(q) = sum_(n, r) a_n a_n^T u_n(r) exp(-2 pi i q.z_nr / S) for
-        |q| < S (a non-uniform Fourier sum of the weights, separable for each star's square
-        of pixels). It is computed once here and applied by FFTs of side L >= 2S - 1 (the
-        convolution without wrap-around): a cost per iteration independent of the number of
-        stars, instead of two FFTs per star and image (the Toeplitz form of non-uniform
-        FFT least squares). The projection is rank q per star: its images
-        V_n = B D_n^T Ju_n^T are kept."""
+        x^(k'), with G(q) = sum_(n, r) a_n a_n^T u_n(r) exp(-2 pi i q.z_nr / S) (a
+        non-uniform Fourier sum of the weights, separable for each star's square of pixels)
+        for the |q| <= 2K that the band's frequencies |k| <= K reach. It is computed once
+        here and applied by FFTs of side L >= 4K + 1 (the convolution without
+        wrap-around): a cost per iteration independent of the number of stars, instead of
+        two FFTs of the fine grid per star and image (the Toeplitz form of non-uniform FFT
+        least squares). The projection is rank q per star: the spectra of its images
+        D_n^T Ju_n^T are kept, on the band."""
         n, m = a.shape
         s = self.stamp_size_
         f, size, o = self._grid(s)
-        big = next_fast_len(2 * size - 1, real=True)
-        q = np.arange(-(size - 1), size)
-        r = o + f * np.arange(s)
-        base_y = np.exp(-2j * np.pi * np.outer(q, r) / size)  # (2S - 1, s)
-        base_x = base_y[size - 1:]  # q >= 0: the half plane (S, s)
+        half = (size + 1) // 2
+        ky = np.round(np.fft.fftfreq(size) * size).astype(int)  # rfft2's rows' frequencies
+        used = band > 0
+        reach = max(int(np.abs(ky[used.any(axis=1)]).max(initial=0)),
+                    int(np.flatnonzero(used.any(axis=0)).max(initial=0)))
+        top = min(2 * reach, size - 1)
+        big = next_fast_len(max(2 * top + 1, size), real=True)
+        q = np.arange(-top, top + 1)
+        base_y = np.exp(-2j * np.pi / size * np.outer(q, o + f * np.arange(s)))  # (2Q + 1, s)
+        base_x = base_y[top:]  # q >= 0: the half plane (Q + 1, s)
         i, j = np.triu_indices(m)
-        kernel = np.zeros((len(i), 2 * size - 1, size), dtype=complex)
+        kernel = np.zeros((len(i), len(q), top + 1), dtype=complex)
         for lo in range(0, n, _CHUNK):
             sl = slice(lo, min(lo + _CHUNK, n))
-            h = base_y @ u[sl].reshape(-1, s, s) @ base_x.T  # (b, 2S - 1, S)
+            h = base_y @ u[sl].reshape(-1, s, s) @ base_x.T  # (b, 2Q + 1, Q + 1)
             h *= np.exp(2j * np.pi * f / size * q[None, :, None] * offsets[sl, 1, None, None])
-            h *= np.exp(2j * np.pi * f / size * q[None, None, size - 1:]
-                        * offsets[sl, 0, None, None])
+            h *= np.exp(2j * np.pi * f / size * q[None, None, top:] * offsets[sl, 0, None, None])
             kernel += ((a[sl, i] * a[sl, j]).T @ h.reshape(len(h), -1)).reshape(kernel.shape)
         padded = np.zeros((len(i), big, big // 2 + 1), dtype=complex)
-        padded[:, q % big, :size] = kernel
+        padded[:, q % big, :top + 1] = kernel
         g = np.empty((m, m, big, big))
-        g[i, j] = g[j, i] = np.fft.irfft2(padded, s=(big, big)) * (
-            big**2 * f**4 / size**2)
-        half = (size + 1) // 2
-        rows = np.round(np.fft.fftfreq(size) * size).astype(int) % big  # rfft2's rows
-
-        if projected is not None:  # V_n without the band: B is applied around it
+        g[i, j] = g[j, i] = sfft.irfft2(padded, s=(big, big)) * (big**2 * f**4 / size**2)
+        rows = ky % big
+        on = np.flatnonzero(used)  # the band's frequencies, and their weight in a real sum
+        parseval = np.where(np.arange(half) == 0, 1.0, 2.0)[None, :].repeat(size, 0).ravel()[on]
+        if projected is not None:  # the spectra on the band, real and imaginary parts
             Ju, JuJ = projected
-            V = self._draw_adjoint(Ju, offsets)
+            near = slice(top - reach, top + reach + 1)  # |k| <= K
+            at = ((ky[:, None] + reach) * (reach + 1) + np.arange(half)[None, :]).ravel()[on]
+            spectra = np.empty((n, Ju.shape[1], 2 * len(on)))
+            for lo in range(0, n, _CHUNK):
+                sl = slice(lo, min(lo + _CHUNK, n))
+                h = base_y[None, near] * np.exp(2j * np.pi * f / size * q[None, near, None]
+                                                * offsets[sl, 1, None, None])
+                w = base_x[None, :reach + 1] * np.exp(2j * np.pi * f / size
+                                                      * q[None, top:top + reach + 1, None]
+                                                      * offsets[sl, 0, None, None])
+                spec = (f * f) * (h[:, None] @ Ju[sl].reshape(len(h), -1, s, s)
+                                  @ w.transpose(0, 2, 1)[:, None])
+                spec = spec.reshape(len(h), Ju.shape[1], -1)[:, :, at]
+                spectra[sl] = np.concatenate([spec.real, spec.imag], axis=2)
+            spectra = spectra.reshape(-1, 2 * len(on))  # (n q, 2 band)
 
         def normal(x):
-            x = keep(x)
-            spec = np.zeros((m, big, big // 2 + 1), dtype=complex)
-            spec[:, rows, :half] = np.fft.rfft2(x.reshape(m, size, size)) * band
-            y = np.fft.irfft2(spec, s=(big, big))
-            conv = np.fft.rfft2(np.einsum("ijyx,jyx->iyx", g, y))[:, rows, :half] * band
-            out = np.fft.irfft2(conv, s=(size, size)).reshape(m, -1)
-            if projected is not None:
-                z = np.einsum("nqm,nm->nq", (V.reshape(-1, size * size)
-                                             @ self._band_limited(x, band).T).reshape(n, -1, m),
-                              a)
+            spec = sfft.rfft2(keep(x).reshape(m, size, size)) * band
+            padded = np.zeros((m, big, big // 2 + 1), dtype=complex)
+            padded[:, rows, :half] = spec
+            y = sfft.irfft2(padded, s=(big, big))
+            conv = sfft.rfft2(np.einsum("ijyx,jyx->iyx", g, y))[:, rows, :half] * band
+            if projected is not None:  # sum_z V x = sum_k Re(conj(V^) x^) / S^2, on the band
+                flat = spec.reshape(m, -1)[:, on] * (parseval / size**2)
+                flat = np.concatenate([flat.real, flat.imag], axis=1)
+                z = np.einsum("nqm,nm->nq", (spectra @ flat.T).reshape(n, -1, m), a)
                 c = (JuJ @ z[:, :, None])[:, :, 0]
-                out -= self._band_limited((c[:, :, None] * a[:, None, :]).reshape(-1, m).T
-                                          @ V.reshape(-1, size * size), band)
-            return keep(out)
+                back = (c[:, :, None] * a[:, None, :]).reshape(-1, m).T @ spectra
+                conv = conv.reshape(m, -1)
+                conv[:, on] -= back[:, :len(on)] + 1j * back[:, len(on):]
+            return keep(sfft.irfft2(conv.reshape(m, size, half), s=(size, size)).reshape(m, -1))
 
         return normal
 
