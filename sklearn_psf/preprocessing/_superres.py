@@ -32,7 +32,7 @@ __all__ = ["SuperResolvedPCA", "stamp_fwhm", "UNDERSAMPLED_FWHM"]
 UNDERSAMPLED_FWHM = 2.0
 _FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
 _FWHM_WEIGHT = 1.0  # pixels: sigma of the fixed weight of stamp_fwhm
-_CHUNK = 256
+_CHUNK = 64  # stars at once (the arrays of a chunk stay in the caches)
 _STEPS = 4  # Gauss-Newton steps on each star's offset
 _CG_ITER = 100
 _CG_TOL = 1e-7  # relative residual of the conjugate gradients (a Gauss-Newton step: _GN_TOL)
@@ -351,8 +351,12 @@ class SuperResolvedPCA(StampPCA):
         def slope(amp):
             """d/d(offset x, y) of the stars' images weighted by ``amp``."""
             dx = np.einsum("bi,bisw->bsw", amp, rows) @ dlx.transpose(0, 2, 1)
-            combined = (amp @ fine if a is None else amp * (a @ fine)).reshape(b, size, size)
-            dy = dly @ combined @ lx.transpose(0, 2, 1)
+            if a is None and len(fine) == 1:  # one image for all: its rows in one product
+                dy = amp[:, :, None] * (dly.reshape(-1, size) @ images[0]).reshape(b, s, size)
+            else:
+                combined = (amp @ fine if a is None else amp * (a @ fine))
+                dy = dly @ combined.reshape(b, size, size)
+            dy = dy @ lx.transpose(0, 2, 1)
             return (f * f) * np.stack([dx, dy], axis=1).reshape(b, 2, s * s)
 
         return pix, slope
