@@ -59,9 +59,14 @@ sys.path.insert(0, str(HERE))
 import bench_psfex as bp  # noqa: E402  (the DECam-like CCDs, PSFEx, accuracy, CPU timing)
 import bench_undersampled as bu  # noqa: E402  (the Euclid-like CCD and its truth)
 
-REALDATA = HERE.parent.parent / "shared" / "realdata"
-#: The issue's targets: ours / PSFEx CPU.
-TARGETS = {"decam": 3.0, "decam16": 1.0, "euclid": 2.0, "sdss": 2.0, "spitzer": 2.0}
+
+def realdata():
+    """The real-data folder ``shared/realdata`` next to the repository (or next to the folder
+    holding it, for a git worktree), or ``$SKLEARN_PSF_REALDATA``, as the tests find it."""
+    candidates = [os.environ.get("SKLEARN_PSF_REALDATA")]
+    candidates += [base / "shared" / "realdata" for base in (HERE.parents[1], HERE.parents[2])]
+    found = [Path(c) for c in candidates if c and Path(c).is_dir()]
+    return found[0] if found else HERE.parents[1] / "shared" / "realdata"
 
 
 def run_ours(catalogs, folder, name, code=None, options=()):
@@ -318,7 +323,7 @@ def scaling(args, root):
 def spitzer_image(args):
     if args.spitzer:
         return args.spitzer
-    found = sorted(glob.glob(str(REALDATA / "*[Ss]pitzer*.fits")))
+    found = sorted(glob.glob(str(realdata() / "*[Ss]pitzer*.fits")))
     return found[0] if found else None
 
 
@@ -357,7 +362,7 @@ def main(argv=None):
             elif case == "euclid":
                 results[case] = euclid_case(args, str(folder))
             elif case == "sdss":
-                image = REALDATA / "SDSS_2p5m_reprojected.fits"
+                image = realdata() / "SDSS_2p5m_reprojected.fits"
                 if not image.exists():
                     print(f"sdss: skipped ({image} is absent)")
                     continue
@@ -367,7 +372,7 @@ def main(argv=None):
                 image = spitzer_image(args)
                 if image is None:
                     print(f"spitzer: skipped (no --spitzer FILE and no spitzer*.fits in "
-                          f"{REALDATA}; e.g. data/spitzer_example_image.fits of the "
+                          f"{realdata()}; e.g. data/spitzer_example_image.fits of the "
                           "astropy/photutils-datasets repository, a GLIMPSE 4.5 um mosaic)")
                     continue
                 results[case] = real_case(args, str(folder), case, image, {})

@@ -145,9 +145,12 @@ class SuperResolvedPCA(StampPCA):
     - the fine-grid images are fitted through all stars together by weighted least squares
       (conjugate gradients on the normal equations, pixel weights times each star's weight,
       capped at ``max_star_weight`` times the median as in :class:`StampPCA`), so that stars
-      at different phases constrain the fine grid together. The mean and the stars' fluxes
-      and offsets are fitted together by Gauss-Newton steps (each star's flux, offset and
-      background profiled out of the fine grid's normal equations: variable projection),
+      at different phases constrain the fine grid together (the normal equations are a
+      convolution in frequency, computed once per solve: an iteration's cost does not grow
+      with the number of stars; each star's pixels are drawn by two 1-D sinc matrices). The
+      mean and the stars' fluxes and offsets are fitted together by Gauss-Newton steps
+      (each star's flux, offset and background profiled out of the fine grid's normal
+      equations: variable projection),
       until the offsets move by less than 1e-3 pixel, or from the second step on their
       median move no longer halves from one round to the next (the offsets then wander
       within their noise: on the resampled SDSS frame of ``../shared/realdata`` the median
