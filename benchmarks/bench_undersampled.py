@@ -393,6 +393,7 @@ def _size_bound(ccd, clean, side, bands, P, truth):
     from sklearn_psf.measure import fixed_moments
     from sklearn_psf.model import PSFModel
     from sklearn_psf.preprocessing import SuperResolvedPCA
+    from sklearn_psf.preprocessing._normalize import phase_ramp
 
     stars = ccd.stars[clean]
     sky, gain = ccd.header["SKYLEVEL"] / ccd.header["GAIN"], ccd.header["GAIN"]
@@ -412,20 +413,17 @@ def _size_bound(ccd, clean, side, bands, P, truth):
         f, size, o = b._grid(side)
         mask = b._band()
         flux = np.asarray(fit.flux)[:, None]
-        ramp = b._ramps(np.asarray(fit.offsets)) * mask
+        offsets = np.asarray(fit.offsets)
         mean = b.fine_mean_
-        fmean = np.fft.rfft2(mean.reshape(1, size, size))
         # each star's flux and offset, profiled out of its pixels (in u)
-        J = np.concatenate([b._draw_sum(fmean, np.ones_like(flux), ramp)[:, None],
-                            b._gradient(fmean, flux, ramp)], axis=1)
+        drawn, slope = b._draw(mean[None], offsets, np.ones_like(flux), gradient=True)
+        J = np.concatenate([drawn[:, None], slope(flux)], axis=1)
         Ju = J * u[:, None, :]
         JuJ = np.linalg.pinv(Ju @ J.transpose(0, 2, 1), hermitian=True)
+        normal = b._normal(u, flux, offsets, mask, lambda x: x, (Ju, JuJ))
 
         def fisher(x):
-            pix = b._draw_sum(np.fft.rfft2(x.reshape(1, size, size)), flux, ramp)
-            pix = u * pix - ((JuJ @ (Ju @ pix[:, :, None]))[:, :, 0][:, None, :] @ Ju)[:, 0]
-            back = np.einsum("bi,byx->iyx", flux, b._draw_adjoint(pix, ramp))
-            return np.fft.irfft2(back, s=(size, size)).ravel()
+            return normal(x.reshape(1, -1)).ravel()
 
         # the size at phase 0 after recentring on the fine image's own Gaussian-weighted
         # centroid: unchanged by a shift of the mean that every star's offset takes up
@@ -439,7 +437,8 @@ def _size_bound(ccd, clean, side, bands, P, truth):
                                  / (2 * 1.5**2))
                 cen = np.stack([(w * xx).sum((1, 2)), (w * yy).sum((1, 2))], 1) \
                     / w.sum((1, 2))[:, None]
-            drawn = np.fft.irfft2(np.fft.rfft2(img) * b._ramps(-cen) * mask, s=(size, size))
+            ramp = phase_ramp(size, -f * cen[:, 0], -f * cen[:, 1])
+            drawn = np.fft.irfft2(np.fft.rfft2(img) * ramp * mask, s=(size, size))
             return fixed_moments(f * f * drawn[:, o:o + f * side:f, o:o + f * side:f],
                                  1.5)["sigma"]
 
@@ -455,7 +454,8 @@ def _size_bound(ccd, clean, side, bands, P, truth):
         # conjugate gradients on fisher(z) = g, the mean's shift and scale (to which the size
         # is blind, g is orthogonal to them) held by a penalty
         ky, kx = np.fft.fftfreq(size)[:, None], np.fft.rfftfreq(size)[None, :]
-        gauge = np.stack([np.fft.irfft2(fmean[0] * k * mask, s=(size, size)).ravel()
+        fmean = np.fft.rfft2(mean.reshape(size, size))
+        gauge = np.stack([np.fft.irfft2(fmean * k * mask, s=(size, size)).ravel()
                           for k in (2j * np.pi * kx, 2j * np.pi * ky)] + [mean])
         gauge /= np.linalg.norm(gauge, axis=1)[:, None]
         probe = np.random.default_rng(0).standard_normal(mean.size)

@@ -95,15 +95,15 @@ def test_format_versions(tmp_path, star_data):
     model = PSFModel(interpolator=KNeighborsRegressor(4), outliers=None).fit(X, stamps)
     path = tmp_path / "m.fits"
     model.save(path)
-    assert fits.getheader(path)["FORMAT"] == MODEL_FORMAT_VERSION == 6
+    assert fits.getheader(path)["FORMAT"] == MODEL_FORMAT_VERSION == 7
     # the oldest known version (1) loads
     _restamp(path, tmp_path / "v1.fits", FORMAT=1)
     assert_allclose(load_model(tmp_path / "v1.fits").predict(X[:4]), model.predict(X[:4]),
                     rtol=1e-12, atol=1e-15)
     # a newer version: a clear message, not a wrong model
-    _restamp(path, tmp_path / "v7.fits", FORMAT=7)
-    with pytest.raises(ValueError, match="format version 7.*upgrade sklearn_psf"):
-        load_model(tmp_path / "v7.fits")
+    _restamp(path, tmp_path / "v8.fits", FORMAT=8)
+    with pytest.raises(ValueError, match="format version 8.*upgrade sklearn_psf"):
+        load_model(tmp_path / "v8.fits")
     # an older, unknown version
     _restamp(path, tmp_path / "v0.fits", FORMAT=0)
     with pytest.raises(ValueError, match="format version 0, which no sklearn_psf release"):

@@ -6,10 +6,13 @@ small Zernikes) and 0.025" jitter, drawn at 0.1"/px (pixel-convolved FWHM ~1.5 p
 at a random sub-pixel phase with the star's pixel at index side // 2.
 """
 
+import json
 import warnings
 
 import numpy as np
 import pytest
+from astropy.io import fits
+from astropy.table import Table
 
 from sklearn_psf.measure import adaptive_moments, fixed_moments
 from sklearn_psf.model import PSFModel, load_model, to_galsim
@@ -261,6 +264,24 @@ def test_super_resolved_model_file_predictions_and_galsim(tmp_path, noisy):
                                model.predict(X[:2], offsets=offsets), atol=1e-12)
     np.testing.assert_allclose(back.predict(X[:2], fine=True), model.predict(X[:2], fine=True),
                                atol=1e-12)
+    # the fine grid is stored as images (format 7); a format-6 file, the grid in SPEC's
+    # JSON, predicts the same
+    with fits.open(path) as hdul:
+        names = [h.name for h in hdul]
+        spec = dict(zip(hdul["SPEC"].data["key"], hdul["SPEC"].data["json"]))
+        state = json.loads(spec["stamppca"])
+        assert "BASIS_FINE_COMPONENTS" in names and "fine_mean_" not in state
+        state["fine_mean_"] = hdul["BASIS_FINE_MEAN"].data.ravel().tolist()
+        state["fine_components_"] = hdul["BASIS_FINE_COMPONENTS"].data.tolist()
+        spec["stamppca"] = json.dumps(state)
+        table = fits.table_to_hdu(Table({"key": list(spec), "json": list(spec.values())}))
+        table.name = "SPEC"
+        old = [h for h in hdul if not h.name.startswith(("SPEC", "BASIS_FINE"))]
+        old.insert(1, table)
+        old[0].header["FORMAT"] = 6
+        fits.HDUList(old).writeto(tmp_path / "v6.fits")
+    np.testing.assert_array_equal(load_model(tmp_path / "v6.fits").predict(X[:2], fine=True),
+                                  back.predict(X[:2], fine=True))
     # GalSim gets the fine profile: drawn at the pixels and an offset, the model's stamp
     psf = to_galsim(model, *X[0], wcs=SCALE)
     drawn = psf.drawImage(nx=SIDE, ny=SIDE, scale=SCALE, method="no_pixel",

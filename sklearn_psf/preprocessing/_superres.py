@@ -5,6 +5,8 @@ from __future__ import annotations
 import numbers
 
 import numpy as np
+from scipy import fft as sfft
+from scipy.fft import next_fast_len
 
 from sklearn.utils.validation import check_is_fitted
 
@@ -31,13 +33,15 @@ __all__ = ["SuperResolvedPCA", "stamp_fwhm", "UNDERSAMPLED_FWHM"]
 UNDERSAMPLED_FWHM = 2.0
 _FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
 _FWHM_WEIGHT = 1.0  # pixels: sigma of the fixed weight of stamp_fwhm
-_CHUNK = 256
+_CHUNK = 64  # stars at once (the arrays of a chunk stay in the caches)
 _STEPS = 4  # Gauss-Newton steps on each star's offset
 _CG_ITER = 100
 _CG_TOL = 1e-7  # relative residual of the conjugate gradients (a Gauss-Newton step: _GN_TOL)
 _GN_TOL = 1e-4
 _MEAN_ROUNDS = 10  # at most, rounds of (mean, stars' offsets) before the components
 _OFFSET_TOL = 1e-3  # pixels: the offsets have converged
+_STALL = 0.5  # the offsets' median move shrinks by less than this from one round to the next:
+# they wander within their noise (the mean's rounds stop)
 _JOINT_ROUNDS = 4  # rounds of the spatial refinement (converged on Euclid-like stars)
 _REFINED_ITER = 2  # at most, rounds of the components' fit before the spatial refinement
 _STARS_PER_TERM = 30  # spatial_degree="auto": stars per term of the polynomial, at least
@@ -142,10 +146,16 @@ class SuperResolvedPCA(StampPCA):
     - the fine-grid images are fitted through all stars together by weighted least squares
       (conjugate gradients on the normal equations, pixel weights times each star's weight,
       capped at ``max_star_weight`` times the median as in :class:`StampPCA`), so that stars
-      at different phases constrain the fine grid together. The mean and the stars' fluxes
-      and offsets are fitted together by Gauss-Newton steps (each star's flux, offset and
-      background profiled out of the fine grid's normal equations: variable projection),
-      until the offsets move by less than 1e-3 pixel (at most 10 rounds); the mean is
+      at different phases constrain the fine grid together (the normal equations are a
+      convolution in frequency, computed once per solve: an iteration's cost does not grow
+      with the number of stars; each star's pixels are drawn by two 1-D sinc matrices). The
+      mean and the stars' fluxes and offsets are fitted together by Gauss-Newton steps
+      (each star's flux, offset and background profiled out of the fine grid's normal
+      equations: variable projection),
+      until the offsets move by less than 1e-3 pixel, or from the second step on their
+      median move no longer halves from one round to the next (the offsets then wander
+      within their noise: on the resampled SDSS frame of ``../shared/realdata`` the median
+      move stays ~0.01 pixel for 10 rounds), at most 10 rounds; the mean is
       re-centred after each round so that its adaptive centroid (on the fine grid) is the
       stamp centre (the package's convention), and normalised so that, drawn at the pixels,
       it sums to 1;
@@ -290,45 +300,78 @@ class SuperResolvedPCA(StampPCA):
         size = f * s if (f * s) % 2 else f * s + 1
         return f, size, (size - 1) // 2 - f * ((s - 1) // 2)  # factor, side, first sample
 
-    def _ramps(self, offsets):
-        f, size, _ = self._grid(self.stamp_size_)
-        return phase_ramp(size, f * offsets[:, 0], f * offsets[:, 1])
-
-    def _draw(self, fine_fft, ramp):
-        """Stars' pixels (b, m, p) of m fine images (given by their rfft2) at b phases."""
+    def _interp(self, shifts, derivative=False):
+        """1-D matrices (b, s, S) drawing a fine image's rows (or columns) at the pixels of
+        stars shifted by ``shifts`` (b,) pixels, so that a star's pixels are
+        ``f**2 * Ly @ X @ Lx.T``: the fine grid's periodic sinc (Fourier) interpolation at
+        the samples ``o + f r - f t`` (the Dirichlet kernel of the odd side S), what a
+        Fourier shift of the fine grid followed by keeping every f-th sample gives, at
+        O(s S) per row instead of an FFT of the grid per star and image. With
+        ``derivative``, their derivatives along the shifts."""
         s = self.stamp_size_
         f, size, o = self._grid(s)
-        img = np.fft.irfft2(fine_fft[None] * ramp[:, None], s=(size, size))
-        out = img[:, :, o:o + f * s:f, o:o + f * s:f]
-        return (f * f) * out.reshape(ramp.shape[0], fine_fft.shape[0], s * s)
+        lags = o + f * np.arange(s)[:, None] - np.arange(size)[None, :]  # sample - fine index
+        first = lags.min()
+        # the kernel at every lag (c - f t, c integer), then each row's lags taken from it
+        tau = np.pi / size * (np.arange(first, lags.max() + 1)[None, :]
+                              - f * np.asarray(shifts, dtype=np.float64)[:, None])
+        num, den = np.sin(size * tau), np.sin(tau)
+        flat = np.abs(den) < 1e-12  # tau a multiple of pi: the kernel's peak, S / S = 1
+        den = np.where(flat, 1.0, den)
+        kernel = np.where(flat, 1.0, num / (size * den))[:, lags - first]
+        if not derivative:
+            return kernel
+        # d/dt = -f pi / S d/dtau of sin(S tau) / (S sin tau); 0 at the peaks
+        slope = (size * np.cos(size * tau) * den - num * np.cos(tau)) / (size * den**2)
+        return kernel, np.where(flat, 0.0, -f * np.pi / size * slope)[:, lags - first]
 
-    def _draw_sum(self, fine_fft, a, ramp):
-        """Stars' pixels (b, p) of the combinations ``a @ fine`` (a: (b, m)) at b phases."""
+    def _draw(self, fine, offsets, a=None, gradient=False):
+        """Stars' pixels (b, m, p) of the m fine images ``fine`` (m, S*S) at the b stars'
+        ``offsets``; with ``a`` (b, m), of each star's combination ``a_b @ fine`` (b, p).
+        With ``gradient``, also a function of ``amp`` (b, m), or (b, 1) with ``a``, giving
+        the derivatives (b, 2, p) along the offsets (x, y) of the stars' images
+        ``amp_b @ fine`` (``amp_b * a_b @ fine`` with ``a``)."""
         s = self.stamp_size_
-        f, size, o = self._grid(s)
-        img = np.fft.irfft2(np.einsum("bi,iyx->byx", a, fine_fft) * ramp, s=(size, size))
-        return (f * f) * img[:, o:o + f * s:f, o:o + f * s:f].reshape(len(a), s * s)
+        f, size, _ = self._grid(s)
+        b = len(offsets)
+        if gradient:
+            (ly, dly), (lx, dlx) = (self._interp(offsets[:, i], derivative=True) for i in (1, 0))
+        else:
+            ly, lx = self._interp(offsets[:, 1]), self._interp(offsets[:, 0])
+        if a is None:  # each image's rows at the stars' phases, then their columns
+            m = len(fine)
+            images = fine.reshape(m, size, size)
+            rows = ly @ images.transpose(1, 0, 2).reshape(size, m * size)
+            rows = np.ascontiguousarray(rows.reshape(b, s, m, size).transpose(0, 2, 1, 3))
+        else:
+            images = (a @ fine).reshape(b, 1, size, size)
+            rows = ly[:, None] @ images
+        pix = (f * f) * (rows.reshape(b, -1, size) @ lx.transpose(0, 2, 1)).reshape(b, -1, s * s)
+        if a is not None:
+            pix = pix[:, 0]
+        if not gradient:
+            return pix
 
-    def _draw_adjoint(self, pixels, ramp):
-        """Adjoint of :meth:`_draw` for one image per star: (b, p) -> rfft2 (b, S, S//2+1)."""
-        s = self.stamp_size_
-        f, size, o = self._grid(s)
-        up = np.zeros((pixels.shape[0], size, size))
-        up[:, o:o + f * s:f, o:o + f * s:f] = pixels.reshape(-1, s, s)
-        return (f * f) * np.fft.rfft2(up) * np.conj(ramp)
+        def slope(amp):
+            """d/d(offset x, y) of the stars' images weighted by ``amp``."""
+            dx = np.einsum("bi,bisw->bsw", amp, rows) @ dlx.transpose(0, 2, 1)
+            if a is None and len(fine) == 1:  # one image for all: its rows in one product
+                dy = amp[:, :, None] * (dly.reshape(-1, size) @ images[0]).reshape(b, s, size)
+            else:
+                combined = (amp @ fine if a is None else amp * (a @ fine))
+                dy = dly @ combined.reshape(b, size, size)
+            dy = dy @ lx.transpose(0, 2, 1)
+            return (f * f) * np.stack([dx, dy], axis=1).reshape(b, 2, s * s)
 
-    def _gradient(self, fine_fft, a, ramp):
-        """d(model)/d(offset x, y) at the pixels, (b, 2, p), of the stars' models
-        ``a @ fine`` (a: (b, m))."""
+        return pix, slope
+
+    def _draw_adjoint(self, pixels, offsets):
+        """Adjoint of the draw for each star: pixels (b, q, p) -> fine images (b, q, S*S)."""
         s = self.stamp_size_
-        f, size, o = self._grid(s)
-        ky = np.fft.fftfreq(size)[None, :, None]
-        kx = np.fft.rfftfreq(size)[None, None, :]
-        m = np.einsum("bi,iyx->byx", a, fine_fft) * ramp
-        d = np.fft.irfft2(np.stack([m * (-2j * np.pi * f * kx), m * (-2j * np.pi * f * ky)],
-                                   axis=1), s=(size, size))
-        d = d[:, :, o:o + f * s:f, o:o + f * s:f]
-        return (f * f) * d.reshape(ramp.shape[0], 2, s * s)
+        f, size, _ = self._grid(s)
+        ly, lx = self._interp(offsets[:, 1]), self._interp(offsets[:, 0])
+        out = ly.transpose(0, 2, 1)[:, None] @ pixels.reshape(len(pixels), -1, s, s) @ lx[:, None]
+        return (f * f) * out.reshape(len(pixels), -1, size * size)
 
     # -- the stars' fits on the basis -----------------------------------------------------
     def _fit_stars(self, d, w, offsets, fine, steps=_STEPS, held=None):
@@ -338,7 +381,6 @@ class SuperResolvedPCA(StampPCA):
         offset and background are fitted (``a``: the flux, (n, 1))."""
         n, p = d.shape
         s = self.stamp_size_
-        fine_fft = np.fft.rfft2(fine.reshape(fine.shape[0], *(2 * (self._grid(s)[1],))))
         mix = None if held is None else np.column_stack([np.ones(n), held])
         m = fine.shape[0] if held is None else 1
         extra = int(self.background_)
@@ -351,9 +393,10 @@ class SuperResolvedPCA(StampPCA):
         for lo in range(0, n, _CHUNK):
             sl = slice(lo, min(lo + _CHUNK, n))
             for step in range(steps + 1):
-                ramp = self._ramps(offsets[sl])
-                A = (self._draw(fine_fft, ramp) if mix is None else
-                     self._draw_sum(fine_fft, mix[sl], ramp)[:, None])
+                A, slope = self._draw(fine, offsets[sl], None if mix is None else mix[sl],
+                                      gradient=True)
+                if mix is not None:
+                    A = A[:, None]
                 if extra:
                     A = np.concatenate([A, np.ones((A.shape[0], 1, p))], axis=1)
                 Aw = A * w[sl, None, :]
@@ -363,8 +406,7 @@ class SuperResolvedPCA(StampPCA):
                 if step == steps:
                     break
                 # Gauss-Newton on the offsets, with flux, coefficients and background
-                amp = sol[:, :m] if mix is None else sol[:, :1] * mix[sl]
-                G = np.concatenate([A, self._gradient(fine_fft, amp, ramp)], axis=1)
+                G = np.concatenate([A, slope(sol[:, :m])], axis=1)
                 Gw = G * w[sl, None, :]
                 resid = d[sl] - (sol[:, None, :] @ A)[:, 0]
                 move = (np.linalg.pinv(Gw @ G.transpose(0, 2, 1), hermitian=True)
@@ -381,7 +423,7 @@ class SuperResolvedPCA(StampPCA):
         return a, cov, model, offsets, level, ok
 
     # -- the fine images' joint fit -----------------------------------------------------------
-    def _fit_fine(self, target, u, a, ramp, fine0, J=None, tol=_CG_TOL, frame=None,
+    def _fit_fine(self, target, u, a, offsets, fine0, J=None, tol=_CG_TOL, frame=None,
                   band=None):
         """Fine images x (m, S*S) minimising ``sum_n ||target_n - draw_n(a_n @ x)||^2`` in
         the pixel weights ``u`` (n, p), conjugate gradients from ``fine0``. With ``J`` (n, q, p),
@@ -393,7 +435,8 @@ class SuperResolvedPCA(StampPCA):
         n, m = a.shape
         size = self._grid(self.stamp_size_)[1]
         # (``fine0`` comes band-limited, from :meth:`_settle`)
-        ramp = ramp * (self._band() if band is None else band)
+        band = self._band() if band is None else band
+
         def keep(x):  # components stay on the PSF's support (``frame``: 0/1 per sample)
             if frame is not None and m > 1:
                 x = x.copy()
@@ -411,23 +454,13 @@ class SuperResolvedPCA(StampPCA):
                 out -= (coef[:, None, :] @ Ju[sl])[:, 0]
             return out
 
-        def normal(x):
-            x = keep(x)
-            fx = np.fft.rfft2(x.reshape(m, size, size))
-            out = 0.0
-            for lo in range(0, n, _CHUNK):
-                sl = slice(lo, min(lo + _CHUNK, n))
-                pix = self._draw_sum(fx, a[sl], ramp[sl])
-                back = self._draw_adjoint(weigh(pix, sl), ramp[sl])
-                out = out + np.einsum("bi,byx->iyx", a[sl], back)
-            return keep(np.fft.irfft2(out, s=(size, size)).reshape(m, -1))
-
+        normal = self._normal(u, a, offsets, band, keep, None if J is None else (Ju, JuJ))
         rhs = 0.0
         for lo in range(0, n, _CHUNK):
             sl = slice(lo, min(lo + _CHUNK, n))
-            rhs = rhs + np.einsum("bi,byx->iyx", a[sl], self._draw_adjoint(
-                weigh(target[sl], sl), ramp[sl]))
-        rhs = keep(np.fft.irfft2(rhs, s=(size, size)).reshape(m, -1))
+            back = self._draw_adjoint(weigh(target[sl], sl)[:, None], offsets[sl])[:, 0]
+            rhs = rhs + a[sl].T @ back
+        rhs = keep(self._band_limited(rhs, band))
         # preconditioned by the images' typical coupling (sum_n a_n a_n^T times the star's
         # mean pixel weight); a small ridge keeps samples no star constrains at 0
         scale = (a * u.sum(axis=1)[:, None]).T @ a / size**2  # (m, m): the images' coupling
@@ -453,6 +486,87 @@ class SuperResolvedPCA(StampPCA):
             direction = z + (rz_new / rz) * direction
             rz = rz_new
         return x
+
+    def _normal(self, u, a, offsets, band, keep, projected=None):
+        """The normal operator x -> sum_n a_n a_n^T (x) D_n^T W_n D_n x of the fine images'
+        least squares (D_n: star n's draw, held to ``band``; W_n: its pixel weights ``u``,
+        less the projection ``projected`` = (Ju, pinv(Ju J^T)) of its own parameters), with
+        ``keep`` on both sides.
+
+        Drawing a band-limited image at the pixels of a star at offset t samples its Fourier
+        series at the points z = o + f r - f t, so in frequency the weighted sum over the
+        stars is a convolution: (D^T W D x)^(k) = f^4 / S^2 B(k) sum_k' G(k - k') B(k')
+        x^(k'), with G(q) = sum_(n, r) a_n a_n^T u_n(r) exp(-2 pi i q.z_nr / S) (a
+        non-uniform Fourier sum of the weights, separable for each star's square of pixels)
+        for the |q| <= 2K that the band's frequencies |k| <= K reach. It is computed once
+        here and applied by FFTs of side L >= 4K + 1 (the convolution without
+        wrap-around): a cost per iteration independent of the number of stars, instead of
+        two FFTs of the fine grid per star and image (the Toeplitz form of non-uniform FFT
+        least squares). The projection is rank q per star: the spectra of its images
+        D_n^T Ju_n^T are kept, on the band."""
+        n, m = a.shape
+        s = self.stamp_size_
+        f, size, o = self._grid(s)
+        half = (size + 1) // 2
+        ky = np.round(np.fft.fftfreq(size) * size).astype(int)  # rfft2's rows' frequencies
+        used = band > 0
+        reach = max(int(np.abs(ky[used.any(axis=1)]).max(initial=0)),
+                    int(np.flatnonzero(used.any(axis=0)).max(initial=0)))
+        top = min(2 * reach, size - 1)
+        big = next_fast_len(max(2 * top + 1, size), real=True)
+        q = np.arange(-top, top + 1)
+        base_y = np.exp(-2j * np.pi / size * np.outer(q, o + f * np.arange(s)))  # (2Q + 1, s)
+        base_x = base_y[top:]  # q >= 0: the half plane (Q + 1, s)
+        i, j = np.triu_indices(m)
+        kernel = np.zeros((len(i), len(q), top + 1), dtype=complex)
+        for lo in range(0, n, _CHUNK):
+            sl = slice(lo, min(lo + _CHUNK, n))
+            h = base_y @ u[sl].reshape(-1, s, s) @ base_x.T  # (b, 2Q + 1, Q + 1)
+            h *= np.exp(2j * np.pi * f / size * q[None, :, None] * offsets[sl, 1, None, None])
+            h *= np.exp(2j * np.pi * f / size * q[None, None, top:] * offsets[sl, 0, None, None])
+            kernel += ((a[sl, i] * a[sl, j]).T @ h.reshape(len(h), -1)).reshape(kernel.shape)
+        padded = np.zeros((len(i), big, big // 2 + 1), dtype=complex)
+        padded[:, q % big, :top + 1] = kernel
+        g = np.empty((m, m, big, big))
+        g[i, j] = g[j, i] = sfft.irfft2(padded, s=(big, big)) * (big**2 * f**4 / size**2)
+        rows = ky % big
+        on = np.flatnonzero(used)  # the band's frequencies, and their weight in a real sum
+        parseval = np.where(np.arange(half) == 0, 1.0, 2.0)[None, :].repeat(size, 0).ravel()[on]
+        if projected is not None:  # the spectra on the band, real and imaginary parts
+            Ju, JuJ = projected
+            near = slice(top - reach, top + reach + 1)  # |k| <= K
+            at = ((ky[:, None] + reach) * (reach + 1) + np.arange(half)[None, :]).ravel()[on]
+            spectra = np.empty((n, Ju.shape[1], 2 * len(on)))
+            for lo in range(0, n, _CHUNK):
+                sl = slice(lo, min(lo + _CHUNK, n))
+                h = base_y[None, near] * np.exp(2j * np.pi * f / size * q[None, near, None]
+                                                * offsets[sl, 1, None, None])
+                w = base_x[None, :reach + 1] * np.exp(2j * np.pi * f / size
+                                                      * q[None, top:top + reach + 1, None]
+                                                      * offsets[sl, 0, None, None])
+                spec = (f * f) * (h[:, None] @ Ju[sl].reshape(len(h), -1, s, s)
+                                  @ w.transpose(0, 2, 1)[:, None])
+                spec = spec.reshape(len(h), Ju.shape[1], -1)[:, :, at]
+                spectra[sl] = np.concatenate([spec.real, spec.imag], axis=2)
+            spectra = spectra.reshape(-1, 2 * len(on))  # (n q, 2 band)
+
+        def normal(x):
+            spec = sfft.rfft2(keep(x).reshape(m, size, size)) * band
+            padded = np.zeros((m, big, big // 2 + 1), dtype=complex)
+            padded[:, rows, :half] = spec
+            y = sfft.irfft2(padded, s=(big, big))
+            conv = sfft.rfft2(np.einsum("ijyx,jyx->iyx", g, y))[:, rows, :half] * band
+            if projected is not None:  # sum_z V x = sum_k Re(conj(V^) x^) / S^2, on the band
+                flat = spec.reshape(m, -1)[:, on] * (parseval / size**2)
+                flat = np.concatenate([flat.real, flat.imag], axis=1)
+                z = np.einsum("nqm,nm->nq", (spectra @ flat.T).reshape(n, -1, m), a)
+                c = (JuJ @ z[:, :, None])[:, :, 0]
+                back = (c[:, :, None] * a[:, None, :]).reshape(-1, m).T @ spectra
+                conv = conv.reshape(m, -1)
+                conv[:, on] -= back[:, :len(on)] + 1j * back[:, len(on):]
+            return keep(sfft.irfft2(conv.reshape(m, size, half), s=(size, size)).reshape(m, -1))
+
+        return normal
 
     def _radius(self):
         """Radius (cycles per pixel) of each frequency of the fine grid's ``rfft2``."""
@@ -481,7 +595,7 @@ class SuperResolvedPCA(StampPCA):
         whole = np.ones_like(k)  # the halves' fits: the whole square grid
         spectra, rows = [], np.flatnonzero(usable)
         for half in (rows[0::2], rows[1::2]):
-            mean = self._fit_fine(d[half], u[half], a[half, :1], self._ramps(offsets[half]),
+            mean = self._fit_fine(d[half], u[half], a[half, :1], offsets[half],
                                   np.zeros((1, size * size)), band=whole)
             spectra.append(np.fft.rfft2(mean.reshape(size, size)))
         one, two = spectra
@@ -501,11 +615,12 @@ class SuperResolvedPCA(StampPCA):
         t = (frc[i - 1] - _RING_THRESHOLD) / (frc[i - 1] - frc[i])
         return float(min(centres[i - 1] + t * _RING, corner))
 
-    def _band_limited(self, fine):
-        """Fine images (m, S*S) with their frequencies outside :meth:`_band` removed."""
+    def _band_limited(self, fine, band=None):
+        """Fine images (m, S*S) with their frequencies outside ``band`` (0/1 per frequency
+        of the fine grid's ``rfft2``, default :meth:`_band`) removed."""
         size = self._grid(self.stamp_size_)[1]
-        out = np.fft.irfft2(np.fft.rfft2(fine.reshape(-1, size, size)) * self._band(),
-                            s=(size, size))
+        band = self._band() if band is None else band
+        out = np.fft.irfft2(np.fft.rfft2(fine.reshape(-1, size, size)) * band, s=(size, size))
         return out.reshape(fine.shape)
 
     def _support(self, fine):
@@ -533,25 +648,22 @@ class SuperResolvedPCA(StampPCA):
         q, _ = np.linalg.qr(rows.T)
         return q.T
 
-    def _jacobian(self, fine, a, ramp):
+    def _jacobian(self, fine, a, offsets):
         """Each star's model pixels (n, p) and the rows (n, q, p) of the parameters profiled
         out of the fine images' Gauss-Newton step: its flux (the model over the flux), a
         constant (with a background) and its offset. The coefficients on the components
         are held: given them, the components are linear (alternating with the stars' fits,
         as alternating least squares does for a PCA), without the scale and rotation a
         joint step would leave free."""
-        n, m = a.shape
+        n = len(a)
         s = self.stamp_size_
-        size = self._grid(s)[1]
-        fine_fft = np.fft.rfft2(fine.reshape(m, size, size))
         model = np.empty((n, s * s))
         rows = []
         for lo in range(0, n, _CHUNK):
             sl = slice(lo, min(lo + _CHUNK, n))
-            model[sl] = self._draw_sum(fine_fft, a[sl], ramp[sl])
+            model[sl], slope = self._draw(fine, offsets[sl], a[sl], gradient=True)
             flux = np.where(a[sl, 0] != 0, a[sl, 0], 1.0)
-            parts = [model[sl, None] / flux[:, None, None],
-                     self._gradient(fine_fft, a[sl], ramp[sl])]
+            parts = [model[sl, None] / flux[:, None, None], slope(np.ones((len(flux), 1)))]
             if self.background_:
                 parts.insert(1, np.ones((len(flux), 1, s * s)))
             rows.append(np.concatenate(parts, axis=1))
@@ -684,25 +796,24 @@ class SuperResolvedPCA(StampPCA):
         def objective(u, model, fitted):
             return float((u * (d - model - fitted[:, None]) ** 2)[usable].sum())
 
-        k, counted, joint = 0, False, 0
+        k, counted, joint, typical = 0, False, 0, np.inf
         degree = 0 if positions is None else self._spatial_degree(int(usable.sum()))
         n_iter = min(int(self.n_iter), _REFINED_ITER) if degree else int(self.n_iter)
         u = star_weights(a[:, 0])
-        fine = self._fit_fine(d - level[:, None], u, a, self._ramps(offsets), fine)
+        fine = self._fit_fine(d - level[:, None], u, a, offsets, fine)
         for round_ in range(_MEAN_ROUNDS + n_iter):
             trial = None
             if round_:  # a Gauss-Newton step of the fine images and the stars' parameters,
                 # shortened until the fit improves
                 u = star_weights(a[:, 0])
-                ramp = self._ramps(offsets)
                 previous = objective(u, model, fitted)
                 if k:  # with components: the images given the stars' parameters (least
                     # squares; alternating with the stars' fits, as for a PCA)
-                    step = self._fit_fine(d - level[:, None], u, a, ramp, fine,
+                    step = self._fit_fine(d - level[:, None], u, a, offsets, fine,
                                           frame=self._support(fine)) - fine
                 else:
-                    model, J = self._jacobian(fine, a, ramp)
-                    step = self._fit_fine(d - level[:, None] - model, u, a, ramp,
+                    model, J = self._jacobian(fine, a, offsets)
+                    step = self._fit_fine(d - level[:, None] - model, u, a, offsets,
                                           np.zeros_like(fine), J, _GN_TOL)
                 for damping in (1.0, 0.5, 0.25, 0.125):
                     candidate = settle(fine + damping * step, offsets)
@@ -711,10 +822,13 @@ class SuperResolvedPCA(StampPCA):
                         break
             else:
                 trial = settle(fine, offsets)
-            change = 0.0  # no step improves the fit: converged
+            change, stalled = 0.0, False  # no step improves the fit: converged
             if trial is not None:
                 fine, before, a, cov, model, offsets, fitted, moved_ok = trial
-                change = float(np.abs(offsets - before)[usable].max())
+                moved = np.abs(offsets - before)[usable]
+                change = float(moved.max())
+                stalled, typical = (round_ >= 2 and np.median(moved) > _STALL * typical,
+                                    float(np.median(moved)))
             good = (a[:, 0] > 0) & moved_ok
             usable = ok & good
             if usable.sum() < 2:
@@ -731,7 +845,7 @@ class SuperResolvedPCA(StampPCA):
                 joint += 1
                 if joint >= n_iter or trial is None:
                     break
-            elif change < _OFFSET_TOL or round_ + 1 >= _MEAN_ROUNDS:
+            elif change < _OFFSET_TOL or stalled or round_ + 1 >= _MEAN_ROUNDS:
                 # the mean and the offsets have converged: how many components the stars hold
                 counted = True
                 if self.band_limit == "auto":  # the band the stars' information reaches
@@ -754,8 +868,7 @@ class SuperResolvedPCA(StampPCA):
         self.n_components_ = int(fine.shape[0] - 1)
         self.fine_size_ = size
         self._n_features_out = self.n_components_
-        drawn = self._draw(np.fft.rfft2(fine.reshape(-1, size, size)),
-                           self._ramps(np.zeros((1, 2))))[0]
+        drawn = self._draw(fine, np.zeros((1, 2)))[0]
         self.mean_, self.components_ = drawn[0], drawn[1:]
         return self
 
@@ -779,14 +892,12 @@ class SuperResolvedPCA(StampPCA):
         z = 2.0 * z / np.where(z.max(axis=0) > 0, z.max(axis=0), 1.0) - 1.0  # in [-1, 1]
         terms = np.column_stack([z[:, 0] ** i * z[:, 1] ** (t - i)
                                  for t in range(degree + 1) for i in range(t + 1)])
-        size = self._grid(self.stamp_size_)[1]
         flux = a[:, 0]
         for _ in range(_JOINT_ROUNDS):
             if usable.sum() < 3 * terms.shape[1]:  # too many stars lost on the way
                 break
             u = star_weights(flux) * usable[:, None]
-            mean = self._draw(np.fft.rfft2(fine[:1].reshape(1, size, size)),
-                              self._ramps(offsets))[:, 0]
+            mean = self._draw(fine[:1], offsets)[:, 0]
             coef = terms @ self._spatial_fit(d - level[:, None] - flux[:, None] * mean, u,
                                              flux, offsets, fine, terms)
             flux, _, _, offsets, fitted, moved_ok = self._fit_stars(d, w, offsets, fine,
@@ -799,7 +910,7 @@ class SuperResolvedPCA(StampPCA):
             amp = np.where(usable[:, None], flux[:, None] * np.column_stack(
                 [np.ones(len(d)), coef]), 0.0)
             fine = self._fit_fine(d - level[:, None], star_weights(flux) * usable[:, None], amp,
-                                  self._ramps(offsets), fine, frame=self._support(fine))
+                                  offsets, fine, frame=self._support(fine))
             fine, move = self._settle(fine)
             offsets = offsets + move
         return fine
@@ -809,13 +920,11 @@ class SuperResolvedPCA(StampPCA):
         ``u``, ``sum_n ||r_n - flux_n draw_n((terms_n @ C) @ components)||^2``."""
         n, t = terms.shape
         k = fine.shape[0] - 1
-        size = self._grid(self.stamp_size_)[1]
-        comps_fft = np.fft.rfft2(fine[1:].reshape(k, size, size))
         normal = np.zeros((t, k, t, k))
         rhs = np.zeros((t, k))
         for lo in range(0, n, _CHUNK):
             sl = slice(lo, min(lo + _CHUNK, n))
-            drawn = self._draw(comps_fft, self._ramps(offsets[sl])) * flux[sl, None, None]
+            drawn = self._draw(fine[1:], offsets[sl]) * flux[sl, None, None]
             du = drawn * u[sl, None]
             gram = du @ drawn.transpose(0, 2, 1)  # (b, k, k)
             normal += np.einsum("bp,bq,bjl->pjql", terms[sl], terms[sl], gram)
@@ -830,9 +939,7 @@ class SuperResolvedPCA(StampPCA):
         coefficients on the kept principal axes."""
         p = d.shape[1]
         flux = np.where(usable, a[:, 0], 1.0)
-        size = self._grid(self.stamp_size_)[1]
-        mean_fft = np.fft.rfft2(fine[:1].reshape(1, size, size))
-        drawn = self._draw(mean_fft, self._ramps(offsets))[:, 0]
+        drawn = self._draw(fine[:1], offsets)[:, 0]
         resid = np.where(w > 0, d / flux[:, None] - drawn, 0.0)
         v = pixel_var / flux**2
         u = _star_weights(v, usable, self.max_star_weight)
@@ -877,17 +984,12 @@ class SuperResolvedPCA(StampPCA):
         n = coef.shape[0]
         off = np.zeros((n, 2)) if offsets is None else np.asarray(
             offsets, dtype=np.float64).reshape(n, 2)
-        images = self.render_fine(coef, normalize=False)
-        size = self.fine_size_
+        fine = np.vstack([self.fine_mean_[None], self.fine_components_])
+        mix = np.column_stack([np.ones(n), coef])
         stamps = np.empty((n, self.stamp_size_**2))
         for lo in range(0, n, _CHUNK):
             sl = slice(lo, min(lo + _CHUNK, n))
-            fft = np.fft.rfft2(images[sl].reshape(-1, size, size))
-            ramp = self._ramps(off[sl])
-            pix = np.fft.irfft2(fft * ramp, s=(size, size))
-            f, _, o = self._grid(self.stamp_size_)
-            s = self.stamp_size_
-            stamps[sl] = (f * f) * pix[:, o:o + f * s:f, o:o + f * s:f].reshape(-1, s * s)
+            stamps[sl] = self._draw(fine, off[sl], mix[sl])
         return stamps * np.broadcast_to(np.asarray(flux, dtype=np.float64), (n,))[:, None]
 
     def render_fine(self, coefficients, normalize=True):
