@@ -59,6 +59,9 @@ sys.path.insert(0, str(HERE))
 import bench_psfex as bp  # noqa: E402  (the DECam-like CCDs, PSFEx, accuracy, CPU timing)
 import bench_undersampled as bu  # noqa: E402  (the Euclid-like CCD and its truth)
 
+#: The issue's targets: ours / PSFEx CPU.
+TARGETS = {"decam": 3.0, "decam16": 1.0, "euclid": 2.0, "sdss": 2.0, "spitzer": 2.0}
+
 
 def realdata():
     """The real-data folder ``shared/realdata`` next to the repository (or next to the folder
