@@ -6,9 +6,19 @@ Here, every check a stamp estimator cannot pass is listed with its reason: the c
 flux, and a fixed basis fixes the number of pixels. The same behaviours (clone, pickle,
 pipelines, fit/transform consistency, untouched input) are tested on real stamps in
 tests/test_preprocessing.py and tests/test_model.py.
+
+Every public estimator (the package's, its subpackages') declares scikit-learn's
+``_parameter_constraints``, checked by ``fit``: ``check_param_validation`` (which
+``parametrize_with_checks`` does not run) runs here on each.
 """
 
-from sklearn.utils.estimator_checks import parametrize_with_checks
+import numpy as np
+import pytest
+from sklearn.base import BaseEstimator
+from sklearn.utils.estimator_checks import check_param_validation, parametrize_with_checks
+
+import sklearn_psf
+from sklearn_psf import interpolate, model, preprocessing
 
 from sklearn_psf import FixedBasis, PSFModel, StampNormalizer
 from sklearn_psf.preprocessing import ChiSquareOutlierDetector, StampPCA, SuperResolvedPCA
@@ -89,3 +99,38 @@ def _expected(estimator):
 )
 def test_sklearn_compatible(estimator, check):
     check(estimator)
+
+
+def _public_estimators():
+    """One instance of each public estimator class, by name (required arguments given)."""
+    required = {"FixedBasis": (np.eye(9)[:2],), "FocalPlaneMapper": ([[0.0, 0.0], [1.0, 1.0]],)}
+    classes = {}
+    for module in (sklearn_psf, interpolate, preprocessing, model):
+        for name in module.__all__:
+            obj = getattr(module, name)
+            if isinstance(obj, type) and issubclass(obj, BaseEstimator):
+                classes[name] = obj
+    return {name: cls(*required.get(name, ())) for name, cls in sorted(classes.items())}
+
+
+PUBLIC_ESTIMATORS = _public_estimators()
+
+
+def test_public_estimators_listed():
+    # the 18 estimators of the subpackages' __all__ (a new one joins the checks below)
+    assert len(PUBLIC_ESTIMATORS) == 18
+    assert {"KrigingRegressor", "StampPCA", "SuperResolvedPCA", "PSFModel",
+            "PooledPSFModel", "ChiSquareOutlierDetector"} <= set(PUBLIC_ESTIMATORS)
+
+
+@pytest.mark.parametrize("name", sorted(PUBLIC_ESTIMATORS))
+def test_parameter_constraints_cover_parameters(name):
+    estimator = PUBLIC_ESTIMATORS[name]
+    constraints = type(estimator).__dict__.get("_parameter_constraints")
+    assert constraints is not None, f"{name} declares no _parameter_constraints"
+    assert set(constraints) == set(estimator.get_params(deep=False))
+
+
+@pytest.mark.parametrize("name", sorted(PUBLIC_ESTIMATORS))
+def test_param_validation(name):
+    check_param_validation(name, PUBLIC_ESTIMATORS[name])

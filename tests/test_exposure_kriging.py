@@ -208,7 +208,7 @@ def test_bad_input():
     bad[0, 2] = 0.5
     with pytest.raises(ValueError, match="integer exposure"):
         ExposureKrigingRegressor().fit(bad, Y)
-    with pytest.raises(ValueError, match="range must be a positive number"):
+    with pytest.raises(ValueError, match="'range' parameter of ExposureKrigingRegressor must"):
         ExposureKrigingRegressor(range=-1.0).fit(X, Y)
     with pytest.raises(ValueError, match="n_inducing"):
         ExposureKrigingRegressor(n_inducing=1).fit(X, Y)

@@ -195,17 +195,18 @@ def test_polynomial_rank_deficient_warns():
     "est, pattern",
     [
         (PolynomialRegressor(degree="high"), "'auto'"),
-        (PolynomialRegressor(degree=-1), "non-negative"),
+        # scikit-learn's parameter validation: "The 'p' parameter of Est must be ..."
+        (PolynomialRegressor(degree=-1), r"'degree' parameter .* int in the range \[0, inf"),
         (PolynomialRegressor(degree="auto", max_degree=2.5), "max_degree"),
-        (ChebyshevRegressor(degree=1.5), "non-negative integer"),
-        (RBFRegressor(kernel="cubic"), "kernel must be one of"),
-        (RBFRegressor(epsilon=0), "epsilon must be > 0"),
-        (RBFRegressor(smoothing=-1), "smoothing must be >= 0"),
+        (ChebyshevRegressor(degree=1.5), r"'degree' parameter .* an int in the range"),
+        (RBFRegressor(kernel="cubic"), "'kernel' parameter of RBFRegressor must be a str among"),
+        (RBFRegressor(epsilon=0), r"'epsilon' parameter .* in the range \(0.0, inf\)"),
+        (RBFRegressor(smoothing=-1), r"'smoothing' parameter .* in the range \[0.0, inf\)"),
         (ShepardRegressor(power=0), "power"),
-        (KrigingRegressor(variogram="matern"), "variogram must be one of"),
-        (KrigingRegressor(range=0), "range must be"),
-        (KrigingRegressor(nugget=1.5), r"nugget must be a number in \[0, 1\]"),
-        (DelaunayRegressor(outside="extrapolate"), "outside must be one of"),
+        (KrigingRegressor(variogram="matern"), "'variogram' parameter .* must be a str among"),
+        (KrigingRegressor(range=0), "'range' parameter of KrigingRegressor must be"),
+        (KrigingRegressor(nugget=1.5), r"'nugget' parameter .* in the range \[0.0, 1.0\]"),
+        (DelaunayRegressor(outside="extrapolate"), "'outside' parameter .* must be a str among"),
     ],
 )
 def test_bad_parameters(est, pattern, data):

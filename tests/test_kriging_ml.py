@@ -251,14 +251,15 @@ def test_nan_message_names_rows_and_says_what_to_do():
         KrigingRegressor().fit(X, Y)
 
 
-@pytest.mark.parametrize("params, match", [
-    ({"range": "big"}, "range must be a number"),
-    ({"nugget": 1.5}, "nugget must be a number in"),
-    ({"noise_scale": 0.0}, "noise_scale must be"),
-    ({"drift": "cubic"}, "drift must be"),
+@pytest.mark.parametrize("params, match", [  # scikit-learn's "The 'p' parameter of ..."
+    ({"range": "big"}, "'range' parameter of KrigingRegressor must be"),
+    ({"nugget": 1.5}, r"'nugget' parameter .* in the range \[0.0, 1.0\]"),
+    ({"noise_scale": 0.0}, "'noise_scale' parameter .* must be"),
+    ({"range": True}, "range must be a number"),  # the regressor's own: no boolean
+    ({"drift": "cubic"}, "'drift' parameter .* must be"),
     ({"max_ml_samples": 3}, "max_ml_samples"),
-    ({"likelihood": "vecchia"}, "likelihood must be"),
-    ({"likelihood": 0}, "likelihood must be"),
+    ({"likelihood": "vecchia"}, "'likelihood' parameter .* must be"),
+    ({"likelihood": 0}, "'likelihood' parameter .* must be"),
     ({"likelihood": 10, "anisotropy_angle": "auto"}, "needs a fixed anisotropy"),
     ({"anisotropy_scaling": -1.0}, "anisotropy_scaling"),
 ])

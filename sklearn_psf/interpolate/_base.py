@@ -5,7 +5,7 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-from sklearn.base import BaseEstimator, RegressorMixin
+from sklearn.base import BaseEstimator, RegressorMixin, _fit_context
 from sklearn.utils.validation import check_is_fitted, validate_data
 
 #: Queries are processed in chunks so that a (chunk, n_stars) distance matrix stays small.
@@ -199,6 +199,10 @@ class _BaseInterpolator(RegressorMixin, BaseEstimator):
         tags.target_tags.single_output = True
         return tags
 
+    #: the parameters' types and ranges, checked by ``fit`` (scikit-learn's validation);
+    #: each regressor extends it with its own
+    _parameter_constraints: dict = {}
+
     def _validate_fit_data(self, X, y):
         y_arr = np.asarray(y) if y is not None else None
         if y_arr is not None and y_arr.dtype.kind in "fc" and y_arr.ndim in (1, 2):
@@ -227,6 +231,7 @@ class _BaseInterpolator(RegressorMixin, BaseEstimator):
             return Y[:, 0]
         return Y
 
+    @_fit_context(prefer_skip_nested_validation=True)
     def fit(self, X, y):
         """Fit the interpolator to the stars.
 
@@ -295,6 +300,7 @@ class _NoiseAwareInterpolator(_BaseInterpolator):
     #: _fit uses the full noise covariance across targets
     _joint_noise = False
 
+    @_fit_context(prefer_skip_nested_validation=True)
     def fit(self, X, y, noise_var=None, noise_cov=None):
         """Fit the interpolator to the stars.
 

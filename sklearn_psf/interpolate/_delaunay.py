@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import LinearNDInterpolator
 from scipy.spatial import Delaunay, QhullError, cKDTree
+from sklearn.utils._param_validation import StrOptions
 from threadpoolctl import threadpool_limits
 
 from ._base import _BaseInterpolator, _check_n_samples, _merge_duplicates
@@ -62,13 +63,13 @@ class DelaunayRegressor(_BaseInterpolator):
     array([1.25, 1.  ])
     """
 
+    _parameter_constraints: dict = {"outside": [StrOptions(set(_OUTSIDE))]}
+
     def __init__(self, outside="nearest"):
         self.outside = outside
 
     def _fit(self, X, Y):
         name = "DelaunayRegressor"
-        if self.outside not in _OUTSIDE:
-            raise ValueError(f"{name}: outside must be one of {_OUTSIDE}, got {self.outside!r}.")
         d = X.shape[1]
         _check_n_samples(name, X.shape[0], min(d, _MAX_FEATURES) + 1, f"in {d} dimensions")
         if d > _MAX_FEATURES:

@@ -31,12 +31,14 @@ from __future__ import annotations
 
 import numbers
 import warnings
+from numbers import Integral, Real
 
 import numpy as np
 from scipy.linalg import LinAlgError, blas, cho_factor, cho_solve, lapack, solve_triangular
 from scipy.spatial.distance import cdist
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.utils import check_random_state
+from sklearn.utils._param_validation import Interval, StrOptions
 
 from ._base import _check_n_samples, _NoiseAwareInterpolator, _query_chunks
 from ._exposure_kriging_ml import JITTER, fit_joint_hyperparameters
@@ -253,6 +255,18 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
     (1,)
     """
 
+    _parameter_constraints: dict = {
+        "variogram": [StrOptions(set(_CORRELATIONS))],
+        "range": [Interval(Real, 0, np.inf, closed="neither"), StrOptions({"auto"})],
+        "atmosphere_range": [Interval(Real, 0, np.inf, closed="neither"),
+                             StrOptions({"auto"})],
+        "exposure_column": [Interval(Integral, None, None, closed="neither")],
+        "max_ml_samples": [Interval(Integral, _MIN_ML_STARS, None, closed="left")],
+        "max_exact_samples": [Interval(Integral, 0, None, closed="left")],
+        "n_inducing": [Interval(Integral, 4, None, closed="left")],
+        "random_state": ["random_state"],
+    }
+
     def __init__(self, variogram="exponential", range="auto", atmosphere_range="auto",
                  exposure_column=-1, max_ml_samples=300, max_exact_samples=2000,
                  n_inducing=900, random_state=0):
@@ -276,9 +290,6 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
         return (pos - self._lo) / self._span, exposure
 
     def _check_params(self):
-        if self.variogram not in _CORRELATIONS:
-            raise ValueError(f"{_NAME}: variogram must be one of {sorted(_CORRELATIONS)}, got "
-                             f"{self.variogram!r}.")
         _check_positive(self.range, "range")
         _check_positive(self.atmosphere_range, "atmosphere_range")
         _check_int(self.max_ml_samples, "max_ml_samples", _MIN_ML_STARS)

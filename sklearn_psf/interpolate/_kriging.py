@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import numbers
 import warnings
+from numbers import Integral, Real
 
 import numpy as np
 from scipy.spatial import cKDTree
 from sklearn.utils import check_random_state
+from sklearn.utils._param_validation import Interval, StrOptions
 from sklearn.utils.validation import check_is_fitted
 
 from ._base import (
@@ -330,6 +332,27 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     True
     """
 
+    _parameter_constraints: dict = {
+        "variogram": [StrOptions(set(variogram_models))],
+        "range": [Interval(Real, 0, np.inf, closed="neither"), StrOptions({"auto"})],
+        "nugget": [Interval(Real, 0, 1, closed="both"), StrOptions({"auto"})],
+        "n_neighbors": [Interval(Integral, 1, None, closed="left"), StrOptions({"auto"}),
+                        None],
+        "noise_scale": [Interval(Real, 0, np.inf, closed="neither"), StrOptions({"auto"})],
+        "drift": [StrOptions({"linear", "quadratic", "auto"}), None],
+        "anisotropy_scaling": [Interval(Real, 0, np.inf, closed="neither"),
+                               StrOptions({"auto"})],
+        "anisotropy_angle": [Interval(Real, -np.inf, np.inf, closed="neither"),
+                             StrOptions({"auto"})],
+        "extra_scaling": [Interval(Real, 0, np.inf, closed="neither"), "array-like",
+                          StrOptions({"auto"})],
+        "extra_drift": [StrOptions({"linear", "quadratic"}), None],
+        "likelihood": [StrOptions({"auto", "exact"}), Interval(Integral, 1, None, closed="left")],
+        "max_ml_samples": [Interval(Integral, _MIN_ML_STARS, None, closed="left")],
+        "random_state": ["random_state"],
+        "warm_start": ["boolean"],
+    }
+
     def __init__(self, variogram="exponential", range=0.5, nugget=0.0, n_neighbors=None, *,
                  noise_scale=1.0, drift=None, anisotropy_scaling=1.0, anisotropy_angle=0.0,
                  extra_scaling=1.0, extra_drift=None, likelihood="auto",
@@ -391,25 +414,11 @@ class KrigingRegressor(_NoiseAwareInterpolator):
                        "monomial")
 
     def _check_params(self, n_features):
-        if self.variogram not in variogram_models:
-            raise ValueError(
-                f"{_NAME}: variogram must be one of {sorted(variogram_models)}, "
-                f"got {self.variogram!r}."
-            )
         _check_param(self.range, "range", 0, np.inf, lo_open=True)
         _check_param(self.nugget, "nugget", 0, 1)
         _check_param(self.noise_scale, "noise_scale", 0, np.inf, lo_open=True)
         _check_param(self.anisotropy_scaling, "anisotropy_scaling", 0, np.inf, lo_open=True)
         _check_param(self.anisotropy_angle, "anisotropy_angle", -np.inf, np.inf)
-        if self.drift not in _DRIFT_DEGREE and not (isinstance(self.drift, str)
-                                                     and self.drift == "auto"):
-            raise ValueError(
-                f"{_NAME}: drift must be None, 'linear', 'quadratic' or 'auto', got "
-                f"{self.drift!r}."
-            )
-        if self.extra_drift not in (None, "linear", "quadratic"):
-            raise ValueError(f"{_NAME}: extra_drift must be None, 'linear' or 'quadratic', "
-                             f"got {self.extra_drift!r}.")
         self._extra_factors(n_features)
         if isinstance(self.max_ml_samples, bool) or not isinstance(
             self.max_ml_samples, numbers.Integral

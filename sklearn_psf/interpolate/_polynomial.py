@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import itertools
-import numbers
 import warnings
 from itertools import combinations_with_replacement
 from math import comb
+from numbers import Integral
 
 import numpy as np
 from numpy.polynomial import chebyshev
+from sklearn.utils._param_validation import Interval, StrOptions
 
 from ._base import RankDeficientWarning, _NoiseAwareInterpolator
 
@@ -90,7 +91,7 @@ class _PolynomialBase(_NoiseAwareInterpolator):
 
     def _check_degree(self, degree, name="degree"):
         if (
-            not isinstance(degree, numbers.Integral)
+            not isinstance(degree, Integral)
             or isinstance(degree, bool)
             or degree < 0
         ):
@@ -242,6 +243,12 @@ class PolynomialRegressor(_PolynomialBase):
     True
     """
 
+    _parameter_constraints: dict = {
+        "degree": [Interval(Integral, 0, None, closed="left"), StrOptions({"auto"}),
+                   "array-like"],
+        "max_degree": [Interval(Integral, 0, None, closed="left")],
+    }
+
     def __init__(self, degree=5, max_degree=8):
         self.degree = degree
         self.max_degree = max_degree
@@ -251,12 +258,7 @@ class PolynomialRegressor(_PolynomialBase):
         U = self._scale(X)
         n, d = X.shape
         sqrt_w = None if noise is None else 1.0 / np.sqrt(noise)
-        if isinstance(self.degree, str):
-            if self.degree != "auto":
-                raise ValueError(
-                    f"PolynomialRegressor: degree must be a non-negative integer or 'auto', "
-                    f"got {self.degree!r}."
-                )
+        if isinstance(self.degree, str):  # "auto"
             self._check_degree(self.max_degree, "max_degree")
             candidates = [g for g in range(self.max_degree + 1) if _n_terms(d, g) < n]
             if not candidates:
@@ -325,6 +327,10 @@ class ChebyshevRegressor(_PolynomialBase):
     """
 
     _basis = "chebyshev"
+
+    _parameter_constraints: dict = {
+        "degree": [Interval(Integral, 0, None, closed="left"), "array-like"],
+    }
 
     def __init__(self, degree=5):
         self.degree = degree

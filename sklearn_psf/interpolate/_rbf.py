@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-import numbers
 from math import comb
+from numbers import Integral, Real
 
 import numpy as np
 from scipy.interpolate import RBFInterpolator
+from sklearn.utils._param_validation import Interval, StrOptions
 
 from ._base import (
     _check_n_neighbors,
@@ -89,6 +90,13 @@ default="gaussian"
     True
     """
 
+    _parameter_constraints: dict = {
+        "kernel": [StrOptions(set(_KERNELS))],
+        "epsilon": [Interval(Real, 0, np.inf, closed="neither")],
+        "smoothing": [Interval(Real, 0, np.inf, closed="left")],
+        "n_neighbors": [Interval(Integral, 1, None, closed="left"), None],
+    }
+
     def __init__(self, kernel="gaussian", epsilon=1.0, smoothing=0.0, n_neighbors=None):
         self.kernel = kernel
         self.epsilon = epsilon
@@ -97,18 +105,6 @@ default="gaussian"
 
     def _fit(self, X, Y, noise):
         name = "RBFRegressor"
-        if self.kernel not in _KERNELS:
-            raise ValueError(
-                f"{name}: kernel must be one of {sorted(_KERNELS)}, got {self.kernel!r}."
-            )
-        for pname in ("epsilon", "smoothing"):
-            value = getattr(self, pname)
-            if not isinstance(value, numbers.Real) or not np.isfinite(value):
-                raise ValueError(f"{name}: {pname} must be a finite number, got {value!r}.")
-        if self.epsilon <= 0:
-            raise ValueError(f"{name}: epsilon must be > 0, got {self.epsilon!r}.")
-        if self.smoothing < 0:
-            raise ValueError(f"{name}: smoothing must be >= 0, got {self.smoothing!r}.")
         if self.smoothing == 0:
             X, Y, noise = _merge_duplicates(
                 X, Y, owner=name, noise=noise,

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import numbers
+from numbers import Integral
 
 import numpy as np
-from sklearn.base import BaseEstimator, OneToOneFeatureMixin, TransformerMixin
+from sklearn.base import BaseEstimator, OneToOneFeatureMixin, TransformerMixin, _fit_context
+from sklearn.utils._param_validation import Interval
 from sklearn.utils.validation import check_is_fitted, validate_data
 
 __all__ = ["IsotropicScaler"]
@@ -71,9 +73,14 @@ class IsotropicScaler(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
            [0.5 , 0.5 , 1.  ]])
     """
 
+    _parameter_constraints: dict = {
+        "n_positions": [Interval(Integral, 1, None, closed="left"), None],
+    }
+
     def __init__(self, n_positions=None):
         self.n_positions = n_positions
 
+    @_fit_context(prefer_skip_nested_validation=True)
     def fit(self, X, y=None):
         """Learn the minimum of each feature and the largest span.
 

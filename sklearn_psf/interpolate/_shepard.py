@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-import numbers
+from numbers import Integral, Real
 
 import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
+from sklearn.utils._param_validation import Interval
 
 from ._base import _BaseInterpolator, _check_n_neighbors, _check_n_samples, _query_chunks
 
@@ -57,14 +58,16 @@ class ShepardRegressor(_BaseInterpolator):
     array([0. , 0.5, 0.1])
     """
 
+    _parameter_constraints: dict = {
+        "power": [Interval(Real, 0, np.inf, closed="neither")],
+        "n_neighbors": [Interval(Integral, 1, None, closed="left"), None],
+    }
+
     def __init__(self, power=3.0, n_neighbors=None):
         self.power = power
         self.n_neighbors = n_neighbors
 
     def _fit(self, X, Y):
-        p = self.power
-        if not isinstance(p, numbers.Real) or not np.isfinite(p) or p <= 0:
-            raise ValueError(f"ShepardRegressor: power must be a finite number > 0, got {p!r}.")
         _check_n_samples("ShepardRegressor", X.shape[0], 1, "")
         k = _check_n_neighbors("ShepardRegressor", self.n_neighbors)
         self.X_fit_, self.y_fit_ = X, Y

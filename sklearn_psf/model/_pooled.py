@@ -10,10 +10,13 @@ exposure share one model. Save and load the multi-exposure models with their ``s
 
 from __future__ import annotations
 
+from numbers import Integral
+
 import numpy as np
 from joblib import Parallel, delayed
-from sklearn.base import BaseEstimator, RegressorMixin, TransformerMixin, clone
+from sklearn.base import BaseEstimator, RegressorMixin, TransformerMixin, _fit_context, clone
 from sklearn.metrics import r2_score
+from sklearn.utils._param_validation import HasMethods, Interval
 from sklearn.utils.validation import check_is_fitted, validate_data
 
 from ..interpolate import ExposureKrigingRegressor
@@ -175,11 +178,18 @@ class PerExposurePSFModel(_ExposureModel):
     [40, 40]
     """
 
+    _parameter_constraints: dict = {
+        "model": [HasMethods(["fit", "predict"]), None],
+        "exposure_column": [Interval(Integral, None, None, closed="neither")],
+        "n_jobs": [Integral, None],
+    }
+
     def __init__(self, model=None, exposure_column=-1, n_jobs=None):
         self.model = model
         self.exposure_column = exposure_column
         self.n_jobs = n_jobs
 
+    @_fit_context(prefer_skip_nested_validation=False)  # model is an estimator
     def fit(self, X, y, weights=None):
         """Fit one model per exposure.
 
@@ -284,6 +294,12 @@ class PooledPSFModel(_ExposureModel):
     ('ExposureKrigingRegressor', (3, 625))
     """
 
+    _parameter_constraints: dict = {
+        "model": [HasMethods(["fit", "predict", "set_params"]), None],
+        "interpolator": [HasMethods(["fit", "predict"]), None],
+        "exposure_column": [Interval(Integral, None, None, closed="neither")],
+    }
+
     def __init__(self, model=None, interpolator=None, exposure_column=-1):
         self.model = model
         self.interpolator = interpolator
@@ -294,6 +310,7 @@ class PooledPSFModel(_ExposureModel):
             return pos
         return np.column_stack([pos, exposure.astype(np.float64)])
 
+    @_fit_context(prefer_skip_nested_validation=False)  # model is an estimator
     def fit(self, X, y, weights=None):
         """Fit the basis, the outlier test and the joint interpolation on all the stars.
 
@@ -378,11 +395,18 @@ class FocalPlaneMapper(TransformerMixin, BaseEstimator):
            [2110.,   20.]])
     """
 
+    _parameter_constraints: dict = {
+        "ccd_origins": ["array-like"],
+        "ccd_angles": ["array-like", None],
+        "ccd_column": [Interval(Integral, None, None, closed="neither")],
+    }
+
     def __init__(self, ccd_origins, ccd_angles=None, ccd_column=2):
         self.ccd_origins = ccd_origins
         self.ccd_angles = ccd_angles
         self.ccd_column = ccd_column
 
+    @_fit_context(prefer_skip_nested_validation=True)
     def fit(self, X, y=None):
         """Check X and the layout.
 

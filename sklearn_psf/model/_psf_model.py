@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import inspect
 import warnings
+from numbers import Integral
 
 import numpy as np
-from sklearn.base import BaseEstimator, RegressorMixin, clone
+from sklearn.base import BaseEstimator, RegressorMixin, _fit_context, clone
 from sklearn.metrics import r2_score
+from sklearn.utils._param_validation import HasMethods, Interval, StrOptions
 from sklearn.utils.validation import check_is_fitted, validate_data
 
 from ..preprocessing import (
@@ -247,6 +249,14 @@ class PSFModel(RegressorMixin, BaseEstimator):
     (1, 225)
     """
 
+    _parameter_constraints: dict = {
+        "interpolator": [HasMethods(["fit", "predict"]), None],
+        "basis": [HasMethods(["fit", "transform", "inverse_transform"]), None],
+        "outliers": [StrOptions({"chi2", "iqr"}), HasMethods(["fit_predict"]), None],
+        "cv": [Interval(Integral, 2, None, closed="left")],
+        "random_state": ["random_state"],
+    }
+
     def __init__(self, interpolator=None, basis=None, outliers="chi2", cv=5, random_state=0):
         self.interpolator = interpolator
         self.basis = basis
@@ -323,6 +333,7 @@ class PSFModel(RegressorMixin, BaseEstimator):
                                  f"{weights.shape}.")
         return X, y, s, weights
 
+    @_fit_context(prefer_skip_nested_validation=False)  # its parameters are estimators
     def fit(self, X, y, weights=None):
         """Fit the basis on the stamps, reject outliers, fit the interpolator.
 

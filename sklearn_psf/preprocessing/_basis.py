@@ -3,7 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
-from sklearn.base import BaseEstimator, ClassNamePrefixFeaturesOutMixin, TransformerMixin
+from sklearn.base import (
+    BaseEstimator,
+    ClassNamePrefixFeaturesOutMixin,
+    TransformerMixin,
+    _fit_context,
+)
 from sklearn.utils.validation import check_is_fitted, validate_data
 
 __all__ = ["FixedBasis"]
@@ -44,10 +49,13 @@ class FixedBasis(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimato
     array([[ 1., -1., -1.,  1.]])
     """
 
+    _parameter_constraints: dict = {"components": ["array-like"], "mean": ["array-like", None]}
+
     def __init__(self, components, mean=None):
         self.components = components
         self.mean = mean
 
+    @_fit_context(prefer_skip_nested_validation=True)
     def fit(self, X, y=None):
         """Check the basis and the stamps' size; compute the pseudo-inverse.
 

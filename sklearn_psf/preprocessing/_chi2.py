@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from numbers import Real
+
 import numpy as np
 from scipy import special, stats
-from sklearn.base import BaseEstimator
+from sklearn.base import BaseEstimator, _fit_context
+from sklearn.utils._param_validation import Interval
 from sklearn.utils.validation import check_is_fitted, validate_data
 
 from ._outliers import _OffsetOutlierMixin
@@ -81,11 +84,18 @@ class ChiSquareOutlierDetector(_OffsetOutlierMixin, BaseEstimator):
     array([3, 5])
     """
 
+    _parameter_constraints: dict = {
+        "p_value": [Interval(Real, 0, 1, closed="neither")],
+        "population": ["boolean"],
+        "max_remove": [Interval(Real, 0, 1, closed="right"), None],
+    }
+
     def __init__(self, p_value: float = 1e-4, population: bool = True, max_remove=0.25):
         self.p_value = p_value
         self.population = population
         self.max_remove = max_remove
 
+    @_fit_context(prefer_skip_nested_validation=True)
     def fit(self, X, y=None):
         """Learn the population's scores (and check the residuals).
 
@@ -99,10 +109,7 @@ class ChiSquareOutlierDetector(_OffsetOutlierMixin, BaseEstimator):
         -------
         self : ChiSquareOutlierDetector
         """
-        p = self.p_value
-        if not (isinstance(p, (int, float, np.floating)) and 0 < p < 1):
-            raise ValueError(f"p_value must be a probability in (0, 1), got {p!r}.")
-        cap = self.max_remove
+        p, cap = self.p_value, self.max_remove
         if cap is not None and not (isinstance(cap, (int, float, np.floating))
                                     and not isinstance(cap, bool) and 0 < cap <= 1):
             raise ValueError(f"max_remove must be a fraction in (0, 1] or None, got {cap!r}.")

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import warnings
+from numbers import Integral, Real
 
 import numpy as np
-from sklearn.base import BaseEstimator, OneToOneFeatureMixin, TransformerMixin
+from sklearn.base import BaseEstimator, OneToOneFeatureMixin, TransformerMixin, _fit_context
+from sklearn.utils._param_validation import Interval
 from sklearn.utils.validation import check_is_fitted, validate_data
 
 from .._validation import rows_text
@@ -125,6 +127,14 @@ class StampNormalizer(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
     1.0
     """
 
+    _parameter_constraints: dict = {
+        "flux": ["boolean"],
+        "center": ["boolean"],
+        "center_tol": [Interval(Real, 0, None, closed="left")],
+        "max_centring_steps": [Interval(Integral, 0, None, closed="left")],
+        "guess_sigma": [Interval(Real, 0, None, closed="neither")],
+    }
+
     def __init__(
         self,
         flux: bool = True,
@@ -148,6 +158,7 @@ class StampNormalizer(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
             )
         return s
 
+    @_fit_context(prefer_skip_nested_validation=True)
     def fit(self, X, y=None, weights=None):
         """Check the stamps and record their size.
 
@@ -228,6 +239,7 @@ class StampNormalizer(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
             X = self._centre(X)
         return X
 
+    @_fit_context(prefer_skip_nested_validation=True)
     def fit_transform(self, X, y=None, weights=None):
         """Fit, then normalise and centre X (see :meth:`transform`).
 

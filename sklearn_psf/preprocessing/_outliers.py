@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+from numbers import Real
+
 import numpy as np
-from sklearn.base import BaseEstimator, OutlierMixin
+from sklearn.base import BaseEstimator, OutlierMixin, _fit_context
+from sklearn.utils._param_validation import Interval
 from sklearn.utils.validation import check_is_fitted, validate_data
 
 __all__ = ["IQROutlierDetector"]
@@ -83,9 +86,12 @@ class IQROutlierDetector(_OffsetOutlierMixin, BaseEstimator):
     array([ 1,  1,  1,  1, -1])
     """
 
+    _parameter_constraints: dict = {"alpha": [Interval(Real, 0, np.inf, closed="left")]}
+
     def __init__(self, alpha: float = 3.5):
         self.alpha = alpha
 
+    @_fit_context(prefer_skip_nested_validation=True)
     def fit(self, X, y=None):
         """Compute the quartiles and fences of X.
 
@@ -99,8 +105,6 @@ class IQROutlierDetector(_OffsetOutlierMixin, BaseEstimator):
         self : IQROutlierDetector
         """
         alpha = float(self.alpha)
-        if not np.isfinite(alpha) or alpha < 0:
-            raise ValueError(f"alpha must be a non-negative finite number, got {self.alpha!r}.")
         X = validate_data(self, X, dtype=np.float64)
         self.q1_, self.q3_ = np.percentile(X, [25.0, 75.0], axis=0)
         iqr = self.q3_ - self.q1_

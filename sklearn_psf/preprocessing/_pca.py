@@ -4,13 +4,20 @@ from __future__ import annotations
 
 import numbers
 import warnings
+from numbers import Integral, Real
 from typing import NamedTuple
 
 import numpy as np
 import scipy.fft
 from scipy.linalg import eigh
 from scipy.optimize import minimize_scalar
-from sklearn.base import BaseEstimator, ClassNamePrefixFeaturesOutMixin, TransformerMixin
+from sklearn.base import (
+    BaseEstimator,
+    ClassNamePrefixFeaturesOutMixin,
+    TransformerMixin,
+    _fit_context,
+)
+from sklearn.utils._param_validation import Interval, RealNotInt, StrOptions
 from sklearn.utils.validation import check_is_fitted, validate_data
 
 from ..measure import adaptive_moments, fixed_moments
@@ -481,6 +488,17 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
     array([1., 1.])
     """
 
+    _parameter_constraints: dict = {
+        "n_components": [StrOptions({"noise"}), Interval(Integral, 1, None, closed="left"),
+                         Interval(RealNotInt, 0, 1, closed="neither")],
+        "max_components": [Interval(Integral, 1, None, closed="left")],
+        "n_iter": [Interval(Integral, 1, None, closed="left")],
+        "max_star_weight": [Interval(Real, 1, np.inf, closed="left")],
+        "guess_sigma": [Interval(Real, 0, None, closed="neither")],
+        "background": ["boolean", StrOptions({"auto"})],
+        "wings": [StrOptions({"radial"}), None],
+    }
+
     def __init__(self, n_components="noise", max_components: int = 20, n_iter: int = 2,
                  max_star_weight: float = 10.0, guess_sigma: float = 3.0,
                  background="auto", wings="radial"):
@@ -689,6 +707,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         return max(1, min(k, cap)), edge
 
     # -- estimator API ------------------------------------------------------------------------
+    @_fit_context(prefer_skip_nested_validation=True)
     def fit(self, X, y=None, weights=None):
         """Fit the basis on raw star stamps.
 
@@ -883,6 +902,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
             )
         return coef
 
+    @_fit_context(prefer_skip_nested_validation=True)
     def fit_transform(self, X, y=None, weights=None):
         """Fit, then return the coefficients of X (see :meth:`transform`).
 

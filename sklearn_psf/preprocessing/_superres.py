@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import numbers
+from numbers import Integral, Real
 
 import numpy as np
 from scipy import fft as sfft
 from scipy.fft import next_fast_len
 
+from sklearn.base import _fit_context
+from sklearn.utils._param_validation import Interval, StrOptions
 from sklearn.utils.validation import check_is_fitted
 
 from ..measure import adaptive_moments, fixed_moments
@@ -283,6 +286,15 @@ class SuperResolvedPCA(StampPCA):
     >>> bool(np.abs(fit.offsets - off[:, :, 0, 0]).max() < 0.02)
     True
     """
+
+    _parameter_constraints: dict = {
+        **{k: v for k, v in StampPCA._parameter_constraints.items() if k != "wings"},
+        "oversampling": [StrOptions({"auto"}), Interval(Integral, 1, None, closed="left")],
+        "spatial_degree": [StrOptions({"auto"}), Interval(Integral, 0, None, closed="left"),
+                           None],
+        "band_limit": [StrOptions({"auto"}), Interval(Real, 0, np.inf, closed="neither"),
+                       None],
+    }
 
     def __init__(self, oversampling="auto", n_components="noise", max_components: int = 10,
                  n_iter: int = 6, max_star_weight: float = 10.0, guess_sigma: float = 3.0,
@@ -723,6 +735,7 @@ class SuperResolvedPCA(StampPCA):
     def _fit_project(self, X, weights=None, positions=None):
         return self.fit(X, weights=weights, positions=positions).project(X, weights)
 
+    @_fit_context(prefer_skip_nested_validation=True)
     def fit(self, X, y=None, weights=None, positions=None):
         """Fit the fine-grid basis on raw star stamps.
 
