@@ -9,7 +9,7 @@ from astropy.table import Table
 
 from sklearn_psf import make_psf_field
 from sklearn_psf.io import neighbour_masks, select_stars
-from sklearn_psf.validation import StarSelectionError, fit_and_validate, fit_exposure
+from sklearn_psf.validation import StarSelectionError, fit_and_validate, fit_exposure, read_exposure
 
 
 def _field(seed=3, n_stars=200):
@@ -226,3 +226,33 @@ def test_internal_error_of_one_of_many_fits_is_reported_as_a_bug(tmp_path, capsy
     assert main(args + ["--overwrite"]) == 2
     err = capsys.readouterr().err
     assert "internal error" not in err and err.count("sklearn-psf: error:") == 3
+
+
+def test_saturation_found_where_the_peaks_pile_up(tmp_path):
+    """A catalogue whose header gives no SATURATE: the 8 brightest stars, clipped at a 14-bit
+    camera's 16383, share their highest pixel; the fit finds that level, leaves them out as
+    saturated and says so. Without the clipped stars no level is found."""
+    from sklearn_psf.io import write_ldac
+
+    X, stamps, _ = _field(seed=4, n_stars=60)
+    side = int(np.sqrt(stamps.shape[1]))
+    peaks = np.random.default_rng(0).uniform(300.0, 5000.0, len(X))
+    cube = stamps.reshape(-1, side, side) * (peaks / stamps.max(axis=1))[:, None, None]
+    bright = np.arange(8)
+    cube[bright] = np.minimum(cube[bright] * 100.0, 16383.0)
+    cat = Table({"X_IMAGE": X[:, 0] + 1, "Y_IMAGE": X[:, 1] + 1,
+                 "FLUX_MAX": cube.max(axis=(1, 2)).astype(np.float32),
+                 "VIGNET": cube.astype(np.float32)})
+    path = tmp_path / "clipped.ldac"
+    write_ldac(path, cat)
+    inputs = read_exposure(catalog=path)
+    assert inputs.saturation == pytest.approx(16383.0)
+    assert inputs.saturation_source == "catalogue peaks (8 sources)"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = fit_exposure(catalog=path, interpolator="polynomial", reserve=0.0)
+    assert fit.summary["saturation"] == pytest.approx(16383.0)
+    assert "saturated 8" in "\n".join(fit.report())
+    assert any(line.startswith("saturation level: 16383,") for line in fit.report())
+    write_ldac(tmp_path / "unclipped.ldac", cat[8:])
+    assert read_exposure(catalog=tmp_path / "unclipped.ldac").saturation is None

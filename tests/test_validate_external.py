@@ -421,3 +421,73 @@ def test_cli_parser_imports_neither_galsim_nor_piff():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout
     assert out.strip() == "[]"
+
+
+def test_psfex_model_drawn_at_offsets_as_galsim_draws_it(tmp_path):
+    """``predict(X, offsets)`` draws each star at its sub-pixel (dx, dy) from the centre
+    pixel as GalSim's DES_PSFEx drawn with that ``offset`` (``method='no_pixel'``), for an
+    undersampled model (PSF_SAMP 0.4)."""
+    galsim = pytest.importorskip("galsim")
+    import galsim.des
+
+    side, samp = 31, 0.4
+    yy, xx = np.mgrid[0:side, 0:side] - (side - 1) / 2
+    w = 0.6 / samp
+    planes = np.array([np.exp(-(xx**2 + 1.3 * yy**2 + 0.4 * xx * yy) / (2 * w**2)),
+                       0.1 * xx / w * np.exp(-(xx**2 + yy**2) / (2 * w**2)),
+                       0.05 * np.exp(-(xx**2 + yy**2) / (2 * (0.7 * w)**2))])
+    path = tmp_path / "m.psf"
+    write_psfex(path, planes, (1000.0, 1000.0), (2000.0, 2000.0), psf_samp=samp)
+    model = PSFExModel(path, stamp_size=15)
+    X = np.array([[10.0, 20.0], [1500.2, 300.7], [1999.0, 1999.0]])
+    offsets = np.array([[0.3, -0.45], [-0.2, 0.1], [0.49, 0.0]])
+    psfex = galsim.des.DES_PSFEx(str(path))
+    image = galsim.ImageD(15, 15, scale=1.0)
+    for i, ((x, y), (dx, dy)) in enumerate(zip(X + 1.0, offsets)):
+        psfex.getPSF(galsim.PositionD(x, y)).drawImage(image=image, method="no_pixel",
+                                                       offset=(dx, dy))
+        ref = image.array / image.array.sum()
+        got = model.predict(X[i:i + 1], offsets=offsets[i:i + 1]).reshape(15, 15)
+        assert np.abs(got - ref).max() < 2e-5 * ref.max()
+
+
+def _pixel_gaussian(offsets, s=15, sigma=0.5):
+    """Unit-flux round Gaussians integrated over the pixels, centred at ``offsets`` from
+    the centre pixel: undersampled stars drawn exactly at any phase."""
+    from scipy.special import erf
+
+    edges = np.arange(s + 1) - s // 2 - 0.5
+    out = []
+    for dx, dy in np.atleast_2d(offsets):
+        fx = np.diff(erf((edges - dx) / (np.sqrt(2) * sigma))) / 2
+        fy = np.diff(erf((edges - dy) / (np.sqrt(2) * sigma))) / 2
+        out.append(np.outer(fy, fx).ravel())
+    return np.array(out)
+
+
+def test_undersampled_stars_judged_at_their_phase():
+    """Undersampled stars (FWHM 1.2 px) at random sub-pixel positions, S/N ~1000: the true
+    PSF judged with ``validate_models`` has chi^2/dof 1 when it can be drawn at each star's
+    phase (measured 0.999); drawn centred and moved by a Fourier shift of its sampled
+    stamp, the same truth aliases (measured 2.6e5): the judge that made a super-resolved
+    model lose to PSFEx on the real undersampled SDSS frame."""
+    rng = np.random.default_rng(3)
+    n, s = 60, 15
+    X = rng.uniform(50, 950, (n, 2))
+    phase = X - np.floor(X + 0.5)
+    stars = 1e5 * _pixel_gaussian(phase, s) + rng.normal(0.0, 1.0, (n, s * s))
+
+    class Drawn:
+        def predict(self, X, offsets=None):
+            return _pixel_gaussian(np.zeros((len(X), 2)) if offsets is None else offsets, s)
+
+    class Centred:
+        def predict(self, X):
+            return _pixel_gaussian(np.zeros((len(X), 2)), s)
+
+    table, _ = validate_models(X, stars, {"drawn": Drawn(), "centred": Centred()},
+                               weights=np.ones((n, s * s)))
+    chi2 = dict(zip(table["model"], table["chi2_dof"]))
+    assert abs(chi2["drawn"] - 1.0) < 0.05
+    assert chi2["centred"] > 1.5
+    assert table.meta["moments"].startswith("fixed")

@@ -100,7 +100,7 @@ from ._sextractor import (
     write_sextractor_config,
 )
 from ._select import (PSFEX_FLAG_MASK, SELECTION_OPTIONS, SELECTION_REASONS, neighbour_masks,
-                      select_stars)
+                      saturation_level, select_stars)
 from ._stars import REJECTION_REASONS, StarStamps, extract_star_stamps, find_stars
 from ._vignettes import VIGNET_MASKED, extract_vignettes
 from ._wcs import celestial_wcs, pixel_to_sky, sky_to_pixel
@@ -149,6 +149,7 @@ __all__ = [
     "write_sextractor_config",
     "save_model",
     "select_stars",
+    "saturation_level",
     "sky_to_pixel",
     "write_catalog_rows",
     "write_ldac",

@@ -22,8 +22,8 @@ from scipy.spatial import cKDTree
 
 from .._files import InputError
 
-__all__ = ["select_stars", "neighbour_masks", "PSFEX_FLAG_MASK", "SELECTION_REASONS",
-           "SELECTION_OPTIONS"]
+__all__ = ["select_stars", "neighbour_masks", "saturation_level", "PSFEX_FLAG_MASK",
+           "SELECTION_REASONS", "SELECTION_OPTIONS"]
 
 #: Why a source is not selected as a star, in the order the cuts are applied (a source is
 #: counted under the first cut it fails); ``bad_stamp`` is applied when stamps are cut.
@@ -224,6 +224,52 @@ def _peak(table):
         vmax = vig.reshape(len(table), -1).max(axis=1) + back
         peak = vmax if peak is None else np.maximum(peak, vmax)
     return peak
+
+
+def saturation_level(catalog, *, min_sources: int = 5, tolerance: float = 0.005):
+    """The level at which the brightest sources' highest pixels pile up, if they do.
+
+    Saturated stars share their highest raw pixel (the detector's or the digitiser's
+    limit, or the level a resampled mosaic clipped them to), which unsaturated stars do
+    only by chance. Where a header gives no ``SATURATE``, this finds the level: the first
+    of the five highest peaks (``peak`` + ``background``, else the ``VIGNET``'s maximum)
+    that at least ``min_sources`` peaks lie within ``tolerance`` of (relative), their
+    median. Source Extractor's default ``SATUR_LEVEL`` (50000) flags none of them on an
+    image that saturates lower (e.g. a 14-bit camera).
+
+    Parameters
+    ----------
+    catalog : astropy.table.Table
+        A catalogue as :func:`~sklearn_psf.io.read_catalog` returns it.
+    min_sources : int, default=5
+    tolerance : float, default=0.005
+
+    Returns
+    -------
+    level : float or None
+        None where no level is shared, or the catalogue has no peaks.
+    n_sources : int
+        How many sources peak within ``tolerance`` of it (0 with no level).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astropy.table import Table
+    >>> peaks = np.r_[np.linspace(100.0, 9000.0, 200), np.full(8, 16383.0)]
+    >>> saturation_level(Table({"x": peaks, "y": peaks, "peak": peaks}))
+    (16383.0, 8)
+    >>> saturation_level(Table({"x": peaks[:200], "y": peaks[:200], "peak": peaks[:200]}))
+    (None, 0)
+    """
+    peak = _peak(catalog)
+    if peak is None:
+        return None, 0
+    p = np.sort(np.asarray(peak, dtype=np.float64)[np.isfinite(peak)])[::-1]
+    for level in p[:5]:
+        near = np.abs(p - level) <= tolerance * abs(level)
+        if level > 0 and near.sum() >= min_sources:
+            return float(np.median(p[near])), int(near.sum())
+    return None, 0
 
 
 def _size(table, rows=None):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import os
 
 import numpy as np
@@ -12,6 +13,9 @@ from .._validation import as_stamps
 from ..metrics import FOURTH_RHO_NAMES, RHO_NAMES
 from ._external import PiffModel, PSFExModel, load_psf_model, model_kind
 from ..measure import adaptive_moments
+from ..preprocessing import stamp_fwhm
+from ..preprocessing._normalize import phase_ramp
+from ..preprocessing._superres import UNDERSAMPLED_FWHM
 from ._residuals import FIXED_WEIGHT_SIGMA, measure_residuals, moments_kind, rho_bins
 
 __all__ = ["validate_models", "COMPARISON_COLUMNS", "UNUSABLE_STAR_REASONS"]
@@ -83,6 +87,33 @@ def _common_moments(cube, weights, predictions):
         if np.mean(flags != 0) > 0.5:
             return FIXED_WEIGHT_SIGMA
     return "adaptive"
+
+
+def _undersampled_stars(cube, weights):
+    """Whether the stars are undersampled: their median FWHM under
+    :data:`~sklearn_psf.preprocessing.UNDERSAMPLED_FWHM` pixels (as :class:`PSFModel`
+    decides for its basis)."""
+    n = len(cube)
+    fwhm = stamp_fwhm(np.where(np.isnan(cube), 0.0, cube).reshape(n, -1),
+                      None if weights is None else np.asarray(weights).reshape(n, -1))
+    return bool(np.isfinite(fwhm).any() and np.nanmedian(fwhm) < UNDERSAMPLED_FWHM)
+
+
+def _renderer(model, X, s):
+    """``render(offsets)``: the model's s x s stamps at X with each star drawn at its (dx,
+    dy) from the centre pixel, for a model whose ``predict`` takes ``offsets`` and can
+    draw them (None otherwise)."""
+    if "offsets" not in inspect.signature(model.predict).parameters:
+        return None
+
+    def render(offsets):
+        return _fit_size(model.predict(X, offsets=offsets), s)
+
+    try:
+        render(np.zeros((len(X), 2)))
+    except ValueError:  # e.g. a basis without render
+        return None
+    return render
 
 
 def _named_models(models, stamp_size, origin, chipnum):
@@ -224,19 +255,34 @@ def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6
             np.asarray(weights, dtype=np.float64).reshape(n, -1)[keep]
     named = _named_models(models, s, origin, chipnum)
     min_sep, max_sep = rho_bins(X, s)
-    predicted = {}
+    predicted, renders = {}, {}
+    # undersampled stars: each model that can is drawn at the stars' sub-pixel positions
+    # and moved by drawing it again (a Fourier shift of its sampled stamp would alias)
+    phase = X[:, :2] - np.floor(X[:, :2] + 0.5) if _undersampled_stars(cube, weights) \
+        else None
     for name, (model, kind) in named.items():
         width = np.shape(getattr(model, "X_fit_", np.zeros((0, 2))))[1]
         if width > X.shape[1]:
             raise InputError(f"model {name!r} has {width - 2} dimensions after x, y (catalogue "
                              f"keys) but X gives {X.shape[1] - 2}")
-        predicted[name] = _fit_size(model.predict(X[:, :width]), s)
-    moments = _common_moments(cube, weights, predicted.values())
+        render = None if phase is None else _renderer(model, X[:, :width], s)
+        if render is not None:
+            predicted[name], renders[name] = render(phase), render
+        else:
+            predicted[name] = _fit_size(model.predict(X[:, :width]), s)
+            if phase is not None:  # a model drawn centred only: moved to the star's phase
+                moved = np.fft.rfft2(predicted[name].reshape(-1, s, s)) \
+                    * phase_ramp(s, phase[:, 0], phase[:, 1])
+                predicted[name] = np.fft.irfft2(moved, s=(s, s)).reshape(len(X), -1)
+    # undersampled stars are measured as they are (not moved) with a fixed weight
+    moments = FIXED_WEIGHT_SIGMA if phase is not None else \
+        _common_moments(cube, weights, predicted.values())
     results, rows = {}, []
     for name, (model, kind) in named.items():
         table, summary = measure_residuals(X, cube, predicted[name], weights=weights, wcs=wcs,
                                            min_sep=min_sep, max_sep=max_sep, nbins=nbins,
-                                           index=index, moments=moments)
+                                           index=index, moments=moments,
+                                           render=renders.get(name))
         results[name] = (table, summary)
         ok = np.asarray(table["flag"]) == 0
         row = {"model": name, "kind": kind,

@@ -89,7 +89,9 @@ class ExposureInputs(NamedTuple):
     catalog : astropy.table.Table or None
         The catalogue (0-based ``x``, ``y``), None without one.
     saturation : float or None
-        The saturation level given, else the header's ``SATURATE``.
+        The saturation level given, else the header's ``SATURATE``, else the level at which
+        the catalogue's brightest sources' peaks pile up
+        (:func:`~sklearn_psf.io.saturation_level`).
     gain : float or None
         ``GAIN`` (else ``SEXGAIN``) of the header, e-/ADU.
     image_path, catalog_path : str or None
@@ -104,6 +106,9 @@ class ExposureInputs(NamedTuple):
     gain: float | None
     image_path: str | None = None
     catalog_path: str | None = None
+    #: Where ``saturation`` comes from: "given", "header", "catalogue peaks" (with the
+    #: number of sources piled up there) or None.
+    saturation_source: str | None = None
 
     @property
     def has_vignettes(self) -> bool:
@@ -189,7 +194,7 @@ def read_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     >>> inputs.has_vignettes, inputs.default_stamp_size, inputs.image_shape
     (True, 15, None)
     """
-    from ..io import read_catalog, read_image
+    from ..io import read_catalog, read_image, saturation_level
 
     if image is None and catalog is None:
         raise InputError("Give an image, or a catalogue with VIGNET stamps.")
@@ -203,10 +208,14 @@ def read_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
             table = read_catalog(catalog, one_based=one_based, x_col=x_col, y_col=y_col)
         if data is None:
             header = table.meta.get("image_header") or {}
+    source = None if saturation is None else "given"
     if saturation is None and "SATURATE" in header:
-        saturation = float(header["SATURATE"])
+        saturation, source = float(header["SATURATE"]), "header"
+    if saturation is None and table is not None:
+        saturation, piled = saturation_level(table)
+        source = None if saturation is None else f"catalogue peaks ({piled} sources)"
     return ExposureInputs(data, weight, header, table, saturation, _gain(header),
-                          None if image is None else str(image), catalog_path)
+                          None if image is None else str(image), catalog_path, source)
 
 
 class ExposureFit:
@@ -512,6 +521,11 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
         lines.append(f"sources in the catalogue: {len(table)}"
                      f" ({'1' if table.meta['one_based'] else '0'}-based "
                      f"{table.meta['x_column']}, {table.meta['y_column']})")
+        if (inputs.saturation_source or "").startswith("catalogue"):
+            lines.append(f"saturation level: {inputs.saturation:.6g}, where the highest "
+                         f"pixels of the brightest sources pile up (the header gives no "
+                         f"SATURATE; {inputs.saturation_source}): stars peaking above 0.9 "
+                         "of it are left out (--saturation sets it)")
         if data is not None:
             x, y = np.asarray(table["x"]), np.asarray(table["y"])
             ny, nx = data.shape

@@ -177,12 +177,34 @@ class PSFExModel:
         self._wy = _resampling(ny, self.stamp_size_, self.sampling_)
         self._wx = _resampling(nx, self.stamp_size_, self.sampling_)
 
-    def predict(self, X) -> np.ndarray:
-        """Normalised PSF stamps (n, stamp_size_**2) at 0-based positions X (n, 2)."""
+    def predict(self, X, offsets=None) -> np.ndarray:
+        """Normalised PSF stamps (n, stamp_size_**2) at 0-based positions X (n, 2).
+
+        Without ``offsets``, centred: unit sum, adaptive centroid on the centre pixel. With
+        ``offsets`` ((n, 2) pixels), each star drawn at that (dx, dy) from the centre pixel
+        (the planes' middle there, Lanczos-3 at the shifted pixel centres, as PSFEx
+        resamples its model to a star), unit sum, not moved.
+        """
         X = _positions(X) + self.origin
         terms = psfex_terms(X, self.degree_, self._polzero, self._polscal)
         planes = np.tensordot(terms, self._planes, axes=(1, 0))  # (n, ny, nx)
-        return _normalised(self._wy @ planes @ self._wx.T, "PSFEx")
+        if offsets is None:
+            return _normalised(self._wy @ planes @ self._wx.T, "PSFEx")
+        off = np.asarray(offsets, dtype=np.float64).reshape(len(X), 2)
+        _, ny, nx = self._planes.shape
+        pixel = np.arange(self.stamp_size_) - (self.stamp_size_ - 1) / 2.0
+        out = np.empty((len(X), self.stamp_size_ ** 2))
+        for lo in range(0, len(X), 256):  # the per-star weights in chunks
+            sl = slice(lo, lo + 256)
+            wy, wx = (_lanczos3((pixel[None, :, None] - off[sl, k, None, None]) / self.sampling_
+                                - (np.arange(m) - (m - 1) / 2.0)[None, None, :])
+                      for k, m in ((1, ny), (0, nx)))
+            out[sl] = (wy @ planes[sl] @ wx.transpose(0, 2, 1)).reshape(len(wy), -1)
+        total = out.sum(axis=1, keepdims=True)
+        if not (total > 0).all():
+            raise ValueError(f"The PSFEx model gives no positive flux at "
+                             f"{int(np.sum(~(total > 0)))} of {len(X)} positions.")
+        return out / total
 
 
 class PiffModel:

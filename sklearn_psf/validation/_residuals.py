@@ -63,6 +63,8 @@ def shape_moments(sigma):
 
 #: Gauss-Newton steps of the sub-pixel shift fitted with each model's flux and background.
 SHIFT_STEPS = 4
+#: Step (pixels) of the central differences of a model drawn again along its shift.
+SHIFT_DELTA = 0.01
 
 
 def _fit_linear(d, w, m):
@@ -89,37 +91,56 @@ def _centroid_shift(d, w, model):
     return np.where(np.isfinite(shift) & (np.abs(shift) < 2.0), shift, 0.0)
 
 
-def _chi2(raw, weights, model, start=None, return_model=False):
+def _chi2(raw, weights, model, start=None, return_model=False, render=None):
     """chi^2 of each raw star stamp against its model stamp, and its degrees of freedom
     (and, with ``return_model``, the fitted model stamps ``flux * model + background``).
 
     The model stamp is moved to the star by a sub-pixel shift fitted with its flux and a
     constant background (Gauss-Newton steps from ``start``, (n, 2) shifts in pixels,
-    default none; a Fourier shift), so that every model is judged at its best centring
-    whatever its centroid convention: chi^2 = sum w (star - flux * model - background)^2
-    over the unmasked pixels, with dof = their number - 4 (flux, background, shift). NaN
-    where the fit fails (no positive flux).
+    default none), so that every model is judged at its best centring whatever its
+    centroid convention: chi^2 = sum w (star - flux * model - background)^2 over the
+    unmasked pixels, with dof = their number - 4 (flux, background, shift). The shift is
+    a Fourier shift of ``model``, or, with ``render`` (``render(shifts)`` giving the
+    model's (n, p) stamps drawn with each star at that shift from the centre pixel), the
+    model drawn again at each step: a sampled stamp of an undersampled star aliases under
+    a Fourier shift. NaN where the fit fails (no positive flux).
     """
     n, p = raw.shape
     s = int(round(np.sqrt(p)))
     w = weights.reshape(n, p)
     d = np.where(w > 0, np.nan_to_num(raw.reshape(n, p)), 0.0)
     shift = np.zeros((n, 2)) if start is None else np.nan_to_num(np.asarray(start, float))
-    spectrum = np.fft.rfft2(model.reshape(n, s, s))
-    ky = np.fft.fftfreq(s)[None, :, None]
-    kx = np.fft.rfftfreq(s)[None, None, :]
-    if s % 2 == 0:  # the Nyquist frequency carries no shift (see phase_ramp)
-        ky, kx = np.where(np.abs(ky) == 0.5, 0.0, ky), np.where(np.abs(kx) == 0.5, 0.0, kx)
-    for _ in range(SHIFT_STEPS + 1):
-        moved = spectrum * phase_ramp(s, shift[:, 0], shift[:, 1])
-        m = np.fft.irfft2(moved, s=(s, s)).reshape(n, p)
+    if render is None:
+        spectrum = np.fft.rfft2(model.reshape(n, s, s))
+        ky = np.fft.fftfreq(s)[None, :, None]
+        kx = np.fft.rfftfreq(s)[None, None, :]
+        if s % 2 == 0:  # the Nyquist frequency carries no shift (see phase_ramp)
+            ky, kx = np.where(np.abs(ky) == 0.5, 0.0, ky), np.where(np.abs(kx) == 0.5, 0.0, kx)
+
+        def draw(shift, slopes):
+            moved = spectrum * phase_ramp(s, shift[:, 0], shift[:, 1])
+            m = np.fft.irfft2(moved, s=(s, s)).reshape(n, p)
+            if not slopes:
+                return m, None
+            # d(model)/d(shift) = minus the model's gradient
+            return m, [-np.fft.irfft2(moved * (2j * np.pi * k), s=(s, s)).reshape(n, p)
+                       for k in (kx, ky)]
+    else:
+        def draw(shift, slopes):
+            m = np.asarray(render(shift), dtype=np.float64).reshape(n, p)
+            if not slopes:
+                return m, None
+            return m, [(np.asarray(render(shift + h), np.float64)
+                        - np.asarray(render(shift - h), np.float64)).reshape(n, p)
+                       / (2 * SHIFT_DELTA) for h in SHIFT_DELTA * np.eye(2)]
+    for step_number in range(SHIFT_STEPS + 1):
+        last = step_number == SHIFT_STEPS
+        m, slopes = draw(shift, not last)
         f, b, det = _fit_linear(d, w, m)
-        if _ == SHIFT_STEPS:
+        if last:
             break
-        # d(model)/d(shift) = minus the model's gradient; solve for the shift's step
-        gx = np.fft.irfft2(moved * (2j * np.pi * kx), s=(s, s)).reshape(n, p)
-        gy = np.fft.irfft2(moved * (2j * np.pi * ky), s=(s, s)).reshape(n, p)
-        G = np.stack([m, np.ones_like(m), -f[:, None] * gx, -f[:, None] * gy], axis=1)
+        G = np.stack([m, np.ones_like(m), f[:, None] * slopes[0], f[:, None] * slopes[1]],
+                     axis=1)
         resid = d - f[:, None] * m - b[:, None]
         Gw = G * w[:, None, :]
         normal = Gw @ G.transpose(0, 2, 1)
@@ -161,7 +182,8 @@ def _fixed_sigma(moments, d, w, usable):
 
 
 def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=None,
-                      max_sep=None, nbins: int = 6, index=None, moments="auto"):
+                      max_sep=None, nbins: int = 6, index=None, moments="auto",
+                      render=None):
     """Star-minus-model residuals of PSF stamps at given stars, and their summary.
 
     The stars are normalised (:class:`~sklearn_psf.preprocessing.StampNormalizer`: unit
@@ -182,6 +204,8 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
     then be the model drawn at each star's sub-pixel position (e.g.
     ``PSFModel.predict(X, offsets=...)``, as :func:`fit_and_validate` does); the chi^2's
     shift then starts from none (a model drawn centred is moved to the star all the same).
+    A Fourier shift of an undersampled model stamp aliases: give ``render`` to fit the
+    chi^2's shift by drawing the model again at each step.
 
     Parameters
     ----------
@@ -209,6 +233,12 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
         Adaptive moments, or fixed-weight moments of that sigma (pixels) for undersampled
         stars; "auto": adaptive unless they fail on more than half of the stars (then
         sigma 1.5 pixels). See above.
+    render : callable, optional
+        ``render(offsets)``: the model's stamps at X drawn with each star at ``offsets``
+        ((n, 2) pixels from the centre pixel), e.g. ``lambda o: model.predict(X,
+        offsets=o)``. The chi^2's shift is then fitted by drawing the model again, from
+        each star's position in its stamp, ``X - floor(X + 0.5)`` (the stamps' centre
+        convention, :func:`~sklearn_psf.io.extract_vignettes`).
 
     Returns
     -------
@@ -319,7 +349,11 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
         for q in ("M22", "M31", "M13"):  # fourth moments: spin 0, spin 2 (star - model)
             table[f"d{q}"] = np.where(ok, np.asarray(fs[q]) - np.asarray(fm[q]), np.nan)
         table["resid_rms"] = np.sqrt(np.mean((star - pred) ** 2, axis=1))
-        chi2, dof = _chi2(y, w, pred, _centroid_shift(d, w, pred) if sigma is None else None)
+        if render is not None:  # the model drawn again at each shift, from the star's phase
+            chi2, dof = _chi2(y, w, pred, X[:, :2] - np.floor(X[:, :2] + 0.5), render=render)
+        else:
+            chi2, dof = _chi2(y, w, pred,
+                              _centroid_shift(d, w, pred) if sigma is None else None)
         # every star with a usable stamp has its chi^2, whether or not moments are measured
         table["chi2"] = np.where(usable, chi2, np.nan)
         table["dof"] = np.where(usable & np.isfinite(chi2), dof, 0)
