@@ -275,19 +275,33 @@ def saturation_level(catalog, *, min_sources: int = 5, tolerance: float = 0.005)
 def _size(table, rows=None):
     """(size, name) of each source: with ``rows`` and ``VIGNET``s, the sigma (:func:`_sigma`)
     of those rows' VIGNETs with their neighbours masked (:func:`neighbour_masks`; NaN
-    elsewhere); else ``flux_radius``; else the sigma of the ``VIGNET``."""
+    where not measurable); else ``flux_radius``; else the sigma of the ``VIGNET``. A VIGNET
+    that sums to no positive flux, or whose sigma is not measured, is measured again with
+    its local level removed (the median of its unmasked pixels within 3 of the border): a
+    background off by a fraction of the sky noise is a pedestal that outweighs a faint star
+    over a whole VIGNET (most stars of a DSLR frame's catalogue)."""
     vig = _vignettes(table)
     radius = _column(table, "flux_radius")
     if vig is not None and len(vig) and rows is not None and vig.shape[1] == vig.shape[2]:
+        rows = np.asarray(rows)
         sub = vig[rows]
         valid = (np.isfinite(sub) & (sub > -1e29)
                  & ~neighbour_masks(table, rows, vig.shape[1]))
-        data = np.where(valid, sub, 0.0)
-        # measurable: enough unmasked pixels and a positive flux
-        ok = (valid.sum(axis=(1, 2)) >= 9) & (data.sum(axis=(1, 2)) > 0)
         sigma = np.full(len(table), np.nan)
-        if ok.any():
-            sigma[np.asarray(rows)[ok]] = _sigma(data[ok], valid[ok], vig.shape[1])
+        data = np.where(valid, sub, 0.0)
+        for again in (False, True):
+            if again:  # the others, their local level removed
+                border = np.ones(sub.shape[1:], dtype=bool)
+                border[3:-3, 3:-3] = False
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)  # no border pixel left
+                    level = np.nanmedian(np.where(valid & border, sub, np.nan), axis=(1, 2))
+                data = np.where(valid, sub - np.nan_to_num(level)[:, None, None], 0.0)
+            # measurable: enough unmasked pixels and a positive flux
+            ok = ~np.isfinite(sigma[rows]) & (valid.sum(axis=(1, 2)) >= 9) \
+                & (data.sum(axis=(1, 2)) > 0)
+            if ok.any():
+                sigma[rows[ok]] = _sigma(data[ok], valid[ok], vig.shape[1])
         return sigma, "adaptive_sigma_masked"
     if radius is not None:
         return radius, "flux_radius"
