@@ -12,20 +12,12 @@ from sklearn.utils._param_validation import Interval, StrOptions
 from sklearn.utils.validation import check_is_fitted
 
 from ..measure import adaptive_moments, fixed_moments
-from ._pca import (
-    FALLBACK_SIGMA,
-    StampPCA,
-    _border_level,
-    _has_background,
-    _model_weights,
-    _poisson_slope,
-    _star_weights,
-    _sum_zero,
-    _variances,
-    _weighted_pca,
-)
+from ._pca import FALLBACK_SIGMA, StampPCA
 from ._noise import correlated_noise_factor, noise_correlation, standardised_residuals
 from ._normalize import phase_ramp
+from ._pca_noise import _star_weights, _sum_zero, _weighted_pca
+from ._stamp_weights import (_border_level, _has_background, _model_weights, _poisson_slope,
+                             _variances)
 from ._superres_grid import _CHUNK, _FineGrid
 
 __all__ = ["SuperResolvedPCA", "stamp_fwhm", "UNDERSAMPLED_FWHM"]
