@@ -1,5 +1,5 @@
 """The layout: subpackages import each other in one direction (library -> study -> cli),
-with no circle, counting imports inside functions too."""
+with no circle, counting imports inside functions too; no module is over 800 lines."""
 
 import ast
 import pathlib
@@ -41,3 +41,14 @@ def test_library_imports_neither_study_nor_cli():
     upward = {name: sorted(edges.get(name, set()) & {"study", "cli"}) for name in LIBRARY}
     assert not any(upward.values()), upward
     assert "cli" not in edges.get("study", set())
+
+
+#: The longest a module of the package may be (issue 50: a module a reader can hold).
+MAX_MODULE_LINES = 800
+
+
+def test_no_module_over_max_lines():
+    lines = {str(path.relative_to(ROOT)): len(path.read_text().splitlines())
+             for path in sorted(ROOT.rglob("*.py"))}
+    long = {name: n for name, n in lines.items() if n > MAX_MODULE_LINES}
+    assert not long, f"modules over {MAX_MODULE_LINES} lines: {long}"

@@ -7,6 +7,7 @@ import warnings
 import numpy as np
 
 from .._validation import as_stamps, rows_text
+from ._pca_noise import _weighted_pca
 
 __all__ = ["estimate_pixel_weights", "check_pixel_weights"]
 
@@ -344,8 +345,6 @@ def correlated_noise_factor(kernel, variances, star_weights, s, pixels=None, dra
     """
     if kernel is None:
         return 1.0
-    from ._pca import _weighted_pca
-
     L = kernel.shape[0] // 2
     grid = np.zeros((s, s))
     for dy in range(-L, L + 1):

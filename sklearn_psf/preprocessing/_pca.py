@@ -9,8 +9,6 @@ from typing import NamedTuple
 
 import numpy as np
 import scipy.fft
-from scipy.linalg import eigh
-from scipy.optimize import minimize_scalar
 from sklearn.base import (
     BaseEstimator,
     ClassNamePrefixFeaturesOutMixin,
@@ -23,8 +21,12 @@ from sklearn.utils.validation import check_is_fitted, validate_data
 from ..measure import adaptive_moments, fixed_moments
 from ._normalize import fourier_shift, phase_ramp
 from .._validation import rows_text
-from ._noise import (_nanmedian, check_pixel_weights, correlated_noise_factor,
+from ._noise import (check_pixel_weights, correlated_noise_factor,
                      estimate_pixel_weights, noise_correlation, standardised_residuals)
+from ._pca_noise import (_core, _rings, _star_weights, _sum_zero, _weighted_pca, noise_edge,
+                         radial_wings)
+from ._stamp_weights import (_border_level, _has_background, _mean_variance, _model_weights,
+                             _poisson_slope, _variances)
 
 __all__ = ["StampPCA", "StampFit", "StampFitWarning", "FIT_OK", "FIT_NO_CENTROID",
            "FIT_NO_FLUX"]
@@ -41,7 +43,6 @@ FALLBACK_SIGMA = 1.5
 FIT_NO_FLUX = 2
 
 _CHUNK = 256  # stars per batch of shifted basis images
-_TRACY_WIDOM_99 = 2.0234  # 99th percentile of the Tracy-Widom law (real case, TW1)
 #: Gauss-Newton steps on the offsets of stars with masked pixels, each with its template
 _REFINE = ("mean", "mean", "model", "model")
 
@@ -97,242 +98,6 @@ def _with_constant(A, extra):
     if not extra:
         return A
     return np.concatenate([A, np.ones((A.shape[0], 1, A.shape[2]))], axis=1)
-
-
-def _variances(w):
-    """Pixel variances ``1 / w`` of the weights ``w``, 0 where a pixel is masked (``w = 0``)."""
-    m = w > 0
-    return np.where(m, 1.0 / np.where(m, w, 1.0), 0.0)
-
-
-def _poisson_slope(d, w):
-    """Slope ``c`` when each stamp's pixel variances ``1 / w`` are exactly ``sky + c *
-    max(pixel, 0)`` (one ``sky`` per stamp): weights whose Poisson part was computed from
-    the noisy pixels themselves (:func:`~sklearn_psf.io.extract_vignettes` with a gain, as
-    ``sklearn-psf fit --stars`` reads a catalogue, ``c = 1 / gain``); 0 for any other
-    weights."""
-    m = w > 0
-    cnt = np.maximum(m.sum(axis=1), 1)[:, None]
-    v = _variances(w)
-    x = np.where(m, np.maximum(d, 0.0), 0.0)
-    xc = np.where(m, x - x.sum(axis=1, keepdims=True) / cnt, 0.0)
-    vc = np.where(m, v - v.sum(axis=1, keepdims=True) / cnt, 0.0)
-    sxx = float((xc**2).sum())
-    if not sxx > 0:
-        return 0.0
-    c = float((xc * vc).sum()) / sxx
-    exact = ((vc - c * xc) ** 2).sum() <= 1e-8 * (vc**2).sum()
-    return c if c > 0 and exact else 0.0
-
-
-def _model_weights(d, w, predicted, c):
-    """The weights ``w`` with their Poisson part ``c * max(pixel, 0)`` (see
-    :func:`_poisson_slope`) taken from the stars' predicted pixels (NaN: kept) instead of
-    the noisy ones, which give the pixels where the noise is up less weight and so bias
-    the fit low (by ``c`` per pixel)."""
-    if not c:
-        return w
-    m = w > 0
-    var = 1.0 / np.where(m, w, 1.0) + c * (np.maximum(predicted, 0.0) - np.maximum(d, 0.0))
-    return np.where(m & np.isfinite(predicted), 1.0 / np.where(m, var, 1.0), w)
-
-
-def _border_level(d, w, s, border=2):
-    """Median of each stamp's unmasked pixels in its outer ring of ``border`` pixels (0 when
-    the ring is all masked), a first estimate of its local background, and the noise of that
-    median (1.2533 sigma / sqrt(pixels))."""
-    ring = np.ones((s, s), dtype=bool)
-    ring[border:s - border, border:s - border] = False
-    good = w[:, ring.ravel()] > 0
-    edge = np.where(good, d[:, ring.ravel()], np.nan)
-    var = np.where(good, 1.0 / np.where(good, w[:, ring.ravel()], 1.0), np.nan)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-masked rings: 0 below
-        level = _nanmedian(edge, axis=1)
-        noise = 1.2533 * np.sqrt(_nanmedian(var, axis=1) / np.maximum(good.sum(axis=1), 1))
-    ok = np.isfinite(level) & np.isfinite(noise)
-    return np.where(ok, level, 0.0), np.where(ok, noise, np.inf)
-
-
-def _has_background(d, w, s):
-    """Whether the stamps' borders show a local background that a PSF's wings cannot make.
-
-    A PSF's wings put on each stamp's border a level proportional to the star's flux,
-    positive, and nearly the same fraction of it for every star (2.4% scatter in the
-    package's simulations). The stamps have a background when more than 5% of them have a
-    border median more than 4 times its noise (plus 10% of the wings' level) away from that
-    proportion, or when the common proportion is negative.
-    """
-    level, noise = _border_level(d, w, s)
-    flux = ((d - level[:, None]) * (w > 0)).sum(axis=1)
-    good = (flux > 0) & np.isfinite(noise)
-    if good.sum() < 2:
-        return False
-    kappa = max(float(np.median(level[good] / flux[good])), 0.0)
-    wings = kappa * flux[good]
-    off = np.abs(level[good] - wings) > 4.0 * np.hypot(noise[good], 0.1 * wings)
-    return bool(off.mean() > 0.05)
-
-
-def _weighted_pca(x, u, n_top):
-    """Weighted mean, the n_top principal axes (rows), their variances, the total variance.
-
-    The eigenproblem is solved on the smaller Gram matrix of the weighted, centred rows.
-    """
-    total = u.sum()
-    mean = u @ x / total
-    z = np.sqrt(u / total)[:, None] * (x - mean)
-    small = z @ z.T if z.shape[0] <= z.shape[1] else z.T @ z
-    m = small.shape[0]
-    n_top = min(n_top, m)
-    lam, vec = eigh(small, subset_by_index=[m - n_top, m - 1])
-    lam, vec = np.maximum(lam[::-1], 0.0), vec[:, ::-1]
-    if z.shape[0] <= z.shape[1]:
-        axes = vec.T @ z
-        axes /= np.maximum(np.linalg.norm(axes, axis=1, keepdims=True), 1e-300)
-    else:
-        axes = vec.T
-    return mean, axes, lam, float(np.trace(small))
-
-
-def _star_weights(v, usable, cap):
-    """PCA weight of each star, ``1 / v`` (its S/N), capped at ``cap`` times the median of
-    the usable stars; 0 for unusable ones."""
-    u = np.where(usable, 1.0 / np.maximum(v, 1e-300), 0.0)
-    return np.minimum(u, cap * np.median(u[usable]))
-
-
-def _sum_zero(axes, mean):
-    """Orthonormal components summing to zero that span, with the unit-sum ``mean``, what the
-    ``axes`` span with it (in their order)."""
-    if not len(axes):
-        return axes
-    q, r = np.linalg.qr((axes - np.outer(axes.sum(axis=1), mean)).T)
-    return (q * np.where(np.diag(r) < 0, -1.0, 1.0)).T
-
-
-def _mean_variance(w, scale, u):
-    """Per-pixel noise variance of the weighted mean ``sum_i u_i x_i / sum(u)`` of the
-    normalised stamps ``x_i = d_i / scale_i`` (pixel variances ``1 / w``; masked pixels,
-    filled from a model, add none)."""
-    c = u / u.sum()
-    return (c**2 / np.where(c > 0, scale, 1.0) ** 2) @ _variances(w)
-
-
-def _rings(s):
-    """Each pixel's ring about the centre of an s x s stamp: ``floor(r)``, r in pixels."""
-    yy, xx = np.mgrid[0:s, 0:s] - (s - 1) / 2.0
-    return np.floor(np.hypot(xx, yy)).astype(np.int64).ravel()
-
-
-def _core(mean, s, level=1e-2):
-    """Where the mean stamp exceeds ``level`` of its peak, grown by one pixel: the PSF's
-    core, where its variations show (as :class:`SuperResolvedPCA`'s components' support)."""
-    from scipy.ndimage import binary_dilation
-
-    core = (mean > level * mean.max()).reshape(s, s)
-    return binary_dilation(core).ravel()
-
-
-def radial_wings(mean, var, s, correlation=1.0):
-    """The mean PSF stamp with the noise of its faint wings taken out, ring by ring, and the
-    radius of its support.
-
-    In each 1-pixel ring about the centre, the mean is split into its ring average (the
-    azimuthal profile) and each pixel's departure from it; each part is kept in proportion
-    to its signal's share of signal plus noise (a Wiener factor): the profile by
-    ``max(P^2 - N^2, 0) / P^2`` (``N^2`` the noise of the ring's average), the departures by
-    ``S^2 / (S^2 + var)`` (``S^2`` their variance in the ring in excess of the pixels'
-    noise). Where the stars measure the PSF well (the core) nothing changes; in the wings,
-    where a single pixel of the mean holds more noise than PSF, what remains is the profile
-    averaged over the ring (its noise divided by the ring's pixel count) and the shape the
-    noise does not drown; beyond the last ring the stars detect, zero. The support radius is
-    the first ring whose profile falls below its pixels' noise (infinite when none does).
-
-    Parameters
-    ----------
-    mean : ndarray of shape (s*s,)
-    var : ndarray of shape (s*s,)
-        Noise variance of each pixel of ``mean``.
-    s : int
-    correlation : float, default=1
-        How much more noise a ring's average holds than its pixels' independent noise
-        would give (the sum of the noise's correlation over lags: 1 for white noise).
-
-    Returns
-    -------
-    denoised : ndarray of shape (s*s,)
-    radius : float
-    """
-    ring = _rings(s)
-    count = np.bincount(ring).astype(np.float64)
-    profile = np.bincount(ring, mean) / count
-    dev = mean - profile[ring]
-    noise = correlation * np.bincount(ring, var) / count**2
-    excess = np.maximum(np.bincount(ring, dev**2 - var * (1.0 - 1.0 / count[ring])) / count,
-                        0.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        keep_profile = np.where(profile**2 > noise, 1.0 - noise / profile**2, 0.0)
-        keep_dev = np.where(excess[ring] + var > 0, excess[ring] / (excess[ring] + var), 1.0)
-    below = np.flatnonzero(np.abs(profile) < np.sqrt(np.bincount(ring, var) / count))
-    radius = float(below[0]) if below.size else np.inf
-    return profile[ring] * keep_profile[ring] + keep_dev * dev, radius
-
-
-def noise_edge(contributions, p: int, quantile: bool = False) -> float:
-    """Largest eigenvalue of ``sum_i c_i z_i z_i^T`` for ``z_i`` standard normal in ``p``
-    dimensions, as the number of terms and ``p`` grow (the edge of the generalised
-    Marchenko-Pastur law), or its 99th percentile for a finite sample.
-
-    The upper edge of the support is ``p * min x(m)`` over ``-1 / max(c) < m < 0`` with
-    ``x(m) = -1/m + sum_i c_i / (1 + c_i m) / p`` (Silverstein & Choi 1995). For equal
-    ``c_i = sigma^2 / n`` this is Marchenko-Pastur's ``sigma^2 (1 + sqrt(p / n))^2``. With
-    ``quantile=True``, the edge is raised by the 99th percentile of the Tracy-Widom law on
-    Johnstone's (2001) scale, with ``n`` the effective number of terms
-    ``(sum c)^2 / sum c^2`` less one (a mean removed): pure noise exceeds it in 1% of
-    samples.
-
-    Parameters
-    ----------
-    contributions : array-like of shape (n,)
-        ``c_i >= 0``: each term's weight times its noise variance.
-    p : int
-        Dimension.
-    quantile : bool, default=False
-        The 99th percentile for a finite sample instead of the asymptotic edge.
-
-    Returns
-    -------
-    edge : float
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from sklearn_psf.preprocessing._pca import noise_edge
-    >>> round(float(noise_edge(np.full(1000, 1e-3), 625) / (1 + np.sqrt(0.625)) ** 2), 6)
-    1.0
-    """
-    c = np.asarray(contributions, dtype=np.float64)
-    c = c[c > 0]
-    if not c.size:
-        return 0.0
-    c_max = c.max()
-
-    def x(t):  # t = m * c_max in (-1, 0)
-        m = t / c_max
-        return -1.0 / m + np.sum(c / (1.0 + c * m)) / p
-
-    t = minimize_scalar(x, bounds=(-1.0 + 1e-12, -1e-12), method="bounded",
-                        options={"xatol": 1e-12}).x
-    edge = float(p * x(t))
-    if not quantile:
-        return edge
-    # Johnstone (2001): the largest eigenvalue fluctuates about the edge on the scale
-    # (1/sqrt(n) + 1/sqrt(p))^(1/3) / (sqrt(n) + sqrt(p)) (relative), n the effective number
-    # of terms less the one the mean removes, following the Tracy-Widom law
-    n = max(c.sum() ** 2 / (c**2).sum() - 1.0, 1.0)
-    scale = (1.0 / np.sqrt(n) + 1.0 / np.sqrt(p)) ** (1.0 / 3.0) / (np.sqrt(n) + np.sqrt(p))
-    return edge * (1.0 + _TRACY_WIDOM_99 * scale)
 
 
 class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator):

@@ -1,0 +1,309 @@
+"""The fine grid of :class:`~sklearn_psf.preprocessing.SuperResolvedPCA`: its geometry and
+Fourier operators (drawing fine images at a star's pixels for its sub-pixel offset, by two
+1-D periodic sinc matrices, and the adjoint), the joint least-squares fit of the fine images
+through all stars (conjugate gradients on normal equations computed once per solve as a
+convolution in frequency) and the band limit of the images (the disc of frequencies they
+hold, and its ``"auto"`` choice by the Fourier ring correlation of two half fits). They
+live on :class:`_FineGrid`, a mixin that ``SuperResolvedPCA`` inherits: the star fits, the
+components and the estimator API stay in ``_superres``."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import fft as sfft
+from scipy.fft import next_fast_len
+
+_CHUNK = 64  # stars at once (the arrays of a chunk stay in the caches)
+_CG_ITER = 100
+_CG_TOL = 1e-7  # relative residual of the conjugate gradients (a Gauss-Newton step: _GN_TOL)
+_RING = 0.1  # cycles per pixel: width of the Fourier rings of band_limit="auto"
+_RING_THRESHOLD = 1.0 / 7.0  # band_limit="auto": ring correlation where the signal ends
+_RING_STARS = 2.5  # band_limit="auto": usable stars per half and per fine sample of a pixel,
+# at least (10 per half at oversampling 2: with fewer the halves' fits stop short of the
+# band that all the stars resolve, e.g. 0.57-0.67 cycle per pixel for 2-12 Euclid-like stars)
+
+
+class _FineGrid:
+    """The fine grid's geometry, draws, joint fit and band limit (a mixin of
+    :class:`~sklearn_psf.preprocessing.SuperResolvedPCA`, which sets ``stamp_size_``,
+    ``oversampling_`` and ``band_limit_`` before using them)."""
+
+    # -- geometry -----------------------------------------------------------------------------
+    def _grid(self, s):
+        f = self.oversampling_
+        size = f * s if (f * s) % 2 else f * s + 1
+        return f, size, (size - 1) // 2 - f * ((s - 1) // 2)  # factor, side, first sample
+
+    def _interp(self, shifts, derivative=False):
+        """1-D matrices (b, s, S) drawing a fine image's rows (or columns) at the pixels of
+        stars shifted by ``shifts`` (b,) pixels, so that a star's pixels are
+        ``f**2 * Ly @ X @ Lx.T``: the fine grid's periodic sinc (Fourier) interpolation at
+        the samples ``o + f r - f t`` (the Dirichlet kernel of the odd side S), what a
+        Fourier shift of the fine grid followed by keeping every f-th sample gives, at
+        O(s S) per row instead of an FFT of the grid per star and image. With
+        ``derivative``, their derivatives along the shifts."""
+        s = self.stamp_size_
+        f, size, o = self._grid(s)
+        lags = o + f * np.arange(s)[:, None] - np.arange(size)[None, :]  # sample - fine index
+        first = lags.min()
+        # the kernel at every lag (c - f t, c integer), then each row's lags taken from it
+        tau = np.pi / size * (np.arange(first, lags.max() + 1)[None, :]
+                              - f * np.asarray(shifts, dtype=np.float64)[:, None])
+        num, den = np.sin(size * tau), np.sin(tau)
+        flat = np.abs(den) < 1e-12  # tau a multiple of pi: the kernel's peak, S / S = 1
+        den = np.where(flat, 1.0, den)
+        kernel = np.where(flat, 1.0, num / (size * den))[:, lags - first]
+        if not derivative:
+            return kernel
+        # d/dt = -f pi / S d/dtau of sin(S tau) / (S sin tau); 0 at the peaks
+        slope = (size * np.cos(size * tau) * den - num * np.cos(tau)) / (size * den**2)
+        return kernel, np.where(flat, 0.0, -f * np.pi / size * slope)[:, lags - first]
+
+    def _draw(self, fine, offsets, a=None, gradient=False):
+        """Stars' pixels (b, m, p) of the m fine images ``fine`` (m, S*S) at the b stars'
+        ``offsets``; with ``a`` (b, m), of each star's combination ``a_b @ fine`` (b, p).
+        With ``gradient``, also a function of ``amp`` (b, m), or (b, 1) with ``a``, giving
+        the derivatives (b, 2, p) along the offsets (x, y) of the stars' images
+        ``amp_b @ fine`` (``amp_b * a_b @ fine`` with ``a``)."""
+        s = self.stamp_size_
+        f, size, _ = self._grid(s)
+        b = len(offsets)
+        if gradient:
+            (ly, dly), (lx, dlx) = (self._interp(offsets[:, i], derivative=True) for i in (1, 0))
+        else:
+            ly, lx = self._interp(offsets[:, 1]), self._interp(offsets[:, 0])
+        if a is None:  # each image's rows at the stars' phases, then their columns
+            m = len(fine)
+            images = fine.reshape(m, size, size)
+            rows = ly @ images.transpose(1, 0, 2).reshape(size, m * size)
+            rows = np.ascontiguousarray(rows.reshape(b, s, m, size).transpose(0, 2, 1, 3))
+        else:
+            images = (a @ fine).reshape(b, 1, size, size)
+            rows = ly[:, None] @ images
+        pix = (f * f) * (rows.reshape(b, -1, size) @ lx.transpose(0, 2, 1)).reshape(b, -1, s * s)
+        if a is not None:
+            pix = pix[:, 0]
+        if not gradient:
+            return pix
+
+        def slope(amp):
+            """d/d(offset x, y) of the stars' images weighted by ``amp``."""
+            dx = np.einsum("bi,bisw->bsw", amp, rows) @ dlx.transpose(0, 2, 1)
+            if a is None and len(fine) == 1:  # one image for all: its rows in one product
+                dy = amp[:, :, None] * (dly.reshape(-1, size) @ images[0]).reshape(b, s, size)
+            else:
+                combined = (amp @ fine if a is None else amp * (a @ fine))
+                dy = dly @ combined.reshape(b, size, size)
+            dy = dy @ lx.transpose(0, 2, 1)
+            return (f * f) * np.stack([dx, dy], axis=1).reshape(b, 2, s * s)
+
+        return pix, slope
+
+    def _draw_adjoint(self, pixels, offsets):
+        """Adjoint of the draw for each star: pixels (b, q, p) -> fine images (b, q, S*S)."""
+        s = self.stamp_size_
+        f, size, _ = self._grid(s)
+        ly, lx = self._interp(offsets[:, 1]), self._interp(offsets[:, 0])
+        out = ly.transpose(0, 2, 1)[:, None] @ pixels.reshape(len(pixels), -1, s, s) @ lx[:, None]
+        return (f * f) * out.reshape(len(pixels), -1, size * size)
+
+    # -- the fine images' joint fit -----------------------------------------------------------
+    def _fit_fine(self, target, u, a, offsets, fine0, J=None, tol=_CG_TOL, frame=None,
+                  band=None):
+        """Fine images x (m, S*S) minimising ``sum_n ||target_n - draw_n(a_n @ x)||^2`` in
+        the pixel weights ``u`` (n, p), conjugate gradients from ``fine0``. With ``J`` (n, q, p),
+        each star's residual is taken orthogonally (in ``u``) to the span of its rows: the
+        star's own parameters (flux, coefficients, offset, background) are profiled out, so
+        that ``target`` = the stars' residuals gives the Gauss-Newton step of all parameters
+        together (variable projection). Rows of ``frame`` are kept out of the components'
+        updates. Only the images' frequencies in ``band`` (default :meth:`_band`) are fitted."""
+        n, m = a.shape
+        size = self._grid(self.stamp_size_)[1]
+        # (``fine0`` comes band-limited, from :meth:`_settle`)
+        band = self._band() if band is None else band
+
+        def keep(x):  # components stay on the PSF's support (``frame``: 0/1 per sample)
+            if frame is not None and m > 1:
+                x = x.copy()
+                x[1:] *= frame
+            return x
+
+        if J is not None:
+            Ju = J * u[:, None, :]
+            JuJ = np.linalg.pinv(Ju @ J.transpose(0, 2, 1), hermitian=True)
+
+        def weigh(y, sl):
+            out = u[sl] * y
+            if J is not None:
+                coef = (JuJ[sl] @ (Ju[sl] @ y[:, :, None]))[:, :, 0]
+                out -= (coef[:, None, :] @ Ju[sl])[:, 0]
+            return out
+
+        normal = self._normal(u, a, offsets, band, keep, None if J is None else (Ju, JuJ))
+        rhs = 0.0
+        for lo in range(0, n, _CHUNK):
+            sl = slice(lo, min(lo + _CHUNK, n))
+            back = self._draw_adjoint(weigh(target[sl], sl)[:, None], offsets[sl])[:, 0]
+            rhs = rhs + a[sl].T @ back
+        rhs = keep(self._band_limited(rhs, band))
+        # preconditioned by the images' typical coupling (sum_n a_n a_n^T times the star's
+        # mean pixel weight); a small ridge keeps samples no star constrains at 0
+        scale = (a * u.sum(axis=1)[:, None]).T @ a / size**2  # (m, m): the images' coupling
+        diag = np.diag(scale).copy()
+        scale[np.diag_indices(m)] = np.where(diag > 0, diag, 1.0)
+        precond = np.linalg.pinv(scale, hermitian=True)
+        ridge = 1e-8 * np.diag(scale)[:, None]
+        x = fine0.copy()
+        r = rhs - normal(x) - ridge * x
+        z = precond @ r
+        rz = float((r * z).sum())
+        stop = tol**2 * float((rhs * (precond @ rhs)).sum())
+        direction = z.copy()
+        for _ in range(_CG_ITER):
+            if rz <= stop:
+                break
+            q = normal(direction) + ridge * direction
+            alpha = rz / float((direction * q).sum())
+            x += alpha * direction
+            r -= alpha * q
+            z = precond @ r
+            rz_new = float((r * z).sum())
+            direction = z + (rz_new / rz) * direction
+            rz = rz_new
+        return x
+
+    def _normal(self, u, a, offsets, band, keep, projected=None):
+        """The normal operator x -> sum_n a_n a_n^T (x) D_n^T W_n D_n x of the fine images'
+        least squares (D_n: star n's draw, held to ``band``; W_n: its pixel weights ``u``,
+        less the projection ``projected`` = (Ju, pinv(Ju J^T)) of its own parameters), with
+        ``keep`` on both sides.
+
+        Drawing a band-limited image at the pixels of a star at offset t samples its Fourier
+        series at the points z = o + f r - f t, so in frequency the weighted sum over the
+        stars is a convolution: (D^T W D x)^(k) = f^4 / S^2 B(k) sum_k' G(k - k') B(k')
+        x^(k'), with G(q) = sum_(n, r) a_n a_n^T u_n(r) exp(-2 pi i q.z_nr / S) (a
+        non-uniform Fourier sum of the weights, separable for each star's square of pixels)
+        for the |q| <= 2K that the band's frequencies |k| <= K reach. It is computed once
+        here and applied by FFTs of side L >= 4K + 1 (the convolution without
+        wrap-around): a cost per iteration independent of the number of stars, instead of
+        two FFTs of the fine grid per star and image (the Toeplitz form of non-uniform FFT
+        least squares). The projection is rank q per star: the spectra of its images
+        D_n^T Ju_n^T are kept, on the band."""
+        n, m = a.shape
+        s = self.stamp_size_
+        f, size, o = self._grid(s)
+        half = (size + 1) // 2
+        ky = np.round(np.fft.fftfreq(size) * size).astype(int)  # rfft2's rows' frequencies
+        used = band > 0
+        reach = max(int(np.abs(ky[used.any(axis=1)]).max(initial=0)),
+                    int(np.flatnonzero(used.any(axis=0)).max(initial=0)))
+        top = min(2 * reach, size - 1)
+        big = next_fast_len(max(2 * top + 1, size), real=True)
+        q = np.arange(-top, top + 1)
+        base_y = np.exp(-2j * np.pi / size * np.outer(q, o + f * np.arange(s)))  # (2Q + 1, s)
+        base_x = base_y[top:]  # q >= 0: the half plane (Q + 1, s)
+        i, j = np.triu_indices(m)
+        kernel = np.zeros((len(i), len(q), top + 1), dtype=complex)
+        for lo in range(0, n, _CHUNK):
+            sl = slice(lo, min(lo + _CHUNK, n))
+            h = base_y @ u[sl].reshape(-1, s, s) @ base_x.T  # (b, 2Q + 1, Q + 1)
+            h *= np.exp(2j * np.pi * f / size * q[None, :, None] * offsets[sl, 1, None, None])
+            h *= np.exp(2j * np.pi * f / size * q[None, None, top:] * offsets[sl, 0, None, None])
+            kernel += ((a[sl, i] * a[sl, j]).T @ h.reshape(len(h), -1)).reshape(kernel.shape)
+        padded = np.zeros((len(i), big, big // 2 + 1), dtype=complex)
+        padded[:, q % big, :top + 1] = kernel
+        g = np.empty((m, m, big, big))
+        g[i, j] = g[j, i] = sfft.irfft2(padded, s=(big, big)) * (big**2 * f**4 / size**2)
+        rows = ky % big
+        on = np.flatnonzero(used)  # the band's frequencies, and their weight in a real sum
+        parseval = np.where(np.arange(half) == 0, 1.0, 2.0)[None, :].repeat(size, 0).ravel()[on]
+        if projected is not None:  # the spectra on the band, real and imaginary parts
+            Ju, JuJ = projected
+            near = slice(top - reach, top + reach + 1)  # |k| <= K
+            at = ((ky[:, None] + reach) * (reach + 1) + np.arange(half)[None, :]).ravel()[on]
+            spectra = np.empty((n, Ju.shape[1], 2 * len(on)))
+            for lo in range(0, n, _CHUNK):
+                sl = slice(lo, min(lo + _CHUNK, n))
+                h = base_y[None, near] * np.exp(2j * np.pi * f / size * q[None, near, None]
+                                                * offsets[sl, 1, None, None])
+                w = base_x[None, :reach + 1] * np.exp(2j * np.pi * f / size
+                                                      * q[None, top:top + reach + 1, None]
+                                                      * offsets[sl, 0, None, None])
+                spec = (f * f) * (h[:, None] @ Ju[sl].reshape(len(h), -1, s, s)
+                                  @ w.transpose(0, 2, 1)[:, None])
+                spec = spec.reshape(len(h), Ju.shape[1], -1)[:, :, at]
+                spectra[sl] = np.concatenate([spec.real, spec.imag], axis=2)
+            spectra = spectra.reshape(-1, 2 * len(on))  # (n q, 2 band)
+
+        def normal(x):
+            spec = sfft.rfft2(keep(x).reshape(m, size, size)) * band
+            padded = np.zeros((m, big, big // 2 + 1), dtype=complex)
+            padded[:, rows, :half] = spec
+            y = sfft.irfft2(padded, s=(big, big))
+            conv = sfft.rfft2(np.einsum("ijyx,jyx->iyx", g, y))[:, rows, :half] * band
+            if projected is not None:  # sum_z V x = sum_k Re(conj(V^) x^) / S^2, on the band
+                flat = spec.reshape(m, -1)[:, on] * (parseval / size**2)
+                flat = np.concatenate([flat.real, flat.imag], axis=1)
+                z = np.einsum("nqm,nm->nq", (spectra @ flat.T).reshape(n, -1, m), a)
+                c = (JuJ @ z[:, :, None])[:, :, 0]
+                back = (c[:, :, None] * a[:, None, :]).reshape(-1, m).T @ spectra
+                conv = conv.reshape(m, -1)
+                conv[:, on] -= back[:, :len(on)] + 1j * back[:, len(on):]
+            return keep(sfft.irfft2(conv.reshape(m, size, half), s=(size, size)).reshape(m, -1))
+
+        return normal
+
+    def _radius(self):
+        """Radius (cycles per pixel) of each frequency of the fine grid's ``rfft2``."""
+        size = self._grid(self.stamp_size_)[1]
+        k = np.hypot(np.fft.fftfreq(size)[:, None], np.fft.rfftfreq(size)[None, :])
+        return k * self.oversampling_
+
+    def _band(self):
+        """0/1 per frequency of the fine grid's ``rfft2``: 1 within ``band_limit_`` cycles per
+        pixel (a disc, clipped by the square grid's own Nyquist frequencies)."""
+        return (self._radius() <= self.band_limit_).astype(float)
+
+    def _ring_band(self, d, u, a, offsets, usable):
+        """``band_limit="auto"``: the radius (cycles per pixel) where the stars' information
+        on the mean ends, by the Fourier ring correlation of two means, each fitted on half
+        of the usable stars with the whole square grid (cryo-electron microscopy's
+        resolution criterion): where the correlation, in rings ``_RING`` wide, falls below
+        1/7 (linear between the rings' centres); the whole grid if it does not, the grid's
+        Nyquist disc if it is below from the first ring (no information to go by) or with
+        fewer than ``2 * _RING_STARS * oversampling**2`` usable stars (20 at oversampling 2)."""
+        f, size, _ = self._grid(self.stamp_size_)
+        nyquist = f / 2.0
+        if usable.sum() < 2 * _RING_STARS * f * f:  # too few stars to split
+            return float(nyquist)
+        k = self._radius()
+        whole = np.ones_like(k)  # the halves' fits: the whole square grid
+        spectra, rows = [], np.flatnonzero(usable)
+        for half in (rows[0::2], rows[1::2]):
+            mean = self._fit_fine(d[half], u[half], a[half, :1], offsets[half],
+                                  np.zeros((1, size * size)), band=whole)
+            spectra.append(np.fft.rfft2(mean.reshape(size, size)))
+        one, two = spectra
+        corner = np.sqrt(2.0) * nyquist
+        centres = np.arange(_RING / 2.0, corner, _RING)
+        frc = np.ones(len(centres))
+        for i, c in enumerate(centres):
+            ring = np.abs(k - c) < _RING / 2.0
+            norm = np.sqrt((np.abs(one[ring]) ** 2).sum() * (np.abs(two[ring]) ** 2).sum())
+            frc[i] = np.real(one[ring] * np.conj(two[ring])).sum() / norm if norm > 0 else 0.0
+        below = np.flatnonzero(frc < _RING_THRESHOLD)
+        if not len(below):
+            return float(corner)
+        if below[0] == 0:
+            return float(nyquist)
+        i = below[0]
+        t = (frc[i - 1] - _RING_THRESHOLD) / (frc[i - 1] - frc[i])
+        return float(min(centres[i - 1] + t * _RING, corner))
+
+    def _band_limited(self, fine, band=None):
+        """Fine images (m, S*S) with their frequencies outside ``band`` (0/1 per frequency
+        of the fine grid's ``rfft2``, default :meth:`_band`) removed."""
+        size = self._grid(self.stamp_size_)[1]
+        band = self._band() if band is None else band
+        out = np.fft.irfft2(np.fft.rfft2(fine.reshape(-1, size, size)) * band, s=(size, size))
+        return out.reshape(fine.shape)
