@@ -237,7 +237,7 @@ class KrigingRegressor(_NoiseAwareInterpolator):
     :class:`FewStarsWarning`; maximum likelihood needs 10. Maximum likelihood with
     ``likelihood="exact"`` matches ``GaussianProcessRegressor(kernel=ConstantKernel() *
     Matern(nu=0.5) + WhiteKernel())`` on ``y - mean_``. Co-Kriging, the likelihood's
-    optimisation and the Kriging variance: :ref:`kriging-details` in the user guide.
+    optimisation and the Kriging variance: :ref:`Kriging in detail <kriging-details>`.
 
     Examples
     --------
