@@ -246,9 +246,10 @@ def make_psf_field(
     contaminants : dict, optional
         ``{kind: fraction of the stars}``, kinds "cosmic_ray", "neighbour", "galaxy",
         "binary"; default none. Truth: ``stars["contaminant"]``.
-    contaminant_min_snr, contaminant_ranges : float, default=0, and dict, optional
-        Least signal of each contaminant; other ranges of binaries' and neighbours' flux
-        ratio and separation (module documentation).
+    contaminant_min_snr : float, default=0
+        Least signal of each contaminant (0: their natural strength).
+    contaminant_ranges : dict, optional
+        Other flux-ratio and separation ranges of binaries and neighbours.
     n_field_cosmic_rays, n_field_galaxies : int, default=0
         Cosmic rays and extended galaxies elsewhere in the image, away from the stars.
     masked_fraction, bad_columns : float, int, default=0
@@ -261,9 +262,11 @@ def make_psf_field(
         Deprecated (use ``smallest_scale``): random-field nodes along the longer side.
     weight_fields : callable, optional
         ``weight_fields(positions)`` -> (n, n_components) fields replacing the random ones.
-    chromatic, airmass, optics_fraction : bool, float, float, default=False, None, 0.1
-        PSF by blackbody colour (``g_i``), refraction at ``airmass`` (>= 1), the optics'
-        share ``optics_fraction`` of the PSF's second moment.
+    chromatic : bool, default=False
+        Each source's PSF depends on its blackbody colour (column ``g_i``).
+    airmass, optics_fraction : float, default=None and 0.1
+        With ``chromatic``: refraction at ``airmass`` (>= 1, None: none), and the optics'
+        share of the PSF's second moment, in [0, 1].
     brighter_fatter : float, default=0
         Each PSF dilated by ``1 + brighter_fatter * (snr - min) / (max - min)``.
 
@@ -280,17 +283,14 @@ def make_psf_field(
     Examples
     --------
     >>> from sklearn_psf.simulate import make_psf_field
-    >>> field = make_psf_field(n_stars=50, n_galaxies=40, image_shape=(1000, 1200),
-    ...                        random_state=42)
+    >>> field = make_psf_field(n_stars=50, n_galaxies=40, image_shape=(1000, 1200), random_state=42)
     >>> field.image.shape, len(field.stars), field.stars["stamp"].shape[0], len(field.galaxies)
     ((1000, 1200), 50, 50, 40)
     >>> dirty = make_psf_field(n_stars=40, n_galaxies=0, image_shape=(800, 800),
     ...                        contaminants={"cosmic_ray": 0.1, "binary": 0.1},
     ...                        bad_columns=1, random_state=0)
-    >>> sorted(set(map(str, dirty.stars["contaminant"])))
-    ['', 'binary', 'cosmic_ray']
-    >>> int((dirty.weight == 0).all(axis=0).sum())
-    1
+    >>> sorted(set(map(str, dirty.stars["contaminant"]))), int((dirty.weight == 0).all(0).sum())
+    (['', 'binary', 'cosmic_ray'], 1)
     """
     if reference is None:
         reference = load_default_reference()
