@@ -66,18 +66,14 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
         Nugget as a fraction of the sill, in [0, 1]. ``"auto"``: maximum likelihood.
     n_neighbors : int, "auto" or None, default=None
         ``None``: exact Kriging with all stars (one Cholesky factorisation, cost
-        ``O(n_stars^3)``, memory ``O(n_stars^2)``, times the number of targets with a
-        per-target ``noise_var``). An integer ``k``: local Kriging, each
-        query predicted from its ``k`` nearest stars (:class:`scipy.spatial.cKDTree`,
-        small bordered systems solved in batches), for ``10^4`` stars and more (with at
-        least as many neighbours as stars: exact Kriging, the same system). ``"auto"``:
-        exact up to 1000 stars, local with 30 neighbours beyond (on simulated fields of 4000
-        stars, the PSF model's ellipticity error at the galaxies within 0.2% of the exact
-        model's).
+        ``O(n_stars^3)``, memory ``O(n_stars^2)``, per noise pattern). An integer ``k``:
+        local Kriging, each query predicted from its ``k`` nearest stars, for ``10^4``
+        stars and more (``k`` >= the stars: exact Kriging, the same system). ``"auto"``:
+        exact up to 1000 stars, local with 30 neighbours beyond (accuracy against exact
+        Kriging: ``benchmarks/bench_scale.py``).
     noise_scale : float or "auto", default=1.0
         Factor on the ``noise_var`` given to :meth:`fit` (pixel-noise estimates are often
-        off by a factor). ``"auto"``: fitted by maximum likelihood along with the other
-        hyperparameters when ``noise_var`` is given (1 otherwise).
+        off by a factor). ``"auto"``: maximum likelihood when ``noise_var`` is given.
     drift : {None, "linear", "quadratic", "auto"}, default=None
         ``None``: ordinary Kriging (constant unknown mean). ``"linear"`` / ``"quadratic"``:
         universal Kriging with an unknown polynomial mean of that degree in the
@@ -85,13 +81,10 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
         ``extra_drift="linear"``, the degree is that of the first two features, the
         features beyond them linear). ``"auto"``: the one of the three whose maximum
         likelihood has the smallest Bayesian information criterion,
-        ``-2 log L + (drift terms x targets) log(stars)`` (or ``None`` when no
-        hyperparameter is fitted by maximum likelihood): a smooth trend over the field (a
-        PSF's optics) goes to the drift instead of stretching the range of a stationary
-        field, which would then follow the stars' noise; a field without one keeps the
-        constant mean. A linear or
-        quadratic drift so chosen that leaves no correlation the stars resolve (the range at
-        its floor, see Notes) is the model, without a :class:`ShortRangeWarning`.
+        ``-2 log L + (drift terms x targets) log(stars)`` (``None`` when no hyperparameter
+        is fitted by maximum likelihood), so that a smooth trend over the field goes to the
+        drift instead of stretching the range; a drift so chosen that leaves the range at
+        its floor (see Notes) is the model, without a :class:`ShortRangeWarning`.
     anisotropy_scaling : float or "auto", default=1.0
         Geometric anisotropy, PyKrige's convention (2 features only): positions are
         rotated by ``-anisotropy_angle`` and their second coordinate multiplied by
@@ -107,11 +100,10 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
         extra feature ``j`` is ``range / extra_scaling[j]`` (one number: the same factor on
         each). ``"auto"``: one factor per extra feature by maximum likelihood (automatic
         relevance determination: a feature the values do not depend on gets a length 1000
-        times the range, and no weight), by the exact likelihood of at most
-        ``(8e6 / factorisations per step)^(1/3)`` stars (200 with one noise pattern, 117
-        with five: a subset drawn with ``random_state``), with the other ``"auto"``
-        hyperparameters fitted along with them; those are then fitted again on all the
-        stars (as set by ``likelihood``) with the factors held. Ignored with two features.
+        times the range, and no weight), by the exact likelihood of a subset of at most
+        ``(8e6 / factorisations per step)^(1/3)`` stars (200 with one noise pattern, drawn
+        with ``random_state``); the other ``"auto"`` hyperparameters are then fitted again
+        on all the stars with the factors held. Ignored with two features.
     extra_drift : {None, "linear", "quadratic"}, default=None
         ``"linear"``: the drift also holds a linear term in each feature beyond the first
         two (a trend along a colour or a magnitude, which predictions beyond the stars'
@@ -122,29 +114,24 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
         Gaussian likelihood of all the stars (one ``n x n`` Cholesky factorisation per step,
         one per target when the targets' noise differs). An int ``m``: Vecchia's
         approximation, each star conditioned on its ``m`` nearest earlier stars in a random
-        order (cost ``O(n m^3)``; the range and sills differ from the exact ones by ~1%, far
-        less than their statistical error). ``"auto"``: exact while
-        (factorisations per step) x n^3 <= 1e8 (460 stars with one noise pattern or none,
-        320 with three per-target noises, 250 with six) or when the anisotropy is fitted,
-        Vecchia with 10 neighbours beyond; ``"exact"`` on more stars is slower (``n^3`` per
-        step) but equals scikit-learn's ``GaussianProcessRegressor`` (see Notes).
+        order (cost ``O(n m^3)``; its agreement with the exact likelihood is measured by
+        ``benchmarks/bench_kriging.py --ml``). ``"auto"``: exact while (factorisations per
+        step) x n^3 <= 1e8 (460 stars with one noise pattern or none) or when the
+        anisotropy is fitted, Vecchia with 10 neighbours beyond.
     max_ml_samples : int, default=20000
         Maximum likelihood uses all the stars up to this many, a pseudo-random subset of this
-        size beyond (drawn from the positions with ``random_state``: leaving a few stars out
-        keeps the others' selection); the final Kriging system uses all stars. With
-        the anisotropy fitted and ``likelihood="auto"``, the exact likelihood runs on the
-        largest subset that keeps it cheap (1000 stars).
+        size beyond (drawn with ``random_state``); the final Kriging system uses all stars.
+        With the anisotropy fitted and ``likelihood="auto"``, the exact likelihood runs on a
+        subset of 1000 stars.
     random_state : int, RandomState instance or None, default=0
         Seed of that subset and of Vecchia's order (fixed by default, so that fits are
         reproducible).
     warm_start : bool, default=False
         When True and the regressor was fitted before on as many features, maximum
         likelihood starts from the previous fit's hyperparameters instead of its grid of
-        starting points, and ``drift="auto"`` keeps the drift it chose then (scikit-learn's
-        ``warm_start``): a refit on nearly the same stars, such as
-        :class:`~sklearn_psf.model.PSFModel`'s outlier rounds, takes a few steps. The
-        optimum is the same to the convergence tolerance unless the likelihood has several
-        maxima.
+        starting points, and ``drift="auto"`` keeps the drift it chose then: a refit on
+        nearly the same stars (:class:`~sklearn_psf.model.PSFModel`'s outlier rounds) takes
+        a few steps, to the same optimum unless the likelihood has several maxima.
 
     Attributes
     ----------
@@ -155,8 +142,8 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
     nugget_ : float
         Nugget used, as a fraction of the sill.
     sill_ : ndarray of shape (n_targets,)
-        Sill of each target: its variance over the stars with numeric ``range`` and
-        ``nugget`` (the paper), the maximum-likelihood sill otherwise.
+        Sill of each target: its variance over the stars (numeric ``range`` and ``nugget``,
+        the paper), the maximum-likelihood sill otherwise.
     coregionalization_ : ndarray of shape (n_targets, n_targets)
         Signal covariance between the targets (sills on the diagonal): fitted with
         ``noise_cov`` (co-Kriging, see Notes), ``diag(sill_)`` otherwise.
@@ -167,9 +154,8 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
     extra_scaling_ : ndarray of shape (n_features - 2,)
         Factors on the extra features (fitted when ``"auto"``; empty with two features).
     log_likelihood_ : float or None
-        Maximum of the summed log-likelihood (Vecchia's approximation of it with
-        ``likelihood_ == "vecchia"``; on the ``max_ml_samples`` subset beyond that size),
-        None without maximum likelihood.
+        Maximum of the summed log-likelihood (as set by ``likelihood_``), None without
+        maximum likelihood.
     n_neighbors_ : int or None
         Neighbours of each query in local mode, None in exact mode (``n_neighbors``,
         resolved when ``"auto"``).
@@ -179,10 +165,8 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
         Lower bound of the fitted range: the stars' spacing (median distance from a star to
         its nearest neighbour, in the units of ``X``); None when the range is not fitted.
     range_at_floor_ : bool
-        Maximum likelihood (with the nugget as set) put the range at that floor: no spatial
-        correlation the stars can resolve (see Notes); the nugget was then fitted (the whole
-        sill if the range stays at the floor: the field is then its mean) and a
-        :class:`ShortRangeWarning` issued.
+        Maximum likelihood put the range at that floor: no spatial correlation the stars
+        can resolve; the nugget was then fitted and a :class:`ShortRangeWarning` issued.
     X_fit_ : ndarray of shape (n_stars, n_features)
         Distinct star positions (duplicated positions merged when ``nugget=0``).
     y_fit_ : ndarray of shape (n_stars, n_targets)
@@ -192,15 +176,13 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
     noise_cov_ : ndarray of shape (n_stars, n_targets, n_targets) or None
         Their noise covariance given as ``noise_cov`` (after ``noise_scale_``), else None.
     n_cg_iter_ : int
-        Conjugate-gradient iterations of the co-Kriging system (exact mode with
-        ``noise_cov`` only).
+        Conjugate-gradient iterations of the co-Kriging system (exact mode, ``noise_cov``).
     drift_coef_ : ndarray of shape (n_drift_terms, n_targets)
         Generalised-least-squares drift coefficients (exact mode), in positions mapped to
-        [-1, 1] over the training bounding box; the first row is the mean for
-        ``drift=None``.
+        [-1, 1] over the training bounding box.
     mean_ : ndarray of shape (n_targets,)
-        ``drift_coef_[0]``: the GLS mean (``drift=None``) or the drift at the field's
-        centre; in local mode the mean of the targets over the stars, for reference.
+        ``drift_coef_[0]``: the GLS mean or the drift at the field's centre (local mode:
+        the targets' mean over the stars).
     dual_coef_ : ndarray of shape (n_stars, n_targets)
         ``C_t^-1 (y_t - F drift_coef_t)`` with ``C_t`` the covariance of the stars
         normalised by the sill (exact mode only).
@@ -209,57 +191,20 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
 
     Notes
     -----
-    Exact mode solves simple Kriging with the generalised-least-squares drift, which
-    for bounded variograms equals the bordered system of ordinary/universal Kriging.
-    The covariance of the stars of target ``t``, normalised by its sill, is
-    ``C_t = (1 - nugget) rho(h / a)`` off the diagonal and ``1 + noise_var_t / sill_t``
-    on it (``GaussianProcessRegressor(alpha=noise_var)``'s model): targets whose
-    noise-to-sill ratios are equal share a factorisation (all of them without noise).
-    Predictions are of the noise-free field; the Kriging variance is
-    ``sill (1 - c^T C^-1 c + u^T (F^T C^-1 F)^-1 u)``, ``u = f(x) - F^T C^-1 c``.
-
-    Co-Kriging (``fit(X, y, noise_cov=...)``, each star's noise covariance across targets):
-    the targets share the correlation ``rho`` and have a full signal covariance ``B``
-    (``coregionalization_``; an intrinsic coregionalisation model), so that
-    ``cov(y_i, y_j) = B (1 - nugget) rho_ij + delta_ij (B nugget + noise_cov_i)``. The work is
-    done in the frame ``z = y A`` of the generalised eigenvectors of the targets' sample
-    covariance against the stars' mean noise covariance, where the targets are nearly
-    independent: maximum likelihood fits the range and the signal variances of that frame's
-    targets as independent targets with their marginal noise (exactly the joint likelihood when
-    the stars' noise covariances are proportional to one another), and the joint system, with
-    every star's full noise covariance, is solved exactly by conjugate gradients projected on
-    the drift's constraint and preconditioned with the independent targets' factorisations.
-    ``return_std`` and :meth:`loo_predict` are those of the independent targets of the frame.
-
-    Without noise the variogram is 0 at distance 0, so a query exactly on a star returns
-    that star's value (and standard deviation 0) even with a nugget; between two
-    different stars the nugget applies even at distance 0 (distinct measurements), so
-    with ``nugget > 0`` stars sharing a position are kept. With ``nugget = 0`` they are
-    merged with a :class:`DuplicateStarsWarning` (values averaged, inverse-variance
-    weighted with ``noise_var``, which is exact for Kriging).
-
-    Maximum likelihood (any of ``range``, ``nugget``, ``noise_scale``,
-    ``anisotropy_scaling``, ``anisotropy_angle`` ``"auto"``) maximises the sum over
-    targets of the Gaussian log-likelihood of the stars, with shared range, nugget, noise
-    scale and anisotropy, a sill per target and the drift profiled out (generalised least
-    squares), on the log-parameters with analytic gradients, starting from the best point of
-    a small grid (three ranges, three anisotropy angles), on all the stars up to
-    ``max_ml_samples``. The exact likelihood (one Cholesky factorisation per step for all
-    targets without ``noise_var``, one per target with it) is maximised by L-BFGS-B to a
-    gradient of 1e-8 per star; it then matches
-    ``GaussianProcessRegressor(kernel=ConstantKernel() * Matern(nu=0.5) + WhiteKernel())``
-    on ``y - mean_`` (to 1e-6 in hyperparameters and predictions). Vecchia's approximation
-    (``likelihood``) is maximised by quasi-Newton steps started from its expected (Fisher)
-    information, which it gives cheaply: a few steps. The fitted range is bounded below by
-    the stars' spacing (``range_floor_``): a shorter correlation cannot be resolved by the
-    stars, and would make the field a constant with a spot at each star. When the range
-    reaches that floor (``range_at_floor_``, with a :class:`ShortRangeWarning`), the nugget
-    is fitted too, whatever its setting: the variance the stars cannot resolve goes to the
-    nugget and the field is predicted smooth; if the range stays at the floor even so, the
-    nugget is the whole sill and the field is its generalised-least-squares mean (the
-    drift). Fewer than 5 distinct stars
-    give a :class:`FewStarsWarning` (a sill from so few values means little); maximum
-    likelihood needs 10.
+    Exact mode solves simple Kriging with the generalised-least-squares drift (for bounded
+    variograms, the bordered system of ordinary/universal Kriging); the stars' covariance
+    normalised by the sill is ``C_t = (1 - nugget) rho(h / a)`` off the diagonal and
+    ``1 + noise_var_t / sill_t`` on it (``GaussianProcessRegressor(alpha=noise_var)``'s
+    model). Predictions are of the noise-free field. Without noise a query exactly on a star
+    returns that star's value (standard deviation 0) even with a nugget; with ``nugget = 0``
+    stars sharing a position are merged with a :class:`DuplicateStarsWarning` (values
+    averaged, inverse-variance weighted). The fitted range is bounded below by the stars'
+    spacing (``range_floor_``); at that floor the nugget is fitted too and a
+    :class:`ShortRangeWarning` issued. Fewer than 5 distinct stars give a
+    :class:`FewStarsWarning`; maximum likelihood needs 10. Maximum likelihood with
+    ``likelihood="exact"`` matches ``GaussianProcessRegressor(kernel=ConstantKernel() *
+    Matern(nu=0.5) + WhiteKernel())`` on ``y - mean_``. Co-Kriging, the likelihood's
+    optimisation and the Kriging variance: :ref:`Kriging in detail <kriging-details>`.
 
     Examples
     --------

@@ -290,35 +290,15 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
                  flux_fraction: int = 1) -> Table:
     """Read a catalogue of positions into a table with 0-based ``x``, ``y`` columns.
 
-    Column names are matched without regard to case. Positions come from, in this order:
-    ``x_col``/``y_col`` if given; ``XWIN_IMAGE``/``YWIN_IMAGE`` or ``X_IMAGE``/``Y_IMAGE``
-    (SExtractor, **1-based**: the centre of the first pixel is 1.0); ``x``/``y``,
-    ``xcentroid``/``ycentroid`` (photutils) or ``x_0``/``y_0`` (**0-based**, the package's
-    convention). ``one_based`` overrides the convention of the name: True subtracts 1 from
-    both coordinates, False keeps them.
-
-    Optional columns are copied under standard names: ``flux`` (``FLUX``, ``FLUX_AUTO``,
-    ``FLUX_PSF``, ``FLUX_APER``), ``snr`` (``SNR``, ``SNR_WIN``, else from the fluxes, see
-    below), ``flags`` (``FLAGS``, ``FLAG``; non-zero skips the star when stamps
-    are cut), ``peak`` (``FLUX_MAX``), ``flux_radius``, ``class_star``, ``spread_model``,
-    ``background`` (read by :func:`select_stars`); without ``SNR``/``SNR_WIN``, the S/N is
-    the largest of ``FLUX_AUTO / FLUXERR_AUTO``, each aperture's ``FLUX_APER /
-    FLUXERR_APER`` and ``2.5 / ln 10 / MAGERR_AUTO`` (or ``MAGERR_APER``) (the estimate
-    nearest the windowed S/N), and ``meta["snr_from_fluxes"]`` is True: with ``VIGNET``s,
-    :func:`select_stars` then measures a windowed S/N on them instead. Other columns, e.g.
-    ``VIGNET``, are kept as they are. A ``FLUX_RADIUS`` that is 0 (or NaN) in every row is left
-    out with a :class:`CatalogColumnWarning`.
-
-    SExtractor's vector columns are read as PSFEx reads them (its ``PHOTFLUX_KEY`` is
-    ``FLUX_APER(1)``): ``FLUX_APER``, ``FLUXERR_APER``, ``MAG_APER``, ``MAGERR_APER`` with
-    several ``PHOT_APERTURES`` become the one column of aperture ``aperture`` (1: the first),
-    ``FLUX_RADIUS`` with several ``PHOT_FLUXFRAC`` the one of fraction ``flux_fraction``;
-    ``meta["vector_elements"]`` says which element each reduced column holds.
-
-    Files: FITS tables (a FITS_LDAC catalogue's ``LDAC_OBJECTS``, its image header from
-    ``LDAC_IMHEAD`` in ``meta["image_header"]``), SExtractor ASCII catalogues (``#   1
-    NUMBER`` header lines, any suffix), CSV/ECSV and whitespace-separated text with a header
-    line. A non-standard FITS header is read with a :class:`FITSHeaderWarning`.
+    Column names are matched without regard to case. Positions come from ``x_col``/``y_col``
+    if given, else SExtractor's ``XWIN_IMAGE``/``YWIN_IMAGE`` or ``X_IMAGE``/``Y_IMAGE``
+    (**1-based**), else ``x``/``y``, ``xcentroid``/``ycentroid`` or ``x_0``/``y_0``
+    (**0-based**). Optional columns are copied under standard names (``flux``, ``snr``,
+    ``flags``, ``peak``, ``flux_radius``, ``class_star``, ``spread_model``, ``background``),
+    SExtractor's vector aperture columns reduced to one element as PSFEx reads them; other
+    columns are kept. Files: FITS tables (FITS_LDAC included), SExtractor ASCII catalogues,
+    CSV/ECSV and whitespace-separated text. Which column feeds which name, the S/N without
+    an ``SNR`` column and the vector columns: :ref:`catalogue-columns`.
 
     Parameters
     ----------
@@ -361,6 +341,8 @@ def read_catalog(catalog, *, one_based: bool | None = None, x_col: str | None = 
     -----
     CatalogColumnWarning
         When ``FLUX_RADIUS`` holds no positive value (left out).
+    FITSHeaderWarning
+        When a FITS header is not standard (it is read all the same).
 
     Examples
     --------

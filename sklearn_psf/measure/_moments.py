@@ -132,36 +132,11 @@ def adaptive_moments(
 ) -> Table:
     """Adaptive Gaussian-weighted moments of a batch of stamps.
 
-    For each stamp, iterate an elliptical Gaussian weight ``exp(-rho^2/2)`` (centre ``r0``,
-    covariance ``M``) until the weighted first moments vanish and the weighted second moments
-    equal ``M/2``; ``M`` is then the covariance of the best-fitting elliptical Gaussian. The
-    update rule, step bounds, convergence test and the initial guess (round Gaussian of width
-    ``guess_sigma`` at the stamp centre) are those of GalSim's ``FindAdaptiveMom``, so results
-    agree with ``galsim.hsm.FindAdaptiveMom(galsim.Image(stamp, scale=1))`` (to ~1e-8 in e1,
-    e2 on well-measured stamps). One difference: HSM drops the pixels outside the ellipse
-    where the weight is below ``precision / 10``; here the weight is evaluated on the
-    smallest box holding that ellipse, pixels in the box corners included (their weight is
-    below ``precision / 10``, so the moments change by less than that, relatively). Stamps are
-    processed in cache-sized chunks; the iteration stops, per stamp, as in HSM, when no
-    parameter moves by more than ``precision`` (relative). When numba is installed a compiled
-    kernel runs the same iteration stamp by stamp on the same box, with the Gaussian weight
-    updated multiplicatively from pixel to pixel (a few ``exp`` per iteration instead of one
-    per pixel): several times faster, same results to ~1e-8.
-
-    Masked pixels (weight 0, or a NaN value) are left out of every sum, which is what HSM does
-    with its bad-pixel mask (``FindAdaptiveMom(image, badpix=...)`` multiplies the image by the
-    mask): results agree with ``FindAdaptiveMom(image, badpix=mask)`` to ~1e-8. Positive weights
-    do not re-weight the sums: as in HSM, only whether a weight is zero matters (adaptive
-    moments weight pixels by the Gaussian only; an inverse-variance weight would change what is
-    measured, e.g. pull the moments of a bright star towards its low-variance wings). The value
-    of a masked pixel cannot bias the moments, but a mask over the core leaves too little of
-    the star (and the adaptive weight grows around the hole): a converged stamp is flagged
-    ``FLAG_MASKED`` when more than ``max_masked_fraction`` of its core weight, the Gaussian of
-    half the adaptive width ``exp(-2 rho^2)`` at the centroid summed over the stamp's pixels,
-    falls on masked pixels; so is a stamp whose pixels are all masked. With the default 0.5, a
-    masked 3x3 core is flagged on Gaussian stars of sigma up to ~1.8 px, 5x5 up to ~3 px; a
-    masked column through the centre of a star of sigma >= 1.2 px is not. Pass
-    ``max_masked_fraction=1`` to get HSM's moments whatever the mask.
+    An elliptical Gaussian weight (centre, covariance ``M``) is iterated until the weighted
+    first moments vanish and the second moments equal ``M/2``, as GalSim's
+    ``FindAdaptiveMom(galsim.Image(stamp, scale=1), badpix=mask)``, which it matches. Masked
+    pixels (weight 0 or NaN) are left out of every sum; positive weights do not re-weight
+    them. How it differs from HSM, and the masks: :ref:`moments-details`.
 
     Parameters
     ----------
@@ -169,23 +144,23 @@ def adaptive_moments(
         Square stamps, background-subtracted. Not modified. NaN pixels are masked.
     weights : array-like of the shape of ``stamps`` (either layout), optional
         Inverse variance of each pixel, 0 for a masked pixel; must be finite and >= 0. Only
-        the mask (weight 0) is used, see above. Default: no pixel masked except NaN ones.
+        the mask (weight 0) is used. Default: no pixel masked except NaN ones.
     guess_sigma : float, default=5.0
         Initial width (pixels) of the round weight.
     guess_centroid : array-like of shape (2,) or (n, 2), optional
-        Initial centre (x0, y0) in stamp pixel coordinates; default the stamp centre
-        ((s-1)/2, (s-1)/2).
+        Initial centre (x0, y0) in stamp pixel coordinates; default ((s-1)/2, (s-1)/2).
     precision : float, default=1e-6
         Convergence threshold on the largest relative step of centroid and moments.
     max_iter : int, default=400
-        Largest number of iterations before a stamp is flagged ``FLAG_MAX_ITER``.
+        Iterations before a stamp is flagged ``FLAG_MAX_ITER``.
     max_moment : float, default=8000.0
-        Largest allowed |M_ij| (pixels^2) before a stamp is flagged ``FLAG_DIVERGED``.
+        Largest |M_ij| (pixels^2) before a stamp is flagged ``FLAG_DIVERGED``.
     max_shift : float, default=15.0
         Largest allowed move of the centroid from its initial guess (pixels).
     max_masked_fraction : float, default=0.5
-        Largest fraction, in (0, 1], of the core weight ``exp(-2 rho^2)`` that may fall on
-        masked pixels before a stamp is flagged ``FLAG_MASKED``.
+        Largest fraction, in (0, 1], of the core weight ``exp(-2 rho^2)`` (the Gaussian of
+        half the adaptive width) that may fall on masked pixels before a stamp is flagged
+        ``FLAG_MASKED``; 1 gives HSM's moments whatever the mask.
 
     Returns
     -------
@@ -195,22 +170,18 @@ def adaptive_moments(
         - ``e1``, ``e2``: distortion ``(Mxx - Myy + 2i Mxy) / (Mxx + Myy)`` (GalSim's
           ``observed_shape.e1/e2``), x along columns;
         - ``sigma``: ``det(M)^(1/4)`` in pixels (GalSim's ``moments_sigma``);
-        - ``x0``, ``y0``: centroid in stamp pixel coordinates, 0-based, pixel centres at
-          integers, x = column (GalSim's ``moments_centroid`` minus ``(xmin, ymin)`` of the
-          image, i.e. minus 1 for a default ``galsim.Image``);
+        - ``x0``, ``y0``: centroid in stamp pixel coordinates, 0-based, x = column;
         - ``Mxx``, ``Mxy``, ``Myy``: adaptive covariance (pixels^2);
-        - ``amplitude``: flux of the best-fitting Gaussian (GalSim's ``moments_amp``);
-        - ``n_iter``: number of iterations;
-        - ``flag``: 0 when the measurement converged, otherwise a bit mask of ``FLAG_*``
-          values (``FLAG_BAD_PIXELS`` 1, ``FLAG_NO_FLUX`` 2, ``FLAG_DIVERGED`` 4,
-          ``FLAG_MAX_ITER`` 8, ``FLAG_MASKED`` 16). Flagged rows hold NaN in every float
-          column: check ``flag`` (no exception is raised for bad stamps in a batch).
+        - ``amplitude``: the best-fitting Gaussian's flux; ``n_iter``: iterations;
+        - ``flag``: 0 when converged, else a bit mask of ``FLAG_BAD_PIXELS`` 1,
+          ``FLAG_NO_FLUX`` 2, ``FLAG_DIVERGED`` 4, ``FLAG_MAX_ITER`` 8, ``FLAG_MASKED`` 16;
+          flagged rows hold NaN in every float column (no exception for bad stamps).
 
     Raises
     ------
     ValueError
-        When stamps are not square, ``weights`` do not have the stamps' shape or hold
-        negative or non-finite values, or a parameter is out of range.
+        For stamps not square, ``weights`` not of their shape, negative or non-finite, or a
+        parameter out of range.
 
     Examples
     --------
@@ -224,8 +195,7 @@ def adaptive_moments(
     >>> print(round(t["e1"][0], 4), round(t["e2"][0], 4), t["flag"][0])
     0.1429 0.2857 0
 
-    A bad column (weight 0, or NaN pixels) is left out of the sums whatever its values; a
-    mask over the core is flagged:
+    A bad column is left out whatever its values; a mask over the core is flagged:
 
     >>> w = np.ones_like(img)
     >>> w[:, 14] = 0.0

@@ -81,18 +81,16 @@ def make_default_interpolator():
     coefficients are co-Kriged) enters the Kriging system as a measurement error, so that
     faint stars count less than bright ones and the model does not pass through noisy
     stars. The nugget stays 0 and the noise is taken as propagated (``noise_scale=1``):
-    on the package's simulations (400 stars, S/N 100 or the realistic 20-1000 mix) fitting
-    them as well (``nugget="auto", noise_scale="auto"``) gave a 1-3% larger ellipticity
-    error at the galaxies; both remain available. The mean over the field (the drift) is
-    constant, linear or quadratic in the positions, whichever the likelihood's Bayesian
-    information criterion prefers (``drift="auto"``): a smooth variation over the field, such
-    as a CCD's optics give, is then a quadratic mean, and the Kriging only models what is left
-    (with a constant mean the likelihood stretches the range far beyond the field to follow the
-    trend: on GalSim-rendered DECam CCDs, range 3-7 field widths, and the predicted PSF size
-    follows the stars' noise, size error at the truth 2-3 times PSFEx's; with the quadratic
-    drift the range is 0.07-0.15 and the size error 0.8 times PSFEx's, see
-    ``benchmarks/README.md``); on stationary fields (the package's simulations) it keeps the
-    constant mean. Pass the pipeline explicitly to
+    fitting them as well (``nugget="auto", noise_scale="auto"``) gave larger ellipticity
+    errors at the galaxies on the package's simulations (``benchmarks/README.md``); both
+    remain available. The mean over the field (the drift) is constant, linear or quadratic in
+    the positions, whichever the likelihood's Bayesian information criterion prefers
+    (``drift="auto"``): a smooth variation over the field, such as a CCD's optics give, is
+    then a quadratic mean, and the Kriging only models what is left (with a constant mean the
+    likelihood stretches the range far beyond the field to follow the trend, and the
+    predicted PSF size follows the stars' noise: measured by ``benchmarks/bench_psfex.py``);
+    on stationary fields (the package's simulations) it keeps the constant mean. Pass the
+    pipeline explicitly to
     ``PSFModel(interpolator=...)`` to tune nested parameters
     (``interpolator__krigingregressor__range``).
 

@@ -51,9 +51,9 @@ class IQROutlierDetector(_OffsetOutlierMixin, BaseEstimator):
     (``np.percentile``, linear interpolation). With ``alpha = 3.5`` the paper removes about 1% of
     stars; on Gaussian data the rule rejects far less than that per column. It knows nothing
     of the stars' noise: on noisy stars whose coefficients spread with their S/N it rejects
-    clean ones (the brightest and the faintest, 39% of the clean stars of a simulation with the
-    realistic S/N 20-1000 mix, see ``benchmarks/bench_noise.py``); it is the paper's option,
-    :class:`ChiSquareOutlierDetector` the default of :class:`~sklearn_psf.model.PSFModel`.
+    clean ones, the brightest and the faintest (how many: ``benchmarks/bench_noise.py``); it
+    is the paper's option, :class:`ChiSquareOutlierDetector` the default of
+    :class:`~sklearn_psf.model.PSFModel`.
 
     The score follows scikit-learn's outlier detectors (larger = more normal):
     ``score_samples(X) = -max_j d_j`` with ``d_j = max(lower_j - x_j, x_j - upper_j) / IQR_j``,

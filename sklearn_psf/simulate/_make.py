@@ -214,107 +214,61 @@ def make_psf_field(
 ) -> PSFField:
     """Simulate a PSF field image with stars and galaxy-PSFs (Berge et al. 2012, sect. 3).
 
-    See the module documentation (:mod:`sklearn_psf.simulate`) for the conventions: PSF model,
-    sub-pixel positions without overlap, S/N definition, contaminants, weights, seeds. The
-    defaults give the paper's clean study (no contaminant, no mask, background noise only)
-    with sub-pixel positions.
+    Conventions (S/N, contaminants, weights, seeds): :mod:`sklearn_psf.simulate` and
+    :ref:`simulations`. The defaults give the paper's clean study with sub-pixel positions.
 
     Parameters
     ----------
     reference : ReferenceBasis, optional
         Basis of the PSFs; default :func:`sklearn_psf.datasets.load_default_reference`.
-    n_stars : int, default=1000
-        Number of stars at random positions (ignored when ``star_positions`` is given).
-    n_galaxies : int, default=2000
-        Number of galaxy-PSFs (about that number for the grid layout).
+    n_stars, n_galaxies : int, default=1000 and 2000
+        Stars and galaxy-PSFs at random positions.
     galaxy_layout : {"random", "grid"}, default="random"
+        Galaxy-PSFs at random or on a grid (about ``n_galaxies`` of them).
     snr : float or array-like of shape (n_stars,), default=100
-        S/N of every star (> 0); see :func:`realistic_snr` for the paper's distribution.
+        S/N of every star (> 0); :func:`realistic_snr` draws the paper's distribution.
     image_shape : tuple (ny, nx), default=(7769, 10032)
-        The paper's Subaru image: 10,032 x 7,769 pixels.
-    pixel_scale : float, optional
-        Arcsec per pixel; default the reference's (0.2 for the default reference).
-    stamp_size : int, optional
-        Odd stamp side; default the reference's. Larger values zero-pad the basis.
-    star_positions : array-like of shape (n, 2), optional
-        (x, y) star positions, e.g. ``reference.positions``; kept as given (rounded to the
-        nearest pixel when ``subpixel=False``); every stamp must lie inside the image.
-    slope : float, default=11/4
-        Power-spectrum slope of the weights' random fields.
+        The paper's Subaru image.
+    pixel_scale, stamp_size : float and odd int, optional
+        Arcsec per pixel and stamp side; default the reference's (larger: zero-padded).
+    star_positions, galaxy_positions : array-like of shape (n, 2), optional
+        (x, y) positions kept as given instead of ``n_stars`` / ``n_galaxies`` random ones.
+    slope, smallest_scale : float, default=11/4 and 8.0
+        Power-spectrum slope and cell (arcsec) of the PSF weights' random fields.
     random_state : None, int, SeedSequence or Generator
         Seed (see the module documentation).
     galaxy_snr : float or None, default=1000
         S/N of the galaxy-PSFs drawn in the image; None leaves them out of the image.
     noise_rms : float, optional
         Background rms; default the reference image's, else 1.
-    smallest_scale : float, default=8.0
-        Smallest scale of the PSF variations in arcsec: the grid cell of the weights' random
-        fields (no power at wavelengths below two cells). 8 arcsec (see the module
-        documentation for the reason) is the cell of the former ``grid_size=256`` on the
-        paper's image.
     subpixel : bool, default=True
-        Random positions uniform within pixels, each PSF drawn at its exact position (a
-        Fourier shift of its centred truth stamp); False puts every PSF on an integer pixel
-        centre (the paper's setting).
+        PSFs at their exact sub-pixel positions; False: on pixel centres (the paper's).
     contaminants : dict, optional
-        ``{kind: fraction of the stars}`` with kinds "cosmic_ray", "neighbour", "galaxy",
-        "binary" (see the module documentation for what each is and its strength); default
-        none. Truth: ``stars["contaminant"]`` and ``field.contaminants``.
+        ``{kind: fraction of the stars}``, kinds "cosmic_ray", "neighbour", "galaxy",
+        "binary"; default none. Truth: ``stars["contaminant"]``.
     contaminant_min_snr : float, default=0
-        Contaminants come at their natural strength (the ranges of the module
-        documentation). A positive value strengthens each contaminant whose own signal (the
-        square root of the chi^2 it adds to the star's stamp, after flux and centroid
-        matching) is below it until it reaches it (e.g. 20, for tests of a detector on
-        contaminants the data reveal).
+        Least signal of each contaminant (0: their natural strength).
     contaminant_ranges : dict, optional
-        ``{"binary": {"flux_ratio": (lo, hi), "separation": (lo, hi)}, "neighbour": ...}``:
-        other ranges for the companions' flux ratio (companion / star, log-uniform) and
-        separation (pixels, uniform); by default binaries of 1-20% at 0.5-4 px and
-        neighbours of 10-50% at 3-8 px.
+        Other flux-ratio and separation ranges of binaries and neighbours.
     n_field_cosmic_rays, n_field_galaxies : int, default=0
-        Cosmic rays and extended galaxies (S/N drawn from :func:`realistic_snr`) elsewhere in
-        the image, away from the stars (for catalogue-level tests).
-    masked_fraction : float, default=0
-        Fraction of the pixels masked at random (bad pixels).
-    bad_columns : int, default=0
-        Number of full bad columns.
-    saturation : float, optional
-        Saturation level (image units): pixels above are clipped to it and get weight 0.
-    gain : float, optional
-        Electrons per image unit: adds the Poisson noise of the sources; the weight map is
-        then the inverse of the total variance ``noise_rms^2 + source / gain``.
+        Cosmic rays and extended galaxies elsewhere in the image, away from the stars.
+    masked_fraction, bad_columns : float, int, default=0
+        Fraction of the pixels masked at random; number of full bad columns.
+    saturation, gain : float, optional
+        Saturation level (pixels clipped, weight 0); electrons per unit (Poisson noise).
     mask_value : float, default=0.0
-        Value written in the image under masked pixels (0, as in sky-subtracted images with a
-        weight map; ``numpy.nan`` makes them NaN).
+        Value written under masked pixels (``numpy.nan`` makes them NaN).
     grid_size : int, optional
         Deprecated (use ``smallest_scale``): random-field nodes along the longer side.
-    galaxy_positions : array-like of shape (n, 2), optional
-        (x, y) galaxy-PSF positions kept as given (``n_galaxies`` and ``galaxy_layout`` are
-        then ignored); stars avoid them. Used by :func:`make_exposures` (dithered galaxies).
     weight_fields : callable, optional
-        ``weight_fields(positions)`` -> (n, n_components) unit-variance fields ``g_i`` of the
-        weights, replacing the random fields drawn from the seed (e.g. a static plus an
-        atmospheric pattern, :func:`make_exposures`); ``weight_covariance`` then no longer
-        describes the field.
+        ``weight_fields(positions)`` -> (n, n_components) fields replacing the random ones.
     chromatic : bool, default=False
-        Each source's PSF depends on its colour: stars get g-i colours of 0.3-3.0, galaxies
-        0-2 (columns ``g_i``; see :mod:`sklearn_psf.simulate._chromatic`), each a blackbody
-        spectrum, and the PSF is the photon-weighted sum over an r-like band (550-700 nm) of
-        the field's PSF dilated as the seeing (FWHM ~ wavelength^-0.2) and the optics
-        (~ wavelength) at each wavelength: bluer sources have larger PSFs.
-    airmass : float, optional
-        With ``chromatic``: differential chromatic refraction at this airmass (>= 1), along
-        the image's y axis (the PSF of a blue source is stretched along y more than a red
-        one's). None: no refraction.
-    optics_fraction : float, default=0.1
-        With ``chromatic``: the optics' share of the PSF's second moment, in [0, 1].
+        Each source's PSF depends on its blackbody colour (column ``g_i``).
+    airmass, optics_fraction : float, default=None and 0.1
+        With ``chromatic``: refraction at ``airmass`` (>= 1, None: none), and the optics'
+        share of the PSF's second moment, in [0, 1].
     brighter_fatter : float, default=0
-        The brighter-fatter effect: each PSF is dilated by ``1 + brighter_fatter * (snr -
-        min) / (max - min)`` over the stars' S/N (e.g. 0.02: the brightest star's PSF 2%
-        larger than the faintest's); galaxies, whose own S/N is drawn log-uniform between a
-        fifth of the faintest star's and that star's (column ``source_snr``; the stars' is
-        their ``snr``), get the same law. The galaxy-PSF stamps' ``snr`` stays
-        ``galaxy_snr``.
+        Each PSF dilated by ``1 + brighter_fatter * (snr - min) / (max - min)``.
 
     Returns
     -------
@@ -324,24 +278,19 @@ def make_psf_field(
     ------
     ValueError
         For n_stars < 1, snr <= 0 or of the wrong length, stars off the image, stamps larger
-        than the image, more objects than fit without overlap, or unknown contaminants.
+        than the image, objects too many to fit without overlap, unknown contaminants.
 
     Examples
     --------
     >>> from sklearn_psf.simulate import make_psf_field
-    >>> field = make_psf_field(n_stars=50, n_galaxies=40, image_shape=(1000, 1200),
-    ...                        random_state=42)
-    >>> field.image.shape, field.image.dtype, len(field.stars), len(field.galaxies)
-    ((1000, 1200), dtype('float32'), 50, 40)
-    >>> field.stars["stamp"].shape == (50, field.stamp_size ** 2)
-    True
+    >>> field = make_psf_field(n_stars=50, n_galaxies=40, image_shape=(1000, 1200), random_state=42)
+    >>> field.image.shape, len(field.stars), field.stars["stamp"].shape[0], len(field.galaxies)
+    ((1000, 1200), 50, 50, 40)
     >>> dirty = make_psf_field(n_stars=40, n_galaxies=0, image_shape=(800, 800),
     ...                        contaminants={"cosmic_ray": 0.1, "binary": 0.1},
     ...                        bad_columns=1, random_state=0)
-    >>> sorted(set(map(str, dirty.stars["contaminant"])))
-    ['', 'binary', 'cosmic_ray']
-    >>> int((dirty.weight == 0).all(axis=0).sum())
-    1
+    >>> sorted(set(map(str, dirty.stars["contaminant"]))), int((dirty.weight == 0).all(0).sum())
+    (['', 'binary', 'cosmic_ray'], 1)
     """
     if reference is None:
         reference = load_default_reference()

@@ -150,21 +150,13 @@ def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6
                     origin: int = 1, chipnum=None):
     """Validate several PSF models on the same reserved stars, side by side.
 
-    Each model predicts the PSF at the stars (PSFEx and PIFF files through their own
-    readers, :class:`PSFExModel` and :class:`PiffModel`; stamps cropped or zero-padded to
-    the stars' size) and :func:`measure_residuals` measures the same residuals for all: the
-    stars' and the models' adaptive-moment e1, e2 and size, the pixel chi^2 of each raw star
-    against the model in the star's noise, the fourth moments' residuals, and rho1 to rho5
-    and the fourth moments' correlation functions in the same separation bins. Give stars
-    that none of the models was fitted on (reserved stars), otherwise the models that saw
-    them are favoured. Stars that cannot be compared (every pixel masked, an
-    infinite pixel, or no positive flux: a crowded or empty stamp) are left out and counted
-    by reason (:data:`UNUSABLE_STAR_REASONS`) in ``table.meta["left_out"]``.
-
-    How to read the table: a model as good as the noise allows has ``chi2_dof`` near 1
-    (with correct weights); ``e_rms`` and ``dsigma_rms`` include the stars' own measurement
-    noise, the same for every model, so differences between rows are the models'. ``rank``
-    orders the models by ``chi2_dof`` (1 = closest to the stars).
+    Each model predicts the PSF at the stars (stamps cropped or zero-padded to the stars'
+    size) and :func:`measure_residuals` measures the same residuals for all, in the same
+    separation bins. Give stars none of the models was fitted on (reserved stars). Stars
+    that cannot be compared (every pixel masked, an infinite pixel, no positive flux) are
+    left out, counted by reason (:data:`UNUSABLE_STAR_REASONS`) in
+    ``table.meta["left_out"]``. ``rank`` orders the models by ``chi2_dof`` (near 1: as good
+    as the noise allows); how to read the table: :ref:`other-models`.
 
     Parameters
     ----------

@@ -391,20 +391,11 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
                  progress=None) -> ExposureFit:
     """Fit and validate the PSF model of an exposure, from its files to the verdict.
 
-    What ``sklearn-psf fit`` does, as one call:
-
-    1. read the image (and weight map) and/or the source catalogue (:func:`read_exposure`);
-    2. select the stars: with a catalogue, :func:`~sklearn_psf.io.select_stars` (flags,
-       S/N, saturation, crowding, the size-magnitude locus, then SPREAD_MODEL/CLASS_STAR
-       where they agree with it); without one, :func:`~sklearn_psf.io.find_stars` on the
-       image;
-    3. cut their stamps (the catalogue's VIGNETs without an image, else from the image with
-       its weight map), counting the stars skipped by reason, and mask the pixels of their
-       neighbours (:func:`~sklearn_psf.io.neighbour_masks`: every other source of the
-       catalogue, with the default crowding cut);
-    4. reserve a fraction of the stars, fit :class:`~sklearn_psf.model.PSFModel` with the
-       chosen interpolator on the others, and judge it on the reserved ones
-       (:func:`fit_and_validate`).
+    What ``sklearn-psf fit`` does, as one call: read the exposure (:func:`read_exposure`),
+    select the stars (:func:`~sklearn_psf.io.select_stars` with a catalogue,
+    :func:`~sklearn_psf.io.find_stars` without), cut their stamps and mask their neighbours,
+    then fit and judge the model (:func:`fit_and_validate`). The steps:
+    :ref:`exposure-details` in the user guide.
 
     Parameters
     ----------
@@ -423,23 +414,18 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
         A scheme of :func:`~sklearn_psf.model.make_interpolator`, or ``"auto"`` to choose it
         by cross-validation among them.
     band_limit : float, optional
-        The PSF's band limit in cycles per pixel, for undersampled stars: the optics'
-        diffraction cutoff ``D / lambda`` times the pixel scale in radians (2.4 m at 1.06 um
-        with 0.11" pixels: 1.21). The model's basis is then
-        ``SuperResolvedPCA(band_limit=band_limit)``, whatever the stars' sampling. Default:
-        :class:`~sklearn_psf.model.PSFModel`'s basis (a super-resolved one, its band chosen
-        from the stars, when they are undersampled).
+        The PSF's band limit in cycles per pixel for undersampled stars (the optics' cutoff
+        ``D / lambda`` times the pixel scale in radians): the basis is then
+        ``SuperResolvedPCA(band_limit=band_limit)``. Default: ``PSFModel``'s basis (its band
+        chosen from the stars when they are undersampled).
     reserve : float, default=0.2
         Fraction of the stars reserved for the verdict.
     random_state : int, default=0
         Seed of the reserved-star draw.
     keys : sequence of str, optional
-        Catalogue columns (a colour, a magnitude, a flux) to add as the model's dimensions
-        after the positions, as PSFEx's ``PSFVAR_KEYS`` (:func:`key_columns`): the model is
-        fitted on ``X = (x, y, keys...)`` of the stars used, and ``summary["keys"]`` names
-        them (``sklearn-psf predict`` reads the same columns at the galaxies). Stars with a
-        NaN in a key are left out with a :class:`~sklearn_psf.io.CatalogColumnWarning` and
-        counted (``missing_key``).
+        Catalogue columns (a colour, a magnitude) added as the model's dimensions after the
+        positions, as PSFEx's ``PSFVAR_KEYS`` (:func:`key_columns`); stars with a NaN in a
+        key are left out with a :class:`~sklearn_psf.io.CatalogColumnWarning`.
     progress : callable, optional
         Called with the name of each step (``"selecting stars"``, ``"cutting stamps"``,
         ``"fitting and validating"``) as it starts: a progress bar's hook.
@@ -477,8 +463,7 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     >>> fit.report()[0]
     'sources in the catalogue: 60 (0-based x, y)'
 
-    48 stars are too few for this PSF's variations: the verdict warns that the reserved stars'
-    residuals exceed their noise.
+    48 stars are too few for this PSF: the verdict warns.
 
     >>> [w.category.__name__ for w in caught]
     ['PSFQualityWarning']

@@ -89,123 +89,53 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
                      wcs=None):
     """Fit a PSF model on most stars and validate it on reserved ones.
 
-    1. A random fraction ``reserve`` of the stars (seeded by ``random_state``) is set aside;
-       they are not used in the fit.
-    2. If ``candidates`` are given, each is scored by ``cv``-fold cross-validation
-       (:func:`sklearn.model_selection.cross_validate`) on the remaining stars with
-       :func:`~sklearn_psf.metrics.make_ellipticity_rms_scorer` and
-       :func:`~sklearn_psf.metrics.make_rho1_scorer`; the one with the best mean ellipticity
-       score is used.
-    3. The model is fitted on the remaining stars.
-    4. The reserved stars are normalised (:class:`~sklearn_psf.preprocessing.StampNormalizer`)
-       and measured with :func:`~sklearn_psf.measure.adaptive_moments`, like the model's
-       stamps at their positions; residuals are star minus model. Undersampled stars (a
-       super-resolved basis, or adaptive moments failing on more than half of the reserved
-       stars) are measured as they are, with fixed-weight moments
-       (:func:`~sklearn_psf.measure.fixed_moments`, a round Gaussian weight of sigma 1.5
-       pixels), against the model drawn at each star's sub-pixel position (fitted on the
-       star's pixels by the basis); ``summary["moments"]`` says which.
-
-    5. The verdict: each reserved star's pixels are fitted (flux and sub-pixel centroid) with
-       the model's PSF and with a constant PSF fitted on the same stars (the inverse-variance
-       weighted mean of the model's coefficients of its kept stars), in units of the star's
-       pixel noise (``weights``, else estimated stamp by stamp); the ellipticity residuals
-       are compared with the stars' ellipticity noise (the standard deviation of e over 16
-       noise draws from the star's weights around its fitted model). A
-       :class:`PSFQualityWarning` is issued (and its text kept in ``summary["warnings"]``)
-       when the model fits the reserved stars no better than the constant PSF (summed
-       chi^2), when the residuals exceed twice the noise (median reduced chi^2, or e residual
-       rms over e noise rms), and when maximum likelihood gives the Kriging a range below the
-       stars' typical spacing (no spatial correlation found).
-
-    Note that the reserved-star residuals include the stars' own measurement noise: at S/N
-    ~100 it is comparable with the model errors of a good scheme; the verdict's ratios
-    (1 for pure noise) separate the two.
+    The model (or the best of ``candidates`` by cross-validation) is fitted on the stars not
+    reserved and judged on the reserved ones: residuals (:func:`measure_residuals`), rho
+    statistics, and a verdict in units of the stars' noise against a constant PSF. The steps
+    and every summary entry: :ref:`validation-details` in the user guide.
 
     Parameters
     ----------
     X : array-like of shape (n, 2) or (n, 2 + m)
-        Star positions (x, y), 0-based pixels, then optionally the model's extra dimensions
-        (a colour, a magnitude: passed to the model, not used as positions).
+        Star positions (x, y), 0-based pixels, then optionally the model's extra dimensions.
     stamps : array-like of shape (n, s*s) or (n, s, s)
         Background-subtracted star stamps (e.g. :func:`sklearn_psf.io.extract_star_stamps`).
-        Not modified.
     model : PSFModel, optional
-        Unfitted model (cloned); default ``PSFModel()`` (noise-aware: StampPCA basis,
-        chi^2 outlier rejection, Kriging with its range fitted by maximum likelihood).
+        Unfitted model (cloned); default ``PSFModel()``, the noise-aware model.
     reserve : float, default=0.2
         Fraction of stars reserved, in [0, 1). 0 fits every star and returns an empty table.
     random_state : int, RandomState or None
         Seed of the reserved-star draw and of the cross-validation folds.
     candidates : dict, optional
         Name -> PSFModel or interpolating regressor (e.g.
-        :func:`sklearn_psf.study.compare.default_schemes`); chosen by cross-validation. ``model``
-        is then ignored.
+        :func:`sklearn_psf.study.compare.default_schemes`), chosen by cross-validation
+        instead of ``model``.
     cv : int, default=5
         Folds of the cross-validation.
     rho1_nbins : int, default=6
-        Logarithmic separation bins of rho1 (in pixels, from the stamp size to half the
-        field's diagonal).
+        Logarithmic separation bins of the rho statistics.
     weights : array-like of the stamps' shape, optional
-        Pixel weights (inverse variance, 0 = masked), e.g. ``StarStamps.weights``; passed to
-        ``PSFModel.fit`` when it accepts ``weights`` (masked pixels should then already be 0
-        in ``stamps``, as the readers leave them).
+        Pixel inverse variance (0 = masked, already 0 in ``stamps``), passed to the fit.
     wcs : astropy.wcs.WCS, optional
-        Celestial WCS of the image (:func:`sklearn_psf.io.celestial_wcs`): the rho
-        statistics are then measured on the sky, in great-circle separations (arcmin); the
-        summary's ``rho_theta_units`` says which.
+        Celestial WCS: the rho statistics are then measured on the sky (arcmin).
 
     Returns
     -------
     model : PSFModel
         Fitted on the non-reserved stars.
     residuals : astropy.table.Table
-        One row per reserved star: ``index`` (row in X), ``x``, ``y``, ``e1_star``,
-        ``e2_star``, ``sigma_star``, ``e1_model``, ``e2_model``, ``sigma_model``, ``de1``,
-        ``de2``, ``dsigma`` (star - model), ``resid_rms`` (pixel rms of the unit-flux
-        residual stamp), ``chi2``, ``dof`` (raw stamp against the model, in the star's
-        noise), ``flag`` (0: both measured; 1: star's moments failed; 2: model's),
-        ``stamp_star``, ``stamp_model`` (normalised); see :func:`measure_residuals`; and
-        ``outlier``: True for the reserved stars that the model's outlier test rejects (their
-        pixels against the model's PSF, flux and centroid fitted, in their noise plus the
-        model error, by a :class:`~sklearn_psf.preprocessing.ChiSquareOutlierDetector` at
-        the model's p-value): blends, galaxies, cosmic rays. They are left out of the summary's
-        statistics and verdict.
+        One row per reserved star, the columns of :func:`measure_residuals` and
+        ``outlier`` (rejected by the model's outlier test: left out of the summary).
     summary : dict
-        ``n_stars``, ``n_fit``, ``n_reserved``, ``n_measured``, ``n_inliers``,
-        ``n_outliers``, ``de1_mean``, ``de1_rms``, ``de2_mean``, ``de2_rms``, ``e_rms``
-        (sqrt <de1^2 + de2^2>), ``dsigma_mean``, ``dsigma_rms``, ``sigma_mean`` (pixels),
-        ``chi2_dof``, ``chi2_dof_median``, ``rho1`` to ``rho5`` (Jarvis et al. 2016,
-        :func:`~sklearn_psf.metrics.rho_statistics` with T = 2 sigma^2; each a dict of
-        ``theta`` [``rho_theta_units``: pixel, or arcmin with a ``wcs``], ``xi``,
-        ``sigma_xi``, ``npairs``, or None with fewer than 10 measured stars),
-        ``rho_theta_units``, ``rho1_mean_abs``, the fourth moments' residuals and their
-        correlation functions (``dM22_rel_mean``, ``dM22_rel_rms``, ``dM4_rel_rms``,
-        ``rho_M4``, ``rho_eM4``, ``rho_M22``, ``rho_TM22``: see :func:`measure_residuals`),
-        ``spatial_model`` (the model's ``spatial_model_``: "constant" when its stars were
-        too few for the interpolator), ``moments`` ("adaptive", or the fixed
-        weight of the moments of undersampled stars, see 4.), ``n_reserved_outliers`` and
-        ``reserved_outliers`` (their rows in X), and, with candidates,
-        ``cv`` (list of per-scheme mean/std scores) and ``scheme`` (the chosen one). The
-        verdict: ``n_components`` and ``components_reason`` (text: the noise edge and the
-        variance of the last kept and first dropped components over it), ``n_verdict``
-        (reserved stars used), ``chi2_dof_median`` / ``chi2_dof_median_constant`` (median of
-        the stars' chi^2 per degree of freedom against the model / the constant PSF; 1 = pure
-        noise), ``chi2_total`` /
-        ``chi2_total_constant`` (summed over the stars), ``e_noise`` (rms ellipticity noise
-        per component), ``e_resid_over_noise`` / ``e_resid_over_noise_constant`` (rms of the
-        e residuals over the rms e noise), ``e_model_error`` (the residuals' rms per component
-        of e with the noise removed in quadrature: the model's own error),
-        ``dM22_resid_over_noise`` / ``dM4_resid_over_noise`` (rms of the spin-0 / spin-2
-        fourth moments' residuals over the rms of their noise, from the same draws; NaN for
-        undersampled stars), ``kriging_range``
-        and ``star_spacing`` (median nearest-star distance, in the Kriging's coordinates;
-        None without Kriging) and ``warnings`` (list of texts).
+        Counts (``n_fit``, ``n_reserved``, ...), the summary of :func:`measure_residuals`,
+        with candidates ``cv`` and ``scheme``, and the verdict (``e_resid_over_noise``,
+        ``chi2_dof_median``, each with its ``_constant``, ``warnings``, ...).
 
     Warns
     -----
     PSFQualityWarning
-        When the model looks untrustworthy (see 5.).
+        When the model fits the reserved stars no better than the constant PSF, its
+        residuals exceed twice the noise, or the Kriging range is below the stars' spacing.
 
     Raises
     ------
@@ -226,14 +156,10 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
     >>> with warnings.catch_warnings(record=True) as caught:
     ...     warnings.simplefilter("always")
     ...     model, res, summary = fit_and_validate(X, stamps, reserve=0.25, random_state=0)
-    >>> summary["n_reserved"], len(res)
-    (20, 20)
-    >>> bool(summary["e_rms"] < 0.05)
-    True
+    >>> summary["n_reserved"], len(res), bool(summary["e_rms"] < 0.05)
+    (20, 20, True)
 
-    At S/N 200 the 60 fitted stars are too few for this PSF's variations: the reserved
-    stars' ellipticity residuals are 3 times their noise (a constant PSF: 6 times), and
-    a :class:`PSFQualityWarning` says so.
+    60 stars are too few for this PSF: residuals 3 times the noise (a constant PSF: 6).
 
     >>> round(summary["e_resid_over_noise"]), round(summary["e_resid_over_noise_constant"])
     (3, 6)

@@ -206,42 +206,14 @@ def to_psfex(model, path, *, image_shape=None, extent=None, max_degree: int = 8,
              overwrite: bool = False):
     """Write a fitted PSF model as a PSFEx ``.psf`` file, its variation as a polynomial.
 
-    PSFEx's format holds a PSF whose pixels are polynomials of the position. The model's
-    predicted (unit-sum, centred) stamps on a ``grid_size`` x ``grid_size`` grid over the
-    field are fitted by least squares with polynomials of each degree up to ``max_degree`` in
-    PSFEx's scaled positions; since the stamps are the model's basis (mean and components)
-    weighted by the interpolated coefficients, the ``PSF_MASK`` planes are that basis
-    weighted by polynomials approximating the coefficients.
-
-    The degree follows the model's own uncertainty: the approximation error of each degree
-    is its K-fold cross-validated rms pixel difference from the full model on the grid
-    (relative to the mean peak), the model's uncertainty the rms pixel standard deviation of
-    its stamps on the grid (the interpolator's predicted standard deviation of each
-    coefficient, e.g. Kriging's, propagated through the basis; same units), and the degree
-    is the smallest whose approximation error is at most ``accuracy`` times that
-    uncertainty: an error added in quadrature to the model's own raises it by at most
-    ``sqrt(1 + accuracy**2)`` (1.12 for 0.5), and a higher degree would only follow the
-    model's noise more closely. A model that follows the field no better than a constant
-    gets degree 0, a smooth variation the degree it needs. When no degree up to
-    ``max_degree`` reaches that, or the model gives no uncertainty (an interpolator whose
-    ``predict`` has no ``return_std``), the degree is the smallest whose error is within
-    ``tolerance`` of the best degree's. The approximation's error is then measured
-    at the centres of the grid's cells (positions not fitted): rms pixel difference relative
-    to the mean peak, rms of the ellipticity difference ``|e_psfex - e_model|`` and of the
-    size difference (adaptive moments' sigma, pixels); it is returned and written in the
-    header (``APXPIX``, ``APXE``, ``APXSIZE``), with the chosen degree's cross-validated
-    error (``APXCV``), the model's uncertainty (``APXMODEL``, when known) and ``APXDMAX``
-    the largest degree tried.
-
-    Positions: the model's are 0-based pixels (x = column), PSFEx's 1-based
-    (``XWIN_IMAGE = x + 1``); ``POLZERO`` is the centre of the field and ``POLSCAL`` its
-    width (PSFEx takes its stars' range). The PSF's centre is at pixel ``n // 2`` of the
-    ``PSF_MASK`` planes (PSFEx's convention); an even stamp side is padded with one row and
-    column of zeros at the end, so that the side is odd and GalSim's ``DES_PSFEx`` (which
-    centres on the middle of the array) agrees. ``PSF_SAMP`` is 1 (model pixels are image
-    pixels, the pixel response included). ``LOADED`` and ``ACCEPTED`` are the stars given to
-    the fit and kept (``inlier_mask_``), ``PSF_FWHM`` the FWHM of a Gaussian of the model's
-    adaptive size at the field's centre.
+    The model's predicted stamps on a ``grid_size`` x ``grid_size`` grid over the field are
+    fitted by least squares with polynomials of PSFEx's scaled positions (1-based,
+    ``XWIN_IMAGE = x + 1``). The degree is the smallest whose ``n_splits``-fold
+    cross-validated error is at most ``accuracy`` times the model's own uncertainty (else
+    within ``tolerance`` of the best degree's): an error added in quadrature raises the
+    model's by at most ``sqrt(1 + accuracy**2)``. The approximation's error at the grid's
+    cell centres is returned and written in the header (``APXPIX``, ``APXE``, ``APXSIZE``,
+    with ``APXCV``, ``APXMODEL``, ``APXDMAX``). Conventions and header: :ref:`psfex-file`.
 
     Parameters
     ----------
@@ -253,8 +225,8 @@ def to_psfex(model, path, *, image_shape=None, extent=None, max_degree: int = 8,
     image_shape : (ny, nx), optional
         The image (CCD) the model describes: the polynomial covers it all.
     extent : (xmin, xmax, ymin, ymax), optional
-        0-based region instead of ``image_shape``; default the fitted stars' bounding box.
-        Outside it the polynomial extrapolates (as PSFEx's does): give the image's shape.
+        0-based region instead of ``image_shape``; default the fitted stars' bounding box,
+        outside which the polynomial extrapolates: give the image's shape.
     max_degree : int, default=8
         Largest polynomial degree tried.
     grid_size : int, default=32
@@ -264,8 +236,8 @@ def to_psfex(model, path, *, image_shape=None, extent=None, max_degree: int = 8,
     accuracy : float, default=0.5
         Largest approximation error allowed, as a fraction of the model's uncertainty.
     tolerance : float, default=0.05
-        Without the model's uncertainty (or when no degree reaches ``accuracy``): relative
-        excess of cross-validated error allowed for a lower degree than the best.
+        Without the model's uncertainty (or no degree reaching ``accuracy``): excess of
+        cross-validated error allowed for a lower degree than the best, relative.
     names : pair of str, default=("XWIN_IMAGE", "YWIN_IMAGE")
         ``POLNAME1/2``, PSFEx's usual position columns.
     chi2 : float, optional

@@ -186,26 +186,12 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
                       render=None):
     """Star-minus-model residuals of PSF stamps at given stars, and their summary.
 
-    The stars are normalised (:class:`~sklearn_psf.preprocessing.StampNormalizer`: unit
-    flux, adaptive centroid at the stamp centre) and measured with
-    :func:`~sklearn_psf.measure.adaptive_moments`, like the model's stamps. Against the
-    stars' noise, each raw star stamp is compared with the model stamp moved to the star by
-    a fitted sub-pixel shift (from the centroids' difference where adaptive moments
-    measure both) and fitted in flux and a constant background: chi^2 per star over its
-    unmasked pixels (``dof`` = pixels - 4), for every star with a usable stamp whether or
-    not its moments are measured. rho1 to rho5 (Jarvis et al. 2016,
-    :func:`~sklearn_psf.metrics.rho_statistics`, T = 2 sigma^2) need 10 measured stars.
-
-    Undersampled stars (under ~2 pixels per FWHM) defeat adaptive moments and re-centring
-    by interpolation: with ``moments`` a number, or "auto" when adaptive moments fail on
-    more than half of the stars, e and size are measured with a fixed round Gaussian weight
-    (:func:`~sklearn_psf.measure.fixed_moments`, sigma ``moments`` or 1.5 pixels) on the
-    stars as they are (normalised to unit sum, not moved) and on ``predicted``, which must
-    then be the model drawn at each star's sub-pixel position (e.g.
-    ``PSFModel.predict(X, offsets=...)``, as :func:`fit_and_validate` does); the chi^2's
-    shift then starts from none (a model drawn centred is moved to the star all the same).
-    A Fourier shift of an undersampled model stamp aliases: give ``render`` to fit the
-    chi^2's shift by drawing the model again at each step.
+    The stars are normalised (:class:`~sklearn_psf.preprocessing.StampNormalizer`) and
+    measured with :func:`~sklearn_psf.measure.adaptive_moments`, like the model's stamps; each
+    raw star is compared with the model moved to it (sub-pixel shift, flux and constant
+    background fitted) in the star's noise: chi^2 over its unmasked pixels, ``dof`` = pixels
+    - 4. Undersampled stars are measured with fixed-weight moments (``moments``). Details:
+    :ref:`residuals-details` in the user guide.
 
     Parameters
     ----------
@@ -230,43 +216,33 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
     index : array-like of shape (n,), optional
         Row numbers stored in the table's ``index`` column; default 0 to n-1.
     moments : "auto", "adaptive" or float, default="auto"
-        Adaptive moments, or fixed-weight moments of that sigma (pixels) for undersampled
-        stars; "auto": adaptive unless they fail on more than half of the stars (then
-        sigma 1.5 pixels). See above.
+        Adaptive moments, or fixed-weight moments of that sigma (pixels), for undersampled
+        stars (``predicted`` then drawn at each star's sub-pixel position); "auto":
+        adaptive unless they fail on more than half of the stars (then sigma 1.5 pixels).
     render : callable, optional
-        ``render(offsets)``: the model's stamps at X drawn with each star at ``offsets``
-        ((n, 2) pixels from the centre pixel), e.g. ``lambda o: model.predict(X,
-        offsets=o)``. The chi^2's shift is then fitted by drawing the model again, from
-        each star's position in its stamp, ``X - floor(X + 0.5)`` (the stamps' centre
-        convention, :func:`~sklearn_psf.io.extract_vignettes`).
+        ``render(offsets)``: the model's stamps at X with each star at ``offsets`` ((n, 2)
+        pixels from the centre pixel), e.g. ``lambda o: model.predict(X, offsets=o)``: the
+        chi^2's shift is then fitted by drawing the model again (no Fourier shift).
 
     Returns
     -------
     table : astropy.table.Table
         One row per star: ``index``, ``x``, ``y``, ``e1_star``, ``e2_star``,
         ``sigma_star``, ``e1_model``, ``e2_model``, ``sigma_model``, ``de1``, ``de2``,
-        ``dsigma`` (star - model), ``dM22``, ``dM31``, ``dM13`` (star - model: the spin-0
-        and spin-2 fourth moments of :func:`~sklearn_psf.measure.fourth_moments`, pixels^4,
-        PIFF's definitions), ``resid_rms`` (pixel rms of the unit-flux residual
-        stamp), ``chi2`` and ``dof`` (of the raw stamp against the model, see above; NaN
-        and 0 where it cannot be fitted, e.g. no positive flux), ``flag`` (0: both measured; 1: star's moments
-        failed; 2: model's), ``stamp_star``, ``stamp_model`` (normalised).
+        ``dsigma`` (star - model), ``dM22``, ``dM31``, ``dM13`` (star - model fourth
+        moments, :func:`~sklearn_psf.measure.fourth_moments`, pixels^4), ``resid_rms`` (pixel
+        rms of the unit-flux residual), ``chi2``, ``dof`` (NaN and 0 where not fitted),
+        ``flag`` (0: both measured; 1: star's moments failed; 2: model's), ``stamp_star``,
+        ``stamp_model`` (normalised).
     summary : dict
-        ``n_measured``, ``de1_mean``, ``de1_rms``, ``de2_mean``, ``de2_rms``, ``e_rms``
-        (sqrt <de1^2 + de2^2>), ``dsigma_mean``, ``dsigma_rms``, ``sigma_mean`` (pixels),
-        ``dM22_mean``, ``dM22_rms``, ``dM4_spin2_rms`` (sqrt <dM31^2 + dM13^2>), in
-        pixels^4, and ``dM22_rel_mean``, ``dM22_rel_rms``, ``dM4_rel_rms`` the same of the
-        residuals over each star's sigma^4 (dimensionless: a Gaussian's M22 is 2 sigma^4; NaN
-        for undersampled stars, whose fourth moments are not measured),
-        ``chi2_dof`` (sum of chi^2 over sum of dof of the stars with a chi^2: 1 for a model as
-        good as the noise allows, when the weights are right), ``chi2_dof_median`` (median
-        of the stars' chi^2 / dof), ``rho1`` to ``rho5`` (each a dict of ``theta``, ``xi``,
-        ``sigma_xi``, ``npairs``, or None with fewer than 10 measured stars),
-        ``rho_theta_units`` ("pixel", or "arcmin" with a ``wcs``), ``rho1_mean_abs``,
-        ``rho_M4``, ``rho_eM4``, ``rho_M22``, ``rho_TM22`` (the fourth-moment correlation
-        functions of :func:`~sklearn_psf.metrics.fourth_moment_rho_statistics` on the
-        residuals over sigma^4, dicts as ``rho1``; None for undersampled stars),
-        ``moments`` (text: "adaptive", or the fixed weight's sigma).
+        ``n_measured``, mean and rms of ``de1``, ``de2``, ``dsigma``, ``dM22`` (e.g.
+        ``de1_mean``, ``de1_rms``), ``e_rms`` (sqrt <de1^2 + de2^2>), ``sigma_mean``,
+        ``dM4_spin2_rms``, the fourth moments over sigma^4 (``dM22_rel_mean``, ...),
+        ``chi2_dof`` (summed chi^2 over summed dof: 1 for a model as good as the noise
+        allows), ``chi2_dof_median``, ``rho1`` to ``rho5`` and ``rho_M4``, ``rho_eM4``,
+        ``rho_M22``, ``rho_TM22`` (dicts of ``theta``, ``xi``, ``sigma_xi``, ``npairs``, or
+        None), ``rho_theta_units``, ``rho1_mean_abs``, ``moments``; see
+        :ref:`residuals-details`.
 
     Examples
     --------
