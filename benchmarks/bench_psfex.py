@@ -123,22 +123,27 @@ def compile_bytecode():
     compileall.compile_dir(os.path.dirname(sklearn_psf.__file__), quiet=1)
 
 
+def cached_ccd(seed, quick, cache, folder):
+    """(ccd, image path, its folder): the DECam-like CCD of ``seed`` rendered, or read from
+    the cache folder when it is there."""
+    kw = dict(shape=(1024, 1024), n_stars=150, n_galaxies=250) if quick else {}
+    cached = Path(cache or folder) / f"ccd{seed}{'_quick' if quick else ''}"
+    cached.mkdir(parents=True, exist_ok=True)
+    if (cached / "ccd.pkl").exists():
+        with open(cached / "ccd.pkl", "rb") as f:
+            return pickle.load(f), cached / "ccd.fits", cached
+    ccd = render_galsim_ccd(random_state=seed, **kw)
+    image = ccd.write(cached, overwrite=True)
+    with open(cached / "ccd.pkl", "wb") as f:
+        pickle.dump(ccd, f)
+    return ccd, image, cached
+
+
 def prepare(seed, args, folder):
     """The rendered CCD (from the cache when there), its Source Extractor catalogue and PSFEx's
     models of it; the CPU seconds of Source Extractor and PSFEx."""
     t0 = time.time()
-    kw = dict(shape=(1024, 1024), n_stars=150, n_galaxies=250) if args.quick else {}
-    cached = Path(args.cache or folder) / f"ccd{seed}{'_quick' if args.quick else ''}"
-    cached.mkdir(parents=True, exist_ok=True)
-    if (cached / "ccd.pkl").exists():
-        with open(cached / "ccd.pkl", "rb") as f:
-            ccd = pickle.load(f)
-        image = cached / "ccd.fits"
-    else:
-        ccd = render_galsim_ccd(random_state=seed, **kw)
-        image = ccd.write(cached, overwrite=True)
-        with open(cached / "ccd.pkl", "wb") as f:
-            pickle.dump(ccd, f)
+    ccd, image, cached = cached_ccd(seed, args.quick, args.cache, folder)
     t_render = time.time() - t0
     catalog, cpu_sex = timed(run_sextractor, image, os.path.join(folder, f"ccd{seed}.ldac"),
                              weight_path=ccd.weight_path(image), config={"NTHREADS": 1},

@@ -179,23 +179,9 @@ def decam_case(args, root, n_ccds):
 
 def prepare_decam(seed, ns, folder):
     """A DECam-like CCD and its catalogue (PSFEx's models are made by ``measure``)."""
-    import pickle
-
     from sklearn_psf.io import run_sextractor
-    from sklearn_psf.simulate import render_galsim_ccd
 
-    kw = dict(shape=(1024, 1024), n_stars=150, n_galaxies=250) if ns.quick else {}
-    cached = Path(ns.cache or folder) / f"ccd{seed}{'_quick' if ns.quick else ''}"
-    cached.mkdir(parents=True, exist_ok=True)
-    if (cached / "ccd.pkl").exists():
-        with open(cached / "ccd.pkl", "rb") as f:
-            ccd = pickle.load(f)
-        image = cached / "ccd.fits"
-    else:
-        ccd = render_galsim_ccd(random_state=seed, **kw)
-        image = ccd.write(cached, overwrite=True)
-        with open(cached / "ccd.pkl", "wb") as f:
-            pickle.dump(ccd, f)
+    ccd, image, cached = bp.cached_ccd(seed, ns.quick, ns.cache, folder)
     catalog = cached / f"ccd{seed}.ldac"  # (distinct names: one model file each)
     if not catalog.exists():
         run_sextractor(image, catalog, weight_path=ccd.weight_path(image),
