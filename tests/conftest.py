@@ -202,3 +202,12 @@ def sextractor_ldac(tmp_path_factory):
     """:func:`make_sextractor_ldac`: 140 point sources, 60 galaxies, 3 saturated stars, 2 blends."""
     pytest.importorskip("galsim")
     return make_sextractor_ldac(tmp_path_factory.mktemp("sextractor") / "ccd01.ldac")
+
+
+#: Test files holding the suite's longest tests (real-image cross-validations, 30-100 s
+#: each): run first, so that the workers of ``-n auto`` do not wait on them at the end.
+_LONGEST_FIRST = ("test_real_images.py",)
+
+
+def pytest_collection_modifyitems(session, config, items):
+    items.sort(key=lambda item: item.fspath.basename not in _LONGEST_FIRST)
