@@ -99,21 +99,20 @@ def _undersampled_stars(cube, weights):
     return bool(np.isfinite(fwhm).any() and np.nanmedian(fwhm) < UNDERSAMPLED_FWHM)
 
 
-def _renderer(model, X, s):
-    """``render(offsets)``: the model's s x s stamps at X with each star drawn at its (dx,
-    dy) from the centre pixel, for a model whose ``predict`` takes ``offsets`` and can
-    draw them (None otherwise)."""
+def _drawn_at(model, X, s, phase):
+    """``(stamps, render)``: the model's s x s stamps at X with each star at ``phase`` from
+    the centre pixel, and ``render(offsets)`` drawing them at other offsets, for a model
+    whose ``predict`` takes ``offsets`` and can draw them; ``(None, None)`` otherwise."""
     if "offsets" not in inspect.signature(model.predict).parameters:
-        return None
+        return None, None
 
     def render(offsets):
         return _fit_size(model.predict(X, offsets=offsets), s)
 
     try:
-        render(np.zeros((len(X), 2)))
+        return render(phase), render
     except ValueError:  # e.g. a basis without render
-        return None
-    return render
+        return None, None
 
 
 def _named_models(models, stamp_size, origin, chipnum):
@@ -257,9 +256,10 @@ def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6
         if width > X.shape[1]:
             raise InputError(f"model {name!r} has {width - 2} dimensions after x, y (catalogue "
                              f"keys) but X gives {X.shape[1] - 2}")
-        render = None if phase is None else _renderer(model, X[:, :width], s)
+        drawn, render = (None, None) if phase is None else \
+            _drawn_at(model, X[:, :width], s, phase)
         if render is not None:
-            predicted[name], renders[name] = render(phase), render
+            predicted[name], renders[name] = drawn, render
         else:
             predicted[name] = _fit_size(model.predict(X[:, :width]), s)
             if phase is not None:  # a model drawn centred only: moved to the star's phase
