@@ -1,12 +1,37 @@
-"""Local Kriging: bordered systems of each query's nearest stars, solved in batches (private)."""
+"""Local Kriging: bordered systems of each query's nearest stars, solved in batches (private).
+
+:func:`fit_local` returns the :class:`LocalSolve` of the stars; :func:`predict_local` reads a
+fitted :class:`KrigingRegressor` in local mode."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
+from scipy.spatial import cKDTree
 
 #: Queries per batch of stacked bordered systems are bounded so that the batch's arrays
 #: stay around this many float64 elements (~16 MB).
 _LOCAL_BATCH_ELEMENTS = 2**21
+
+
+@dataclasses.dataclass(frozen=True)
+class LocalSolve:
+    """Local Kriging's fit: the stars' k-d tree (transformed positions), the neighbours of
+    each query and the targets' mean over the stars."""
+
+    tree: cKDTree
+    k: int
+    mean: np.ndarray
+
+
+def fit_local(U, Y, k, n_drift, drift):
+    """The :class:`LocalSolve` of the stars at transformed positions ``U`` with values ``Y``,
+    ``k`` neighbours per query and ``n_drift`` drift terms (of ``drift``, for the message)."""
+    if k < n_drift:
+        raise ValueError(f"KrigingRegressor: n_neighbors must be at least {n_drift} for "
+                         f"drift={drift!r}, got {k}.")
+    return LocalSolve(cKDTree(U), k, Y.mean(axis=0))
 
 
 def _neighbours(reg, U, k, leave_out):
