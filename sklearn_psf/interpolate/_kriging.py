@@ -21,6 +21,8 @@ from ._base import (
 )
 from ._kriging_co import coregionalization_frame
 from ._kriging_exact import (
+    ExactSolve,
+    NoiseGroups,
     correlation,
     fit_coupled,
     fit_exact,
@@ -37,7 +39,7 @@ from ._kriging_hyper import (
     geometry,
     transform,
 )
-from ._kriging_local import fit_local, predict_local
+from ._kriging_local import LocalSolve, fit_local, predict_local
 from ._variogram import variogram_models
 
 #: fewer distinct stars than this: a FewStarsWarning (the sill is a variance of few values)
@@ -458,6 +460,18 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
         self._set_fitted(state)
 
     # ------------------------------------------------------------------ predict
+    def _solve(self):
+        """The fitted system, from the attributes: a :class:`LocalSolve` in local mode, an
+        :class:`ExactSolve` in exact mode."""
+        if getattr(self, "_tree", None) is not None:
+            return LocalSolve(self._tree, self._k, self.mean_)
+        return ExactSolve(self._factors, self.dual_coef_, self.drift_coef_,
+                          getattr(self, "_dual_independent", None),
+                          getattr(self, "n_cg_iter_", None))
+
+    def _groups(self):
+        return NoiseGroups(self._noise_ratio_groups, self._group_targets, self._group_of)
+
     def predict(self, X, return_std=False):
         """Kriging prediction, and optionally its standard deviation.
 
@@ -478,12 +492,15 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
         """
         X = self._validate_predict_data(X)
         U, Fq = self._transform(X), self._drift_design(X)
-        if getattr(self, "_tree", None) is not None:
-            pred, var = predict_local(self, U, Fq, return_std)
+        solve = self._solve()
+        if isinstance(solve, LocalSolve):
+            pred, var = predict_local(solve, (self._U_fit, self._z_fit, self._F_fit),
+                                      self._correlation, self._groups(), U, Fq, return_std)
             if self._frame is not None:
                 pred = pred @ self._frame[1]
         else:
-            pred, var = predict_exact(self, U, Fq, return_std)
+            pred, var = predict_exact(solve, self._U_fit, self._correlation, self._groups(),
+                                      U, Fq, return_std)
         pred = self._format_output(pred)
         if not return_std:
             return pred
@@ -521,10 +538,12 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
             ``return_std=True``); divide the residuals by it for a chi statistic.
         """
         check_is_fitted(self)
-        if getattr(self, "_tree", None) is not None:
+        solve = self._solve()
+        if isinstance(solve, LocalSolve):
             n = self._U_fit.shape[0]  # (more stars than neighbours in local mode)
-            pred, var = predict_local(self, self._U_fit, self._F_fit, return_std,
-                                      leave_out=np.arange(n))
+            pred, var = predict_local(solve, (self._U_fit, self._z_fit, self._F_fit),
+                                      self._correlation, self._groups(), self._U_fit,
+                                      self._F_fit, return_std, leave_out=np.arange(n))
             if return_std:  # the star's own noise adds to the Kriging variance
                 var = np.clip(var[:, self._group_of], 0.0, None)
                 if self._noise_fit is not None:
@@ -532,7 +551,7 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
                                                            self._sill_fit, np.inf)
                 var = var * self._sill_fit
         else:
-            pred, var = loo_exact(self)
+            pred, var = loo_exact(solve, self._z_fit, self._groups(), self._sill_fit)
         if self._frame is not None:
             pred = pred @ self._frame[1]
         pred = self._format_output(pred)

@@ -1,7 +1,7 @@
 """Exact Kriging: factorisations, the co-Kriging system, predictions and leave-one-out
 (private). :func:`fit_exact` and :func:`fit_coupled` take the stars and the model and return
-an :class:`ExactSolve`; :func:`predict_exact` and :func:`loo_exact` read a fitted
-:class:`KrigingRegressor` in exact mode."""
+an :class:`ExactSolve`, which :func:`predict_exact` and :func:`loo_exact` take with the stars;
+none reads or sets a regressor's attributes."""
 
 from __future__ import annotations
 
@@ -137,42 +137,46 @@ def fit_coupled(solve, C0, Z, F, noise_z, sill, groups, A_inv):
                                n_cg_iter=n_cg_iter)
 
 
-def predict_exact(reg, U, Fq, return_std):
-    """Predictions (m, T) and normalised variances (m, n_groups) of exact Kriging."""
-    m, T = U.shape[0], reg.dual_coef_.shape[1]
+def predict_exact(solve, U_fit, corr, groups, U, Fq, return_std):
+    """Predictions (m, T) and normalised variances (m, n_groups) of exact Kriging: ``solve``
+    the :class:`ExactSolve` of the stars at transformed positions ``U_fit``, ``corr`` and
+    ``groups`` as for :func:`fit_exact`; ``U`` the transformed query positions and ``Fq``
+    their drift design rows."""
+    m, T = U.shape[0], solve.dual_coef.shape[1]
     pred = np.empty((m, T))
-    var = np.empty((m, len(reg._factors))) if return_std else None
-    for sl in _query_chunks(m, reg._U_fit.shape[0]):
-        D = cdist(U[sl], reg._U_fit)
+    var = np.empty((m, len(solve.factors))) if return_std else None
+    for sl in _query_chunks(m, U_fit.shape[0]):
+        D = cdist(U[sl], U_fit)
         on_star = np.flatnonzero(D.min(axis=1) == 0)
         zero = D[on_star] == 0
-        c = reg._correlation(D)
+        c = corr(D)
         c[on_star] = np.where(zero, 1.0, c[on_star])  # variogram 0 at distance 0
-        np.matmul(c, reg.dual_coef_, out=pred[sl])
-        pred[sl] += Fq[sl] @ reg.drift_coef_
+        np.matmul(c, solve.dual_coef, out=pred[sl])
+        pred[sl] += Fq[sl] @ solve.drift_coef
         if not return_std:
             continue
-        for g, (L, KiF, FKiF_inv) in enumerate(reg._factors):
+        for g, (L, KiF, FKiF_inv) in enumerate(solve.factors):
             u = Fq[sl] - c @ KiF
             # c^T C^-1 c = |L^-1 c|^2: a triangular solve on c.T (Fortran-contiguous;
             # overwritten in place for the last group)
-            last = g == len(reg._factors) - 1
+            last = g == len(solve.factors) - 1
             v = solve_triangular(L, c.T, lower=True, check_finite=False,
                                  overwrite_b=last)
             q = np.einsum("ij,ij->j", v, v)
             var[sl, g] = 1.0 - q + np.einsum("ip,pq,iq->i", u, FKiF_inv, u)
-            if reg._noise_ratio_groups[g] is None:
+            if groups.ratios[g] is None:
                 var[sl, g][on_star] = 0.0  # exactly 0 on a star, not rounding noise
     return pred, var
 
 
-def loo_exact(reg):
-    """Leave-one-out predictions and residual variances of the frame's targets."""
-    pdiag = np.empty_like(reg._z_fit)
-    for g, (L, KiF, FKiF_inv) in enumerate(reg._factors):
+def loo_exact(solve, Z, groups, sill):
+    """Leave-one-out predictions and residual variances of the frame's targets ``Z`` (n, T)
+    of sills ``sill`` (T,), ``solve`` their :class:`ExactSolve`."""
+    pdiag = np.empty_like(Z)
+    for g, (L, KiF, FKiF_inv) in enumerate(solve.factors):
         Linv, info = lapack.dtrtri(L, lower=1)  # upper triangle zero, as L's
         d = np.einsum("ij,ij->j", Linv, Linv) - np.einsum("ip,pq,iq->i", KiF, FKiF_inv,
                                                           KiF)
-        pdiag[:, reg._group_targets[g]] = d[:, None]
-    dual = reg.dual_coef_ if reg._frame is None else reg._dual_independent
-    return reg._z_fit - dual / pdiag, reg._sill_fit / pdiag
+        pdiag[:, groups.targets[g]] = d[:, None]
+    dual = solve.dual_coef if solve.dual_independent is None else solve.dual_independent
+    return Z - dual / pdiag, sill / pdiag
