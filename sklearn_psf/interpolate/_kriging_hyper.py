@@ -3,8 +3,10 @@ likelihood, the estimator's side of it: which likelihood (exact or Vecchia's) on
 stars, ``drift="auto"``'s choice of the drift by the Bayesian information criterion, the
 factors on the extra features (``extra_scaling="auto"``), the range's floor at the stars'
 spacing, and the warm start's state. They live on :class:`_KrigingHyperparameters`, a mixin
-that ``KrigingRegressor`` inherits; the likelihood itself and its optimiser are in
-``_kriging_ml``, the Kriging systems in ``_kriging_exact`` and ``_kriging_local``."""
+that ``KrigingRegressor`` inherits, whose fits return a :class:`Hyperparameters` (they set
+nothing on the estimator); with them, the drift's design and the anisotropy frame as plain
+functions. The likelihood itself and its optimiser are in ``_kriging_ml``, the Kriging
+systems in ``_kriging_exact`` and ``_kriging_local``."""
 
 from __future__ import annotations
 
@@ -162,7 +164,7 @@ class _KrigingHyperparameters:
                 best = (bic, drift, fit)
             if k == 0 and X.shape[1] > 2:
                 first = fit.extra.copy()
-        return (best[1], best[2], (first if best[1] == next(iter(_DRIFT_DEGREE)) else None))
+        return best[1], best[2], (first if best[1] is None else None)
 
     def _start_state(self):
         """What this fit started from with ``warm_start`` (JSON-able; None for a fit from
