@@ -359,6 +359,25 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
     # ------------------------------------------------------------------ fit
     _joint_noise = True  # fit(noise_cov=...) is co-Kriging
 
+    def _resolve_drift(self, X, Z, noise, previous, center, half_width):
+        """The drift, the extra features' factors its fit holds (or None) and the start of
+        that fit (None: from the grid): ``drift``, with the previous fit's start under
+        ``warm_start``; ``"auto"``: None when no hyperparameter is fitted by maximum
+        likelihood, the previous fit's drift under ``warm_start``, else
+        :meth:`_choose_drift`'s."""
+        start = None if previous is None else previous["ml"]
+        if self.drift != "auto":
+            return self.drift, None, start
+        ml = any(isinstance(v, str) for v in (self.range, self.nugget, self.anisotropy_scaling,
+                                               self.anisotropy_angle)) or (
+            noise is not None and isinstance(self.noise_scale, str))
+        if not ml:  # nothing fitted: ordinary Kriging
+            return None, None, start
+        if previous is not None:
+            return previous["drift"], None, start
+        drift, candidate, held = self._choose_drift(X, Z, noise, center, half_width)
+        return drift, held, None if candidate is None else candidate.as_start()
+
     def _fit(self, X, Y, noise, noise_cov=None):
         self._check_params(X.shape[1])
         previous = getattr(self, "_warm", None) if self.warm_start else None
@@ -382,17 +401,7 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
             A, A_inv, noise_z = coregionalization_frame(Y, noise_cov)
             frame, Z = (A, A_inv), Y @ A
             noise = np.einsum("itt->it", noise_z).copy()
-        ml = any(isinstance(v, str) for v in (self.range, self.nugget, self.anisotropy_scaling,
-                                               self.anisotropy_angle)) or (
-            noise is not None and isinstance(self.noise_scale, str))
-        drift, held, start = self.drift, None, None if previous is None else previous["ml"]
-        if self.drift == "auto" and not ml:  # nothing fitted: ordinary Kriging
-            drift = None
-        elif self.drift == "auto" and previous is not None:
-            drift = previous["drift"]
-        elif self.drift == "auto":
-            drift, candidate, held = self._choose_drift(X, Z, noise, center, half_width)
-            start = None if candidate is None else candidate.as_start()
+        drift, held, start = self._resolve_drift(X, Z, noise, previous, center, half_width)
         powers = drift_powers(d, drift, self.extra_drift)
         n_drift = powers.shape[0]
         _check_n_samples(_NAME, n, max(2, n_drift + 1), "(distinct positions)")
