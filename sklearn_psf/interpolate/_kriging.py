@@ -472,11 +472,12 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
     def _solve(self):
         """The fitted system, from the attributes: a :class:`LocalSolve` in local mode, an
         :class:`ExactSolve` in exact mode."""
-        if getattr(self, "_tree", None) is not None:
+        if self.n_neighbors_ is not None:
             return LocalSolve(self._tree, self._k, self.mean_)
+        if self._frame is None:
+            return ExactSolve(self._factors, self.dual_coef_, self.drift_coef_)
         return ExactSolve(self._factors, self.dual_coef_, self.drift_coef_,
-                          getattr(self, "_dual_independent", None),
-                          getattr(self, "n_cg_iter_", None))
+                          self._dual_independent, self.n_cg_iter_)
 
     def _groups(self):
         return NoiseGroups(self._noise_ratio_groups, self._group_targets, self._group_of)
