@@ -10,6 +10,7 @@ from scipy.stats import multivariate_normal
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
 from sklearn_psf.interpolate import ExposureKrigingRegressor
+from sklearn_psf.interpolate._exposure_kriging import _solved_state
 from sklearn_psf.interpolate._exposure_kriging_ml import _JointLikelihood
 
 
@@ -132,7 +133,7 @@ def test_inducing_points_at_the_stars_are_exact(monkeypatch):
     exact = ExposureKrigingRegressor(range=0.3, atmosphere_range=0.15).fit(X, Y, noise_var=noise)
     lo, span = X[:, :2].min(0), (X[:, :2].max(0) - X[:, :2].min(0)).max()
     U = (X[:, :2] - lo) / span
-    monkeypatch.setattr(ExposureKrigingRegressor, "_inducing_grid", lambda self, d: U)
+    monkeypatch.setattr(ExposureKrigingRegressor, "_inducing_grid", lambda self, d, extent: U)
     blocks = ExposureKrigingRegressor(range=0.3, atmosphere_range=0.15, max_exact_samples=10)
     blocks.fit(X, Y, noise_var=noise)
     assert not blocks.exact_
@@ -191,9 +192,11 @@ def test_maximum_likelihood_learns_the_split(static, atmosphere):
         Y2[X[:, 2] != 0] += np.random.default_rng(0).normal(0, 0.3, Y2[X[:, 2] != 0].shape)
         fixed = {k: getattr(reg, f"{k}_") for k in ("range", "atmosphere_range")}
         other = ExposureKrigingRegressor(**fixed).fit(X, Y2, noise_var=noise)
-        other._p, other._q = reg._p, reg._q  # the same sills: only the data differ
-        other._fit_exact(other._U_fit, other._e_fit, other._z_fit, noise)
-        other._to_targets()
+        # the same sills: only the data differ
+        fit = {"range": other.range_, "atmosphere_range": other.atmosphere_range_,
+               "static_sill": reg._p, "atmosphere_sill": reg._q}
+        solve = other._fit_exact(other._U_fit, other._e_fit, other._z_fit, noise, None, fit)
+        vars(other).update(_solved_state(solve, reg._p, reg._q, None))
         Xq = np.column_stack([np.full(20, 500.0), np.linspace(0, 1000, 20), np.zeros(20)])
         change = np.abs(other.predict(Xq) - reg.predict(Xq)).max()
         assert change < 0.1 * np.std(Y[X[:, 2] == 0], axis=0).min()

@@ -190,5 +190,8 @@ def test_auto_drift_without_maximum_likelihood_is_ordinary_kriging():
     assert auto.drift_ is None
     np.testing.assert_array_equal(auto.predict(X[:5] + 0.01), KrigingRegressor(range=0.5).fit(
         X, X[:, 0] ** 2).predict(X[:5] + 0.01))
+    # noise_scale="auto" without noise_var fits nothing either (it raised AttributeError)
+    auto = KrigingRegressor(range=0.5, noise_scale="auto", drift="auto").fit(X, X[:, 0] ** 2)
+    assert auto.drift_ is None and auto.log_likelihood_ is None
     with pytest.raises(ValueError, match="'drift' parameter of KrigingRegressor must be"):
         KrigingRegressor(range="auto", drift="cubic").fit(X, X[:, 0])

@@ -173,3 +173,19 @@ def test_auto_neighbours_exact_where_cheap_local_beyond():
     # measured: rms 0.0009, largest 0.017 of the spread; std within 0.8%
     assert np.sqrt(np.mean(diff**2)) < 2e-3 * np.ptp(y) and np.abs(diff).max() < 0.03 * np.ptp(y)
     np.testing.assert_allclose(std_l, std_e, rtol=0.05)
+
+
+def test_kriging_refit_in_another_mode_keeps_nothing_of_the_previous_fit():
+    """A refit sets the whole fitted state anew: nothing of a local or co-Kriging fit
+    lingers after an exact one without noise, which predicts as a fresh fit does."""
+    X, Y = field(60, n_targets=2)
+    cov = np.array([[1.0, 0.5], [0.5, 1.0]]) * 1e-4 * np.ones((60, 1, 1))
+    reg = KrigingRegressor(range=0.5, n_neighbors=20).fit(X, Y, noise_cov=cov)
+    assert hasattr(reg, "_tree") and not hasattr(reg, "dual_coef_")
+    reg.set_params(n_neighbors=None).fit(X, Y, noise_cov=cov)
+    assert hasattr(reg, "n_cg_iter_") and not hasattr(reg, "_tree")
+    reg.fit(X, Y)
+    assert not hasattr(reg, "n_cg_iter_") and reg.noise_cov_ is None
+    Xq = X[:5] + 0.01
+    np.testing.assert_array_equal(reg.predict(Xq), KrigingRegressor(range=0.5).fit(X, Y)
+                                  .predict(Xq))

@@ -220,6 +220,16 @@ class _BaseInterpolator(RegressorMixin, BaseEstimator):
         self.n_targets_ = Y.shape[1]
         return X, Y
 
+    def _set_fitted(self, state):
+        """Make ``state`` (attribute name: value) the fitted state, in one place: the
+        attributes the previous call set go first, so that nothing of a previous fit
+        lingers (``_set_fitted({})`` at the start of a fit frees the previous fit's arrays
+        before the new ones are allocated)."""
+        for name in self.__dict__.pop("_fitted_names", ()):
+            self.__dict__.pop(name, None)
+        vars(self).update(state)
+        self._fitted_names = tuple(state)
+
     def _validate_predict_data(self, X):
         check_is_fitted(self)
         X = validate_data(self, X, reset=False, dtype=np.float64, ensure_all_finite=False)

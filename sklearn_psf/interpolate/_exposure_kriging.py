@@ -29,6 +29,7 @@ Woodbury's identity: cost ``O(n m^2 + n n_e^2)`` for ``n`` stars, ``m`` inducing
 
 from __future__ import annotations
 
+import dataclasses
 import numbers
 import warnings
 from numbers import Integral, Real
@@ -126,6 +127,60 @@ class _CoupledExposureSystem(CoupledSystem):
             V[0, t] = w.sum() / k1.sum()
             G[:, t] = w - k1 * V[0, t]
         return G, V
+
+
+@dataclasses.dataclass(frozen=True)
+class _ExposureSolve:
+    """The solved Kriging system of the frame's targets: their means (T,), dual coefficients
+    ``K^-1 (y - mean)`` (n, T), the diagonal of the bordered system's inverse and the dual
+    coefficients of the independent targets (leave-one-out), the conjugate-gradient iterations
+    (co-Kriging, else 0) and with inducing points, the grid, its Cholesky factor and
+    ``V`` (m, n)."""
+
+    mean: np.ndarray
+    dual_coef: np.ndarray
+    loo_pdiag: np.ndarray
+    dual_loo: np.ndarray
+    n_cg_iter: int = 0
+    inducing: tuple | None = None
+
+
+def _diagonal(noise, t, n, p, q):
+    """The diagonal added to target ``t``'s covariance: its noise and a jitter."""
+    return (0.0 if noise is None else noise[:, t]) + JITTER * (p[t] + q[t]) * np.ones(n)
+
+
+def _set_target(mean, dual, pdiag, t, k1, ky, y, diag_inv):
+    """Mean, dual coefficients and leave-one-out diagonal of target t (written into
+    ``mean``, ``dual``, ``pdiag``) from ``K^-1 1``, ``K^-1 y`` and ``diag(K^-1)``."""
+    s = k1.sum()
+    mean[t] = (k1 @ y) / s
+    dual[:, t] = ky - mean[t] * k1  # K^-1 (y - mu)
+    pdiag[:, t] = diag_inv - k1 * k1 / s
+
+
+def _solved_state(solve, p, q, frame):
+    """The regressor's attributes of ``solve`` with the frame targets' sills ``p`` (static),
+    ``q`` (atmospheric): sills, mean and dual coefficients of each part in the targets' frame
+    of ``y``."""
+    state = {"_p": p, "_q": q, "mean_": solve.mean, "dual_coef_": solve.dual_coef,
+             "_loo_pdiag": solve.loo_pdiag, "_dual_loo": solve.dual_loo,
+             "n_cg_iter_": solve.n_cg_iter}
+    if solve.inducing is not None:
+        state["_Z"], state["_Lu"], state["_V"] = solve.inducing
+    dual_static, dual_atm = solve.dual_coef * p, solve.dual_coef * q
+    if frame is None:
+        return {**state, "static_sill_": p, "atmosphere_sill_": q,
+                "static_coregionalization_": np.diag(p),
+                "atmosphere_coregionalization_": np.diag(q),
+                "_dual_static": dual_static, "_dual_atm": dual_atm}
+    A_inv = frame[1]
+    static, atmosphere = (A_inv.T * p) @ A_inv, (A_inv.T * q) @ A_inv
+    return {**state, "static_coregionalization_": static,
+            "atmosphere_coregionalization_": atmosphere,
+            "static_sill_": np.diag(static).copy(), "atmosphere_sill_": np.diag(atmosphere).copy(),
+            "_dual_static": dual_static @ A_inv, "_dual_atm": dual_atm @ A_inv,
+            "mean_": solve.mean @ A_inv}
 
 
 def _check_positive(value, name, auto=True):
@@ -280,13 +335,13 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
         self.random_state = random_state
 
     # ------------------------------------------------------------------ input
-    def _split(self, X, reset):
+    def _split(self, X):
+        """Query positions (scaled as the stars') and exposures, known to the fit."""
         pos, exposure = split_exposure_column(X, self.exposure_column, f"{_NAME}: ")
-        if not reset:
-            unknown = np.setdiff1d(exposure, self.exposures_)
-            if len(unknown):
-                raise ValueError(f"{_NAME}: exposures {unknown.tolist()} were not in the fit: "
-                                 "a model predicts only the exposures its stars came from.")
+        unknown = np.setdiff1d(exposure, self.exposures_)
+        if len(unknown):
+            raise ValueError(f"{_NAME}: exposures {unknown.tolist()} were not in the fit: "
+                             "a model predicts only the exposures its stars came from.")
         return (pos - self._lo) / self._span, exposure
 
     def _check_params(self):
@@ -303,56 +358,48 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
     def _fit(self, X, Y, noise, noise_cov=None):
         self._check_params()
         _check_n_samples(_NAME, X.shape[0], 3, "")
-        pos, _ = split_exposure_column(X, self.exposure_column, f"{_NAME}: ")
-        self._lo = pos.min(axis=0)
-        span = pos.max(axis=0) - self._lo
+        self._set_fitted({})  # a previous fit's large arrays go first
+        pos, exposure = split_exposure_column(X, self.exposure_column, f"{_NAME}: ")
+        lo = pos.min(axis=0)
+        span = pos.max(axis=0) - lo
         if self._per_axis_scaling:  # model files of formats 1-3: each axis to [0, 1]
-            self._span = np.where(span > 0, span, 1.0)
+            scale = np.where(span > 0, span, 1.0)
         else:  # one factor, the longer side (as IsotropicScaler): the field's own distances
-            self._span = float(span.max()) if span.max() > 0 else 1.0
-        self._extent = np.where(span > 0, span / self._span, 1.0)
-        U, exposure = self._split(X, reset=True)
+            scale = float(span.max()) if span.max() > 0 else 1.0
+        extent = np.where(span > 0, span / scale, 1.0)
+        U = (pos - lo) / scale
         n, T = Y.shape
-        self.exposures_ = np.unique(exposure)
-        self.noise_var_ = noise
-        self._frame, Z, noise_z = None, Y, None
+        exposures = np.unique(exposure)
+        noise_var, frame, Z, noise_z = noise, None, Y, None
         if noise_cov is not None:  # co-Kriging in the frame of nearly independent targets
             A, A_inv, noise_z = coregionalization_frame(Y, noise_cov)
-            self._frame, Z = (A, A_inv), Y @ A
+            frame, Z = (A, A_inv), Y @ A
             noise = np.einsum("itt->it", noise_z).copy()
-            self.noise_var_ = np.einsum("itt->it", noise_cov).copy()
-        self._fit_hyperparameters(U, exposure, Z, noise)
-        self.X_fit_ = X
-        self._U_fit, self._e_fit, self._z_fit = U, exposure, Z
-        self.exact_ = n <= self.max_exact_samples
-        self.n_cg_iter_ = 0
-        (self._fit_exact if self.exact_ else self._fit_inducing)(U, exposure, Z, noise, noise_z)
-        self._to_targets()
+            noise_var = np.einsum("itt->it", noise_cov).copy()
+        fit = self._fit_hyperparameters(U, exposure, exposures, Z, noise)
+        log_likelihood = fit["log_likelihood"]
+        if frame is not None:  # the likelihood of y = z A^-1: the frame's Jacobian
+            log_likelihood += fit["n_stars"] * np.linalg.slogdet(frame[0])[1]
+        exact = n <= self.max_exact_samples
+        if exact:
+            solve = self._fit_exact(U, exposure, Z, noise, noise_z, fit)
+        else:
+            solve = self._fit_inducing(U, exposure, Z, noise, noise_z, fit, extent)
+        self._set_fitted({
+            "_lo": lo, "_span": scale, "_extent": extent, "exposures_": exposures,
+            "noise_var_": noise_var, "_frame": frame, "range_": fit["range"],
+            "atmosphere_range_": fit["atmosphere_range"], "log_likelihood_": log_likelihood,
+            "X_fit_": X, "_U_fit": U, "_e_fit": exposure, "_z_fit": Z, "exact_": exact,
+            **_solved_state(solve, fit["static_sill"], fit["atmosphere_sill"], frame),
+        })
         return self
 
-    def _to_targets(self):
-        """Sills, mean and dual coefficients of the frame's targets -> the targets'."""
-        p, q = self._p, self._q
-        self._dual_static, self._dual_atm = self.dual_coef_ * p, self.dual_coef_ * q
-        if self._frame is None:
-            self.static_sill_, self.atmosphere_sill_ = p, q
-            self.static_coregionalization_, self.atmosphere_coregionalization_ = (
-                np.diag(p), np.diag(q))
-            return
-        A_inv = self._frame[1]
-        self.static_coregionalization_ = (A_inv.T * p) @ A_inv
-        self.atmosphere_coregionalization_ = (A_inv.T * q) @ A_inv
-        self.static_sill_ = np.diag(self.static_coregionalization_).copy()
-        self.atmosphere_sill_ = np.diag(self.atmosphere_coregionalization_).copy()
-        self._dual_static, self._dual_atm = self._dual_static @ A_inv, self._dual_atm @ A_inv
-        self.mean_ = self.mean_ @ A_inv
-
-    def _ml_subset(self, exposure):
+    def _ml_subset(self, exposure, exposures):
         n = len(exposure)
         if n <= self.max_ml_samples:
             return np.arange(n)
         rng = check_random_state(self.random_state)
-        groups = [np.flatnonzero(exposure == e) for e in self.exposures_]
+        groups = [np.flatnonzero(exposure == e) for e in exposures]
         n_exp = min(len(groups), max(2, self.max_ml_samples // 40))
         chosen = np.sort(rng.choice(len(groups), n_exp, replace=False))
         pool = np.concatenate([groups[g] for g in chosen])
@@ -362,94 +409,84 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
         return np.sort(np.concatenate([rng.choice(groups[g], min(per, len(groups[g])),
                                                   replace=False) for g in chosen]))
 
-    def _fit_hyperparameters(self, U, exposure, Y, noise):
-        sub = self._ml_subset(exposure)
+    def _fit_hyperparameters(self, U, exposure, exposures, Y, noise):
+        """Ranges and sills (of ``Y``'s targets) by maximum likelihood on a subset of the
+        stars: :func:`fit_joint_hyperparameters`'s result, with the subset's size
+        (``n_stars``)."""
+        sub = self._ml_subset(exposure, exposures)
         _check_n_samples(_NAME, len(sub), _MIN_ML_STARS,
                          "to fit the sills by maximum likelihood")
         fit = fit_joint_hyperparameters(
             U[sub], exposure[sub], Y[sub], None if noise is None else noise[sub],
             self.variogram, range_=self.range, atmosphere_range=self.atmosphere_range)
-        self.range_, self.atmosphere_range_ = fit["range"], fit["atmosphere_range"]
-        self._p, self._q = fit["static_sill"], fit["atmosphere_sill"]  # of the frame's targets
-        self.log_likelihood_ = fit["log_likelihood"]
-        if self._frame is not None:  # the likelihood of y = z A^-1: the frame's Jacobian
-            self.log_likelihood_ += len(sub) * np.linalg.slogdet(self._frame[0])[1]
+        return {**fit, "n_stars": len(sub)}
 
-    def _diagonal(self, noise, t, n):
-        p, q = self._p[t], self._q[t]
-        return (0.0 if noise is None else noise[:, t]) + JITTER * (p + q) * np.ones(n)
-
-    def _fit_exact(self, U, exposure, Y, noise, noise_z=None):
+    def _fit_exact(self, U, exposure, Y, noise, noise_z, fit):
+        """The :class:`_ExposureSolve` of all the stars (``fit``: ranges and sills)."""
         n, T = Y.shape
+        p, q = fit["static_sill"], fit["atmosphere_sill"]
         D = cdist(U, U)
-        Rs = _correlation(self.variogram, D, self.range_)
-        Ra = _correlation(self.variogram, D, self.atmosphere_range_)
+        Rs = _correlation(self.variogram, D, fit["range"])
+        Ra = _correlation(self.variogram, D, fit["atmosphere_range"])
         Ra *= exposure[:, None] == exposure[None, :]
         del D
-        self.mean_, self.dual_coef_ = np.empty(T), np.empty((n, T))
-        self._loo_pdiag = np.empty((n, T))
+        mean, dual, pdiag = np.empty(T), np.empty((n, T)), np.empty((n, T))
         rhs = np.column_stack([np.ones(n), Y])
         factors = []
         for t in range(T):
-            K = self._p[t] * Rs + self._q[t] * Ra
-            K[np.diag_indices(n)] += self._diagonal(noise, t, n)
+            K = p[t] * Rs + q[t] * Ra
+            K[np.diag_indices(n)] += _diagonal(noise, t, n, p, q)
             L = _factor(K)
             sol = cho_solve(L, rhs[:, [0, t + 1]], check_finite=False)
-            self._set_target(t, sol[:, 0], sol[:, 1], Y[:, t], _inverse_diagonal(L[0]))
+            _set_target(mean, dual, pdiag, t, sol[:, 0], sol[:, 1], Y[:, t],
+                        _inverse_diagonal(L[0]))
             if noise_z is not None:  # (Fortran-ordered: solves without copies)
                 factors.append(L[0])
-        self._dual_loo = self.dual_coef_
         if noise_z is None:
-            return
+            return _ExposureSolve(mean, dual, pdiag, dual)
         # co-Kriging: the full noise covariances, the independent targets as preconditioner
-        jitter = JITTER * (self._p + self._q)
-        system = _CoupledExposureSystem(Rs, Ra, self._p, self._q, noise_z, jitter, factors)
-        alpha, beta, self.n_cg_iter_ = system.solve_gls(Y)
-        if self.n_cg_iter_ >= _CG_MAXITER:
+        system = _CoupledExposureSystem(Rs, Ra, p, q, noise_z, JITTER * (p + q), factors)
+        alpha, beta, n_cg_iter = system.solve_gls(Y)
+        if n_cg_iter >= _CG_MAXITER:
             warnings.warn(f"{_NAME}: the co-Kriging system did not converge in {_CG_MAXITER} "
                           "conjugate-gradient iterations (noise covariances far from one "
                           "another's shape?); predictions may be inaccurate.",
                           ConvergenceWarning, stacklevel=4)
-        self.dual_coef_, self.mean_ = alpha, beta[0].copy()
-
-    def _set_target(self, t, k1, ky, y, diag_inv):
-        """Mean, dual coefficients and leave-one-out diagonal of target t from ``K^-1 1``,
-        ``K^-1 y`` and ``diag(K^-1)``."""
-        s = k1.sum()
-        self.mean_[t] = (k1 @ y) / s
-        self.dual_coef_[:, t] = ky - self.mean_[t] * k1  # K^-1 (y - mu)
-        self._loo_pdiag[:, t] = diag_inv - k1 * k1 / s
+        return _ExposureSolve(beta[0].copy(), alpha, pdiag, dual, n_cg_iter)
 
     # -- inducing points (PITC over exposure blocks)
-    def _inducing_grid(self, d):
+    def _inducing_grid(self, d, extent):
         g = max(2, int(round(self.n_inducing ** (1.0 / d))))
-        axes = [np.linspace(0.0, extent, g) for extent in self._extent]
+        axes = [np.linspace(0.0, e, g) for e in extent]
         return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, d)
 
-    def _fit_inducing(self, U, exposure, Y, noise, noise_z=None):
+    def _fit_inducing(self, U, exposure, Y, noise, noise_z, fit, extent):
+        """The :class:`_ExposureSolve` with the static part across exposures through a grid
+        of inducing points over ``extent`` (``fit``: ranges and sills)."""
         n, T = Y.shape
-        Z = self._inducing_grid(U.shape[1])
+        p_all, q_all = fit["static_sill"], fit["atmosphere_sill"]
+        range_, atmosphere_range = fit["range"], fit["atmosphere_range"]
+        Z = self._inducing_grid(U.shape[1], extent)
         m = len(Z)
-        Kuu = _correlation(self.variogram, cdist(Z, Z), self.range_)
+        Kuu = _correlation(self.variogram, cdist(Z, Z), range_)
         Kuu[np.diag_indices(m)] += 1e-8
         Lu = cho_factor(Kuu, lower=True)[0]
-        V = solve_triangular(Lu, _correlation(self.variogram, cdist(Z, U), self.range_),
+        V = solve_triangular(Lu, _correlation(self.variogram, cdist(Z, U), range_),
                              lower=True, check_finite=False)  # (m, n): Q = p V^T V
-        blocks = [np.flatnonzero(exposure == e) for e in self.exposures_]
+        blocks = [np.flatnonzero(exposure == e) for e in np.unique(exposure)]
         # per exposure: static minus its inducing-point part, and the atmosphere (unit sills)
         parts = []
         for idx in blocks:
             D = cdist(U[idx], U[idx])
             Vb = V[:, idx]
-            parts.append((_correlation(self.variogram, D.copy(), self.range_) - Vb.T @ Vb,
-                          _correlation(self.variogram, D, self.atmosphere_range_)))
-        self.mean_, self.dual_coef_ = np.empty(T), np.empty((n, T))
-        self._loo_pdiag = np.empty((n, T))
+            parts.append((_correlation(self.variogram, D.copy(), range_) - Vb.T @ Vb,
+                          _correlation(self.variogram, D, atmosphere_range)))
+        mean, dual, pdiag = np.empty(T), np.empty((n, T)), np.empty((n, T))
         VT = np.asfortranarray(V.T)  # (n, m): rows of each block contiguous per column
         G = np.empty((n, m), order="F")  # L_e^-1 V_e^T, block by block
         for t in range(T):
-            p, q = self._p[t], self._q[t]
-            diag = self._diagonal(noise, t, n)
+            p, q = p_all[t], q_all[t]
+            diag = _diagonal(noise, t, n, p_all, q_all)
             rhs = np.column_stack([np.ones(n), Y[:, t]])
             r, lam_diag, factors = np.empty((n, 2)), np.empty(n), []
             for idx, (S, A) in zip(blocks, parts):
@@ -475,13 +512,12 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
             W = solve_triangular(Lm[0].astype(np.float32), G.T.astype(np.float32), lower=True,
                                  check_finite=False)
             diag_inv = lam_diag - np.einsum("ij,ij->j", W, W, dtype=np.float64)
-            self._set_target(t, sol[:, 0], sol[:, 1], Y[:, t], diag_inv)
-        self._Z, self._Lu, self._V = Z, Lu, V
-        self._dual_loo = self.dual_coef_
+            _set_target(mean, dual, pdiag, t, sol[:, 0], sol[:, 1], Y[:, t], diag_inv)
+        return _ExposureSolve(mean, dual, pdiag, dual, inducing=(Z, Lu, V))
 
     # ------------------------------------------------------------------ predict
     def _predict(self, X):
-        U, exposure = self._split(X, reset=False)
+        U, exposure = self._split(X)
         out = np.empty((len(U), self.dual_coef_.shape[1]))
         if self.exact_:
             for sl in _query_chunks(len(U), len(self._U_fit)):

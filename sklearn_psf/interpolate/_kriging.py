@@ -3,12 +3,12 @@ maximum-likelihood hyperparameters."""
 
 from __future__ import annotations
 
+import functools
 import numbers
 import warnings
 from numbers import Integral, Real
 
 import numpy as np
-from scipy.spatial import cKDTree
 from sklearn.utils._param_validation import Interval, StrOptions
 from sklearn.utils.validation import check_is_fitted
 
@@ -20,11 +20,27 @@ from ._base import (
     _NoiseAwareInterpolator,
 )
 from ._kriging_co import coregionalization_frame
-from ._kriging_exact import fit_coupled, fit_exact, loo_exact, predict_exact
-from ._kriging_hyper import _DRIFT_DEGREE, _MIN_ML_STARS, _NAME, _KrigingHyperparameters
-from ._kriging_local import predict_local
-from ._polynomial import _design, _exponents
-from ._variogram import _CORRELATIONS, variogram_models
+from ._kriging_exact import (
+    ExactSolve,
+    NoiseGroups,
+    correlation,
+    fit_coupled,
+    fit_exact,
+    loo_exact,
+    noise_groups,
+    predict_exact,
+)
+from ._kriging_hyper import (
+    _MIN_ML_STARS,
+    _NAME,
+    _KrigingHyperparameters,
+    drift_design,
+    drift_powers,
+    geometry,
+    transform,
+)
+from ._kriging_local import LocalSolve, fit_local, predict_local
+from ._variogram import variogram_models
 
 #: fewer distinct stars than this: a FewStarsWarning (the sill is a variance of few values)
 _FEW_STARS = 5
@@ -287,43 +303,15 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
     # ------------------------------------------------------------------ geometry
     def _correlation(self, D):
         """(1 - nugget) rho(D / a), overwriting D (a fresh distance matrix)."""
-        D *= 1.0 / self.range_
-        c = _CORRELATIONS[self.variogram](D)
-        if self.nugget_:
-            c *= 1.0 - self.nugget_
-        return c
+        return correlation(D, self.variogram, self.range_, self.nugget_)
 
     def _transform(self, X):
         """Positions in the anisotropy frame (PyKrige's: rotate by -angle, stretch y), the
         extra features multiplied by their factors."""
-        if self._aniso is not None:
-            return X @ self._aniso.T
-        if getattr(self, "_extra", None) is not None:
-            X = X.copy()
-            X[:, 2:] *= self._extra
-        return X
-
-    def _drift_powers_for(self, d):
-        """Drift exponents: ``drift_``'s polynomial in all features, plus with
-        ``extra_drift`` the linear (``"quadratic"``: and squared) terms of the features beyond
-        the first two (and then a quadratic drift in the first two only)."""
-        degree = _DRIFT_DEGREE[self.drift_]
-        if self.extra_drift in ("linear", "quadratic") and d > 2 and degree > 1:
-            powers = np.pad(_exponents(2, degree), ((0, 0), (0, d - 2)))
-        else:
-            powers = _exponents(d, degree)
-        if self.extra_drift in ("linear", "quadratic") and d > 2:
-            units = np.eye(d, dtype=int)[2:]
-            if self.extra_drift == "quadratic":
-                units = np.vstack([units, 2 * units])
-            new = [u for u in units if not (powers == u).all(axis=1).any()]
-            powers = np.vstack([powers] + new) if new else powers
-        return powers
+        return transform(X, self._aniso, self._extra)
 
     def _drift_design(self, X):
-        U = (X - self._drift_center) / self._drift_half_width
-        return _design(U, self._drift_powers, max(1, int(self._drift_powers.max(initial=0))),
-                       "monomial")
+        return drift_design(X, self._drift_center, self._drift_half_width, self._drift_powers)
 
     def _check_params(self, n_features):
         _check_param(self.range, "range", 0, np.inf, lo_open=True)
@@ -368,32 +356,34 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
                              f"two), got {value!r}.")
         return factors.copy()
 
-    def _set_anisotropy(self, scaling, angle, extra=None):
-        self.anisotropy_scaling_, self.anisotropy_angle_ = float(scaling), float(angle)
-        n_extra = max(self.n_features_in_ - 2, 0)
-        self.extra_scaling_ = (np.ones(n_extra) if extra is None
-                               else np.asarray(extra, dtype=np.float64).reshape(n_extra))
-        self._extra = self.extra_scaling_ if (self.extra_scaling_ != 1.0).any() else None
-        self._aniso = None
-        if scaling != 1.0 or angle % 360.0 != 0.0:
-            t = np.deg2rad(angle)
-            rot = np.array([[np.cos(t), np.sin(t)], [-np.sin(t), np.cos(t)]])
-            self._aniso = np.diag([1.0, scaling]) @ rot
-
     # ------------------------------------------------------------------ fit
     _joint_noise = True  # fit(noise_cov=...) is co-Kriging
+
+    def _resolve_drift(self, X, Z, noise, previous, center, half_width):
+        """The drift, the extra features' factors its fit holds (or None) and the start of
+        that fit (None: from the grid): ``drift``, with the previous fit's start under
+        ``warm_start``; ``"auto"``: None when no hyperparameter is fitted by maximum
+        likelihood, the previous fit's drift under ``warm_start``, else
+        :meth:`_choose_drift`'s."""
+        start = None if previous is None else previous["ml"]
+        if self.drift != "auto":
+            return self.drift, None, start
+        ml = any(isinstance(v, str) for v in (self.range, self.nugget, self.anisotropy_scaling,
+                                               self.anisotropy_angle)) or (
+            noise is not None and isinstance(self.noise_scale, str))
+        if not ml:  # nothing fitted: ordinary Kriging
+            return None, None, start
+        if previous is not None:
+            return previous["drift"], None, start
+        drift, candidate, held = self._choose_drift(X, Z, noise, center, half_width)
+        return drift, held, None if candidate is None else candidate.as_start()
 
     def _fit(self, X, Y, noise, noise_cov=None):
         self._check_params(X.shape[1])
         previous = getattr(self, "_warm", None) if self.warm_start else None
         if previous is not None and previous["n_features"] != X.shape[1]:
             previous = None
-        self._warm, self._started_from = None, previous
-        # a previous fit's large arrays go first
-        for attr in ("dual_coef_", "drift_coef_", "_factors", "_tree", "_k", "X_fit_",
-                     "y_fit_", "_U_fit", "_F_fit", "_z_fit", "_dual_independent",
-                     "noise_var_", "noise_cov_", "n_cg_iter_"):
-            self.__dict__.pop(attr, None)
+        self._set_fitted({})  # a previous fit's large arrays go first
         if self.nugget == 0:
             X, Y, noise, *cov = _merge_duplicates(
                 X, Y, owner=_NAME, noise=noise, noise_cov=noise_cov,
@@ -402,28 +392,18 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
             noise_cov = cov[0] if cov else None
         n, d = X.shape
         lo, hi = X.min(axis=0), X.max(axis=0)
-        self._drift_center, half = (lo + hi) / 2.0, (hi - lo) / 2.0
-        self._drift_half_width = np.where(half > 0, half, 1.0)
+        center, half = (lo + hi) / 2.0, (hi - lo) / 2.0
+        half_width = np.where(half > 0, half, 1.0)
         # co-Kriging: the targets are solved in the frame z = y A where they are nearly
         # independent (see _kriging_co); otherwise that frame is the identity
-        self._frame, Z, noise_z = None, Y, None
+        frame, Z, noise_z = None, Y, None
         if noise_cov is not None:
             A, A_inv, noise_z = coregionalization_frame(Y, noise_cov)
-            self._frame, Z = (A, A_inv), Y @ A
+            frame, Z = (A, A_inv), Y @ A
             noise = np.einsum("itt->it", noise_z).copy()
-        self.drift_ = self.drift
-        ml = any(isinstance(v, str) for v in (self.range, self.nugget, self.noise_scale,
-                                               self.anisotropy_scaling, self.anisotropy_angle))
-        if self.drift == "auto" and not ml:  # nothing fitted: ordinary Kriging
-            self.drift_ = None
-        held, start = None, None if previous is None else previous["ml"]
-        if self.drift == "auto" and ml:
-            if previous is not None:
-                self.drift_ = previous["drift"]
-            else:
-                self.drift_, held, start = self._choose_drift(X, Z, noise)
-        self._drift_powers = self._drift_powers_for(d)
-        n_drift = self._drift_powers.shape[0]
+        drift, held, start = self._resolve_drift(X, Z, noise, previous, center, half_width)
+        powers = drift_powers(d, drift, self.extra_drift)
+        n_drift = powers.shape[0]
         _check_n_samples(_NAME, n, max(2, n_drift + 1), "(distinct positions)")
         if n < _FEW_STARS:
             warnings.warn(
@@ -437,60 +417,71 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
             k = _check_n_neighbors(_NAME, self.n_neighbors)
         if k is not None and k >= n:
             k = None  # neighbourhoods of all the stars: exact Kriging (the same system)
-        self.n_neighbors_ = k
-        F = self._drift_design(X)
-        self._held_extra = held  # the first candidate drift's factors, when it is chosen
-        try:
-            self._fit_hyperparameters(X, Z, F, noise, start)
-        finally:
-            self._held_extra = None
-        self._warm = {"n_features": d, "drift": self.drift_,
-                      "ml": None if self.log_likelihood_ is None else self._ml_result()}
-        if self._frame is not None and self.log_likelihood_ is not None:
+        F = drift_design(X, center, half_width, powers)
+        hyper = self._fit_hyperparameters(X, Z, F, noise, start, drift=drift, held_extra=held)
+        log_likelihood = hyper.log_likelihood
+        if frame is not None and log_likelihood is not None:
             # the likelihood of y = z A^-1: the Jacobian of the frame, n log |det A|
-            self.log_likelihood_ += n * np.linalg.slogdet(self._frame[0])[1]
-        U = self._transform(X)
-        self.X_fit_, self.y_fit_, self._U_fit, self._F_fit = X, Y, U, F
-        self._z_fit, self._sill_fit = Z, self.sill_
-        self._noise_fit = None if noise is None else noise * self.noise_scale_
-        self.noise_var_, self.noise_cov_ = self._noise_fit, None
-        self.coregionalization_ = np.diag(self.sill_)
+            log_likelihood += n * np.linalg.slogdet(frame[0])[1]
+        aniso, extra = geometry(hyper.scaling, hyper.angle, hyper.extra)
+        U = transform(X, aniso, extra)
+        noise_fit = None if noise is None else noise * hyper.noise_scale
+        groups = noise_groups(noise_fit, hyper.sill, Y.shape[1])
+        state = {
+            "_started_from": previous, "drift_": drift, "n_neighbors_": k,
+            "_warm": {"n_features": d, "drift": drift,
+                      "ml": None if log_likelihood is None else hyper.as_start()},
+            "range_": hyper.range, "nugget_": hyper.nugget, "sill_": hyper.sill,
+            "noise_scale_": hyper.noise_scale, "anisotropy_scaling_": hyper.scaling,
+            "anisotropy_angle_": hyper.angle, "extra_scaling_": hyper.extra,
+            "_aniso": aniso, "_extra": extra, "log_likelihood_": log_likelihood,
+            "likelihood_": hyper.likelihood, "range_floor_": hyper.range_floor,
+            "range_at_floor_": hyper.range_at_floor,
+            "_drift_center": center, "_drift_half_width": half_width, "_drift_powers": powers,
+            "_frame": frame, "X_fit_": X, "y_fit_": Y, "_U_fit": U, "_F_fit": F, "_z_fit": Z,
+            "_sill_fit": hyper.sill, "_noise_fit": noise_fit, "noise_var_": noise_fit,
+            "noise_cov_": None, "coregionalization_": np.diag(hyper.sill),
+            "_noise_ratio_groups": groups.ratios, "_group_targets": groups.targets,
+            "_group_of": groups.of,
+        }
+        if hyper.ml_size is not None:
+            state["_ml_size"] = hyper.ml_size
         if noise_cov is not None:
-            A_inv = self._frame[1]
-            self.noise_cov_ = noise_cov * self.noise_scale_
-            self.noise_var_ = np.einsum("itt->it", self.noise_cov_).copy()
-            self.coregionalization_ = (A_inv.T * self._sill_fit) @ A_inv
-            self.sill_ = np.diag(self.coregionalization_).copy()
-        self._set_groups()
+            A_inv = frame[1]
+            state["noise_cov_"] = noise_cov * hyper.noise_scale
+            state["noise_var_"] = np.einsum("itt->it", state["noise_cov_"]).copy()
+            state["coregionalization_"] = (A_inv.T * hyper.sill) @ A_inv
+            state["sill_"] = np.diag(state["coregionalization_"]).copy()
         if k is not None:
-            self.mean_ = Y.mean(axis=0)
-            self._k = k
-            if self._k < n_drift:
-                raise ValueError(
-                    f"{_NAME}: n_neighbors must be at least {n_drift} for "
-                    f"drift={self.drift_!r}, got {k}."
-                )
-            self._tree = cKDTree(U)
-            return
-        C0 = fit_exact(self, U, Z, F, keep_covariance=noise_cov is not None)
-        if noise_cov is not None:
-            fit_coupled(self, C0, Z, F, noise_z * self.noise_scale_)
-
-    def _set_groups(self):
-        """Targets sharing a normalised covariance (equal noise-to-sill ratios)."""
-        T = self.y_fit_.shape[1]
-        if self._noise_fit is None:
-            self._noise_ratio_groups, self._group_targets = [None], [np.arange(T)]
-            self._group_of = np.zeros(T, dtype=int)
-            return
-        sill = np.where(self._sill_fit > 0, self._sill_fit, np.inf)  # constant: exact
-        ratio = self._noise_fit / sill
-        unique, inverse = np.unique(ratio.T, axis=0, return_inverse=True)
-        self._group_of = inverse.reshape(-1)
-        self._noise_ratio_groups = list(unique)
-        self._group_targets = [np.flatnonzero(self._group_of == g) for g in range(len(unique))]
+            local = fit_local(U, Y, k, n_drift, drift)
+            state.update(mean_=local.mean, _k=local.k, _tree=local.tree)
+        else:
+            corr = functools.partial(correlation, variogram=self.variogram,
+                                     range_=hyper.range, nugget=hyper.nugget)
+            solve, C0 = fit_exact(U, Z, F, corr, groups, keep_covariance=noise_cov is not None)
+            if noise_cov is not None:
+                solve = fit_coupled(solve, C0, Z, F, noise_z * hyper.noise_scale, hyper.sill,
+                                    groups, frame[1])
+                state.update(_dual_independent=solve.dual_independent,
+                             n_cg_iter_=solve.n_cg_iter)
+            state.update(_factors=solve.factors, dual_coef_=solve.dual_coef,
+                         drift_coef_=solve.drift_coef, mean_=solve.drift_coef[0].copy())
+        self._set_fitted(state)
 
     # ------------------------------------------------------------------ predict
+    def _solve(self):
+        """The fitted system, from the attributes: a :class:`LocalSolve` in local mode, an
+        :class:`ExactSolve` in exact mode."""
+        if self.n_neighbors_ is not None:
+            return LocalSolve(self._tree, self._k, self.mean_)
+        if self._frame is None:
+            return ExactSolve(self._factors, self.dual_coef_, self.drift_coef_)
+        return ExactSolve(self._factors, self.dual_coef_, self.drift_coef_,
+                          self._dual_independent, self.n_cg_iter_)
+
+    def _groups(self):
+        return NoiseGroups(self._noise_ratio_groups, self._group_targets, self._group_of)
+
     def predict(self, X, return_std=False):
         """Kriging prediction, and optionally its standard deviation.
 
@@ -511,12 +502,15 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
         """
         X = self._validate_predict_data(X)
         U, Fq = self._transform(X), self._drift_design(X)
-        if getattr(self, "_tree", None) is not None:
-            pred, var = predict_local(self, U, Fq, return_std)
+        solve = self._solve()
+        if isinstance(solve, LocalSolve):
+            pred, var = predict_local(solve, (self._U_fit, self._z_fit, self._F_fit),
+                                      self._correlation, self._groups(), U, Fq, return_std)
             if self._frame is not None:
                 pred = pred @ self._frame[1]
         else:
-            pred, var = predict_exact(self, U, Fq, return_std)
+            pred, var = predict_exact(solve, self._U_fit, self._correlation, self._groups(),
+                                      U, Fq, return_std)
         pred = self._format_output(pred)
         if not return_std:
             return pred
@@ -554,10 +548,12 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
             ``return_std=True``); divide the residuals by it for a chi statistic.
         """
         check_is_fitted(self)
-        if getattr(self, "_tree", None) is not None:
+        solve = self._solve()
+        if isinstance(solve, LocalSolve):
             n = self._U_fit.shape[0]  # (more stars than neighbours in local mode)
-            pred, var = predict_local(self, self._U_fit, self._F_fit, return_std,
-                                      leave_out=np.arange(n))
+            pred, var = predict_local(solve, (self._U_fit, self._z_fit, self._F_fit),
+                                      self._correlation, self._groups(), self._U_fit,
+                                      self._F_fit, return_std, leave_out=np.arange(n))
             if return_std:  # the star's own noise adds to the Kriging variance
                 var = np.clip(var[:, self._group_of], 0.0, None)
                 if self._noise_fit is not None:
@@ -565,7 +561,7 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
                                                            self._sill_fit, np.inf)
                 var = var * self._sill_fit
         else:
-            pred, var = loo_exact(self)
+            pred, var = loo_exact(solve, self._z_fit, self._groups(), self._sill_fit)
         if self._frame is not None:
             pred = pred @ self._frame[1]
         pred = self._format_output(pred)

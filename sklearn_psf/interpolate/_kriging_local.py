@@ -1,18 +1,43 @@
-"""Local Kriging: bordered systems of each query's nearest stars, solved in batches (private)."""
+"""Local Kriging: bordered systems of each query's nearest stars, solved in batches (private).
+
+:func:`fit_local` returns the :class:`LocalSolve` of the stars, which :func:`predict_local`
+takes with the stars."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
+from scipy.spatial import cKDTree
 
 #: Queries per batch of stacked bordered systems are bounded so that the batch's arrays
 #: stay around this many float64 elements (~16 MB).
 _LOCAL_BATCH_ELEMENTS = 2**21
 
 
-def _neighbours(reg, U, k, leave_out):
+@dataclasses.dataclass(frozen=True)
+class LocalSolve:
+    """Local Kriging's fit: the stars' k-d tree (transformed positions), the neighbours of
+    each query and the targets' mean over the stars."""
+
+    tree: cKDTree
+    k: int
+    mean: np.ndarray
+
+
+def fit_local(U, Y, k, n_drift, drift):
+    """The :class:`LocalSolve` of the stars at transformed positions ``U`` with values ``Y``,
+    ``k`` neighbours per query and ``n_drift`` drift terms (of ``drift``, for the message)."""
+    if k < n_drift:
+        raise ValueError(f"KrigingRegressor: n_neighbors must be at least {n_drift} for "
+                         f"drift={drift!r}, got {k}.")
+    return LocalSolve(cKDTree(U), k, Y.mean(axis=0))
+
+
+def _neighbours(tree, U, k, leave_out):
     """Distances and indices of the ``k`` nearest stars of each query; with ``leave_out``
     (n,) the query's own star index, that star is left out (the queries are stars)."""
-    dist, idx = reg._tree.query(U, k=k + (leave_out is not None))
+    dist, idx = tree.query(U, k=k + (leave_out is not None))
     dist, idx = dist.reshape(len(U), -1), idx.reshape(len(U), -1)
     if leave_out is None:
         return dist, idx
@@ -22,27 +47,30 @@ def _neighbours(reg, U, k, leave_out):
     return dist[keep].reshape(len(U), k), idx[keep].reshape(len(U), k)
 
 
-def predict_local(reg, U, Fq, return_std, leave_out=None):
+def predict_local(local, stars, corr, groups, U, Fq, return_std, leave_out=None):
     """Predictions (m, T) and normalised variances (m, n_groups) of local Kriging (in the
     frame of the independent targets, see :mod:`._kriging_co`).
 
-    ``reg`` is a fitted :class:`KrigingRegressor` in local mode, ``U`` the transformed
+    ``local`` is the :class:`LocalSolve` of the stars, ``stars`` their transformed positions,
+    values (in that frame) and drift design rows, ``corr`` the normalised correlation of
+    distances and ``groups`` the :class:`~._kriging_exact.NoiseGroups`; ``U`` the transformed
     query positions and ``Fq`` their drift design rows. Each query solves
     ``[C_k F_k; F_k^T 0] [lambda; mu] = [c_k; f]`` over its ``k`` nearest stars, with
     ``C_k`` the normalised covariance (plus the stars' noise, per group of targets).
     ``leave_out`` (m,): each query's own star, left out of its neighbours (leave-one-out).
     """
-    m, T = U.shape[0], reg._z_fit.shape[1]
-    k, p = reg._k, Fq.shape[1]
-    ratios = reg._noise_ratio_groups  # list of (n_stars,) arrays or [None]
+    Us, Ys, Fs = stars
+    m, T = U.shape[0], Ys.shape[1]
+    k, p = local.k, Fq.shape[1]
+    ratios = groups.ratios  # list of (n_stars,) arrays or [None]
     pred = np.empty((m, T))
     var = np.empty((m, len(ratios))) if return_std else None
     batch = int(max(1, _LOCAL_BATCH_ELEMENTS // ((k + p) ** 2 + k * T)))
-    Us, Ys, Fs = reg._U_fit, reg._z_fit, reg._F_fit
     diag = np.arange(k)
     for start in range(0, m, batch):
         sl = slice(start, min(start + batch, m))
-        dist, idx = _neighbours(reg, U[sl], k, None if leave_out is None else leave_out[sl])
+        dist, idx = _neighbours(local.tree, U[sl], k,
+                                None if leave_out is None else leave_out[sl])
         b = idx.shape[0]
         P = Us[idx]  # (b, k, d) neighbour positions
         A = np.zeros((b, k + p, k + p))
@@ -50,13 +78,13 @@ def predict_local(reg, U, Fq, return_std, leave_out=None):
         diff = P[:, :, None, :] - P[:, None, :, :]
         np.sqrt(np.einsum("bijd,bijd->bij", diff, diff), out=D)
         del diff
-        D[...] = reg._correlation(D)
+        D[...] = corr(D)
         A[:, diag, diag] = 1.0  # distinct stars: nugget between them, 1 on the diagonal
         A[:, :k, k:] = Fs[idx]
         A[:, k:, :k] = np.swapaxes(A[:, :k, k:], 1, 2)
         rhs = np.empty((b, k + p))
         on = dist == 0
-        rhs[:, :k] = reg._correlation(dist.copy())
+        rhs[:, :k] = corr(dist.copy())
         if leave_out is None:
             rhs[:, :k][on] = 1.0  # on a star: covariance 1 (the variogram is 0 there)
         else:
@@ -77,7 +105,7 @@ def predict_local(reg, U, Fq, return_std, leave_out=None):
                     "raise n_neighbors."
                 ) from None
             lam = sol[:, :k]
-            targets = reg._group_targets[g]
+            targets = groups.targets[g]
             pred[sl, targets] = np.einsum("bk,bkt->bt", lam, Ys[idx][:, :, targets])
             if return_std:
                 v = 1.0 - np.einsum("bk,bk->b", lam, rhs[:, :k])
