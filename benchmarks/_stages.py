@@ -26,7 +26,7 @@ import time
 STAGES = [
     ("command (after its start)", "sklearn_psf.cli._fit:_fit"),
     ("read, select stars, cut stamps", "sklearn_psf.validation._exposure:fit_exposure"),
-    ("  select stars", "sklearn_psf.io:select_stars"),
+    ("  select stars", "sklearn_psf.exposure:select_stars"),
     ("  celestial WCS", "sklearn_psf.io:celestial_wcs"),
     ("fit and validate", "sklearn_psf.validation._fit:fit_and_validate"),
     ("  PSFModel.fit", "sklearn_psf.model._psf_model:PSFModel.fit"),

@@ -109,8 +109,8 @@ def _truth(psf, P, side, scale):
 
 def _selected_stars(cat, side):
     """0-based positions of the catalogue's stars as ``sklearn-psf fit`` selects them
-    (:func:`sklearn_psf.io.select_stars` with fit's defaults): the stars PIFF is given."""
-    from sklearn_psf.io import select_stars
+    (:func:`sklearn_psf.exposure.select_stars` with fit's defaults): the stars PIFF is given."""
+    from sklearn_psf.exposure import select_stars
     from sklearn_psf.validation import read_exposure
 
     inputs = read_exposure(catalog=cat)

@@ -40,11 +40,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 from astropy.table import Table
 
-from sklearn_psf.io import (
-    extract_star_stamps,
-    find_stars,
-    read_image,
-)
+from sklearn_psf.io import read_image
+from sklearn_psf.exposure import extract_star_stamps, find_stars
 from sklearn_psf.simulate import write_example_exposure, write_example_ldac
 from sklearn_psf.measure import adaptive_moments
 from sklearn_psf.model import PSFModel
@@ -62,7 +59,7 @@ print(f"image {image.shape}, {np.isnan(image).sum()} NaN pixel, "
 # %%
 # Star selection and stamps
 # -------------------------
-# Without a catalogue, :func:`~sklearn_psf.io.find_stars` detects sources with ``sep`` and
+# Without a catalogue, :func:`~sklearn_psf.exposure.find_stars` detects sources with ``sep`` and
 # keeps isolated, unsaturated point sources on the flux-radius locus; each rejected
 # detection is counted under its reason. (With a SExtractor catalogue,
 # ``read_catalog("stars.fits")`` reads 1-based ``X_IMAGE``/``Y_IMAGE``.)
@@ -128,16 +125,12 @@ ax.legend()
 # ---------------------------------------------------------
 # PSFEx's input: every detection (here half of them galaxies, some barely resolved, plus
 # cosmic rays, saturated stars and masked pixels) with its ``VIGNET`` stamp.
-# :func:`~sklearn_psf.io.select_stars` keeps the unflagged, unsaturated sources of high S/N
+# :func:`~sklearn_psf.exposure.select_stars` keeps the unflagged, unsaturated sources of high S/N
 # on the stellar locus of the size-magnitude diagram (``FLUX_RADIUS`` against ``MAG_AUTO``);
-# :func:`~sklearn_psf.io.extract_vignettes` turns the masked pixels (-1e30) into zero-weight
+# :func:`~sklearn_psf.exposure.extract_vignettes` turns the masked pixels (-1e30) into zero-weight
 # pixels.
-from sklearn_psf.io import (
-    draw_psf,
-    extract_vignettes,
-    read_catalog,
-    select_stars,
-)
+from sklearn_psf.io import draw_psf, read_catalog
+from sklearn_psf.exposure import extract_vignettes, select_stars
 from sklearn_psf.simulate import realistic_snr
 from sklearn_psf.validation import plot_psf_maps, plot_rho_statistics
 

@@ -8,7 +8,7 @@ import pytest
 from astropy.table import Table
 
 from sklearn_psf import make_psf_field
-from sklearn_psf.io import neighbour_masks, select_stars
+from sklearn_psf.exposure import neighbour_masks, select_stars
 from sklearn_psf.validation import StarSelectionError, fit_and_validate, fit_exposure, read_exposure
 
 
@@ -90,7 +90,7 @@ def test_neighbour_masks_equal_every_disc_drawn_one_by_one():
     """On a crowded random field (sizes and fluxes within 100x of each other, NaN and edge
     positions), the masks equal each other source's disc drawn pixel by pixel over the whole
     stamp, and a star is crowded exactly when such a disc reaches alpha of its centre."""
-    from sklearn_psf.io._select import _crowded, _mask_radius, _sizes_fluxes
+    from sklearn_psf.exposure._select import _crowded, _mask_radius, _sizes_fluxes
 
     rng = np.random.default_rng(3)
     n, s = 120, 21

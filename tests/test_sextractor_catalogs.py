@@ -15,8 +15,8 @@ from astropy.io import fits
 from astropy.table import Table
 
 from sklearn_psf.cli import main
-from sklearn_psf.io import (extract_vignettes, find_program, read_catalog, run_psfex,
-                            run_sextractor, select_stars, write_ldac)
+from sklearn_psf.io import find_program, read_catalog, run_psfex, run_sextractor, write_ldac
+from sklearn_psf.exposure import extract_vignettes, select_stars
 
 galsim = pytest.importorskip("galsim")
 SEX = find_program("source-extractor")

@@ -76,7 +76,8 @@ def _stars(args):
     """Positions, stamps, weights, WCS and a line on the stars used."""
     import numpy as np
 
-    from ..io import celestial_wcs, select_stars
+    from ..io import celestial_wcs
+    from ..exposure import select_stars
     from ..validation import read_exposure
 
     with _about(args.stars):

@@ -18,7 +18,8 @@ weight (inverse variance) or mask plane, and a SExtractor catalogue::
 
 or, in Python::
 
-    from sklearn_psf.io import read_image, read_catalog, extract_star_stamps
+    from sklearn_psf.io import read_image, read_catalog
+    from sklearn_psf.exposure import extract_star_stamps
     from sklearn_psf.validation import fit_and_validate
 
     image, weight, header = read_image("c4d_ooi.fits.fz", hdu=1, weight_hdu=2)
@@ -99,10 +100,6 @@ from ._sextractor import (
     run_sextractor,
     write_sextractor_config,
 )
-from ._select import (PSFEX_FLAG_MASK, SELECTION_OPTIONS, SELECTION_REASONS, neighbour_masks,
-                      saturation_level, select_stars)
-from ._stars import REJECTION_REASONS, StarStamps, extract_star_stamps, find_stars
-from ._vignettes import VIGNET_MASKED, extract_vignettes
 from ._wcs import celestial_wcs, pixel_to_sky, sky_to_pixel
 
 # model files live with the model (sklearn_psf.model); io re-exports them for convenience
@@ -122,23 +119,13 @@ __all__ = [
     "InputError",
     "MODEL_FORMAT",
     "MODEL_FORMAT_VERSION",
-    "PSFEX_FLAG_MASK",
     "ProgramError",
     "ProgramNotFoundError",
-    "REJECTION_REASONS",
-    "SELECTION_OPTIONS",
-    "SELECTION_REASONS",
-    "StarStamps",
-    "VIGNET_MASKED",
     "celestial_wcs",
     "draw_psf",
-    "extract_star_stamps",
-    "extract_vignettes",
     "extrapolation_flags",
     "find_program",
-    "find_stars",
     "load_model",
-    "neighbour_masks",
     "pixel_to_sky",
     "read_catalog",
     "read_image",
@@ -148,8 +135,6 @@ __all__ = [
     "run_sextractor",
     "write_sextractor_config",
     "save_model",
-    "select_stars",
-    "saturation_level",
     "sky_to_pixel",
     "write_catalog_rows",
     "write_ldac",

@@ -191,7 +191,8 @@ def cross_validate_catalog(catalog, *, n_folds: int = 5, psfex=None, fit_options
     """
     from sklearn.model_selection import KFold
 
-    from ..io import run_psfex, select_stars, write_catalog_rows
+    from ..io import run_psfex, write_catalog_rows
+    from ..exposure import select_stars
     from ._compare import validate_models
     from ._exposure import _mask_neighbours, fit_exposure, read_exposure
     from ._external import load_psf_model

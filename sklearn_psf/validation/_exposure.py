@@ -29,7 +29,7 @@ class StarSelectionError(InputError):
         What was selected, in words.
     counts : dict
         Selection reason -> number of sources dropped (see
-        :func:`~sklearn_psf.io.select_stars`).
+        :func:`~sklearn_psf.exposure.select_stars`).
     hint : str
         What else the user can do.
     lines : list of str
@@ -51,7 +51,7 @@ class StarSelectionError(InputError):
         >>> err.text({"min_snr": "--min-snr"})
         '3 of 40 sources pass: too few for a PSF model (need 5); dropped by cut (option relaxing it): low_snr 37 (--min-snr); or give more'
         """
-        from ..io import SELECTION_OPTIONS, SELECTION_REASONS
+        from ..exposure import SELECTION_OPTIONS, SELECTION_REASONS
 
         names = names or {}
         per_cut = ", ".join(
@@ -91,7 +91,7 @@ class ExposureInputs(NamedTuple):
     saturation : float or None
         The saturation level given, else the header's ``SATURATE``, else the level at which
         the catalogue's brightest sources' peaks pile up
-        (:func:`~sklearn_psf.io.saturation_level`).
+        (:func:`~sklearn_psf.exposure.saturation_level`).
     gain : float or None
         ``GAIN`` (else ``SEXGAIN``) of the header, e-/ADU.
     image_path, catalog_path : str or None
@@ -134,10 +134,10 @@ class ExposureInputs(NamedTuple):
         return None
 
     def cut_stamps(self, catalog=None, stamp_size=None):
-        """The stars' stamps (:class:`~sklearn_psf.io.StarStamps`): the catalogue's VIGNETs
+        """The stars' stamps (:class:`~sklearn_psf.exposure.StarStamps`): the catalogue's VIGNETs
         without an image (cropped to ``stamp_size``), else cut from the image (side 25 by
         default), with the weight map and the saturation level."""
-        from ..io import extract_star_stamps, extract_vignettes
+        from ..exposure import extract_star_stamps, extract_vignettes
 
         catalog = self.catalog if catalog is None else catalog
         with _naming(self.catalog_path or self.image_path):
@@ -194,7 +194,8 @@ def read_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     >>> inputs.has_vignettes, inputs.default_stamp_size, inputs.image_shape
     (True, 15, None)
     """
-    from ..io import read_catalog, read_image, saturation_level
+    from ..io import read_catalog, read_image
+    from ..exposure import saturation_level
 
     if image is None and catalog is None:
         raise InputError("Give an image, or a catalogue with VIGNET stamps.")
@@ -233,7 +234,7 @@ class ExposureFit:
         ``saturation``, ``gain`` and ``wcs`` (header string) when the image has a celestial
         WCS.
     selection : dict
-        The star selection's counts (:func:`~sklearn_psf.io.select_stars`), {} without one.
+        The star selection's counts (:func:`~sklearn_psf.exposure.select_stars`), {} without one.
     stars : StarStamps
         The stamps the model was fitted and validated on; with a catalogue, ``stars.rows``
         holds each star's row in it (0-based), e.g. the reserved stars'
@@ -355,7 +356,7 @@ def _drop_missing_keys(stars, keys, where):
 
 
 def _selection_lines(counts, n_kept, head, max_spread_model, min_class_star):
-    from ..io import SELECTION_REASONS
+    from ..exposure import SELECTION_REASONS
 
     rejected = ", ".join(f"{k} {counts[k]}" for k in SELECTION_REASONS if counts.get(k))
     lines = [f"{head}{n_kept}" + (f" (rejected: {rejected})" if rejected else "")]
@@ -392,8 +393,8 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     """Fit and validate the PSF model of an exposure, from its files to the verdict.
 
     What ``sklearn-psf fit`` does, as one call: read the exposure (:func:`read_exposure`),
-    select the stars (:func:`~sklearn_psf.io.select_stars` with a catalogue,
-    :func:`~sklearn_psf.io.find_stars` without), cut their stamps and mask their neighbours,
+    select the stars (:func:`~sklearn_psf.exposure.select_stars` with a catalogue,
+    :func:`~sklearn_psf.exposure.find_stars` without), cut their stamps and mask their neighbours,
     then fit and judge the model (:func:`fit_and_validate`). The steps:
     :ref:`exposure-details` in the user guide.
 
@@ -405,7 +406,7 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     select : bool, default=True
         False uses every catalogue row as a star (a catalogue of stars only).
     flag_mask, min_snr, saturation, isolation, locus_width, max_spread_model, min_class_star :
-        The selection's cuts (:func:`~sklearn_psf.io.select_stars`). ``flag_mask`` defaults
+        The selection's cuts (:func:`~sklearn_psf.exposure.select_stars`). ``flag_mask`` defaults
         to PSFEx's ``0xfe``: sources flagged only 1 (neighbours) are kept. ``saturation``
         defaults to the header's ``SATURATE``.
     stamp_size : int, optional
@@ -468,7 +469,8 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     >>> [w.category.__name__ for w in caught]
     ['PSFQualityWarning']
     """
-    from ..io import celestial_wcs, find_stars, select_stars
+    from ..io import celestial_wcs
+    from ..exposure import find_stars, select_stars
     from ..model import INTERPOLATORS, PSFModel, make_interpolator
     from ..preprocessing import SuperResolvedPCA
     from ._fit import fit_and_validate
@@ -523,7 +525,7 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
             if data is not None and not any(c.upper() == "VIGNET" for c in table.colnames):
                 # sources measured on the image's cut-outs, their neighbours masked, as on
                 # a catalogue's VIGNETs (FLUX_RADIUS would carry the neighbours' light)
-                from ..io._stars import _image_vignettes
+                from ..exposure._stars import _image_vignettes
 
                 table = table.copy(copy_data=False)
                 table["VIGNET"] = _image_vignettes(data, table, stamp_size, inputs.weight)
@@ -608,8 +610,8 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
 
 def _mask_neighbours(stars, catalog, rows, lines):
     """Zero the weight (and the value) of the stamps' pixels that the catalogue's other
-    sources cover (:func:`~sklearn_psf.io.neighbour_masks`); say how many."""
-    from ..io import neighbour_masks
+    sources cover (:func:`~sklearn_psf.exposure.neighbour_masks`); say how many."""
+    from ..exposure import neighbour_masks
     from ..preprocessing import estimate_pixel_weights
 
     side = int(round(np.sqrt(stars.stamps.shape[1])))

@@ -1,8 +1,8 @@
 """The star selector: cuts of a source catalogue down to clean, isolated point sources.
 
 :func:`select_stars` works on any catalogue with 0-based ``x``, ``y`` (and optional measured
-columns, as :func:`~sklearn_psf.io.read_catalog` names them); :func:`~sklearn_psf.io.find_stars`
-measures the sources of an image and applies the same cuts.
+columns, as :func:`~sklearn_psf.io.read_catalog` names them); :func:`find_stars` measures the
+sources of an image and applies the same cuts.
 
 The primary point-source criterion is the size-magnitude locus, as PSFEx and PIFF select stars:
 point sources share the PSF's size at every flux, galaxies are larger, cosmic rays smaller.
@@ -154,7 +154,7 @@ def neighbour_masks(catalog, rows, stamp_size: int):
     Examples
     --------
     >>> from astropy.table import Table
-    >>> from sklearn_psf.io import neighbour_masks
+    >>> from sklearn_psf.exposure import neighbour_masks
     >>> cat = Table({"x": [50.0, 58.0], "y": [50.0, 50.0], "flux_radius": [1.5, 1.5],
     ...              "flux": [1000.0, 100.0]})
     >>> m = neighbour_masks(cat, [0], 25)
@@ -602,7 +602,7 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
     --------
     >>> import numpy as np
     >>> from astropy.table import Table
-    >>> from sklearn_psf.io import select_stars
+    >>> from sklearn_psf.exposure import select_stars
     >>> rng = np.random.default_rng(0)
     >>> radius = np.r_[rng.normal(2.0, 0.02, 60), rng.uniform(2.6, 5.0, 40)]
     >>> cat = Table({"x": rng.uniform(0, 4000, 100), "y": rng.uniform(0, 4000, 100),
