@@ -91,7 +91,7 @@ plot_whiskers(residuals)
 # %%
 # Save, load, predict at galaxy positions
 # ---------------------------------------
-# The model file is a self-describing FITS file (format in :func:`sklearn_psf.io.save_model`);
+# The model file is a self-describing FITS file (format in :func:`sklearn_psf.model.save_model`);
 # it stores the reserved-star residuals too. Loading refits nothing but the interpolator on the
 # stored coefficients: predictions are identical.
 model_path = os.path.join(folder, "psf.fits")

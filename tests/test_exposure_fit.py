@@ -123,7 +123,8 @@ def test_neighbour_masks_equal_every_disc_drawn_one_by_one():
 def test_fit_exposure_is_the_command_s_fit(tmp_path, capsys):
     """fit_exposure gives the model and verdict that ``sklearn-psf fit`` saves."""
     from sklearn_psf.cli import main
-    from sklearn_psf.io import load_model, read_model_validation, write_ldac
+    from sklearn_psf.io import write_ldac
+    from sklearn_psf.model import load_model, read_model_validation
 
     X, stamps, _ = _field(seed=5, n_stars=80)
     side = int(np.sqrt(stamps.shape[1]))
@@ -158,7 +159,8 @@ def test_real_decam_psfex_input_beside_psfex(realdata, tmp_path, capsys, monkeyp
     from astropy.io import fits
 
     from sklearn_psf.cli import main
-    from sklearn_psf.io import read_catalog, read_model_validation
+    from sklearn_psf.io import read_catalog
+    from sklearn_psf.model import read_model_validation
 
     cat = realdata("DECam_00241238_01_psfcat.ldac.fits")
     psf = realdata("DECam_00241238_01_psfcat.psf")

@@ -104,7 +104,8 @@ def test_fit_on_ascii_catalogue_with_12_apertures(image, tmp_path, capsys):
     out = str(tmp_path / "m.fits")
     assert main(["fit", "--stars", str(path), "-o", out, "--no-plots",
                  "--interpolator", "polynomial"]) == 0
-    from sklearn_psf.io import draw_psf, load_model
+    from sklearn_psf.io import draw_psf
+    from sklearn_psf.model import load_model
 
     model = load_model(out)
     stamp = draw_psf(model, [[160.0, 160.0]])[0]

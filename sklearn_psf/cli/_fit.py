@@ -429,7 +429,7 @@ def _fit_steps(args, lines, fit_warnings, quiet=False):
 
     from tqdm.auto import tqdm
 
-    from ..io import save_model
+    from ..model import save_model
     from ..validation import StarSelectionError, fit_exposure
 
     with tqdm(total=5, desc="reading", unit="step", disable=quiet) as bar:
@@ -547,8 +547,9 @@ def _predict(args):
     from astropy.table import Table
     from tqdm.auto import tqdm
 
-    from ..io import (celestial_wcs, draw_psf, extrapolation_flags, load_model, pixel_to_sky,
-                     read_catalog, read_model_validation, sky_to_pixel)
+    from ..io import (celestial_wcs, draw_psf, extrapolation_flags, pixel_to_sky, read_catalog,
+                      sky_to_pixel)
+    from ..model import load_model, read_model_validation
     from .._files import check_memory, write_fits_atomic
     from ..measure import adaptive_moments
     from ..validation import key_columns

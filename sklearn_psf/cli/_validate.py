@@ -125,7 +125,7 @@ def _print_table(table):
 
 def _model_keys(path):
     """The catalogue keys a model file of this package names (None for other files)."""
-    from ..io import read_model_validation
+    from ..model import read_model_validation
     from ..validation import model_kind
 
     if model_kind(path) != "sklearn_psf":

@@ -102,39 +102,25 @@ from ._sextractor import (
 )
 from ._wcs import celestial_wcs, pixel_to_sky, sky_to_pixel
 
-# model files live with the model (sklearn_psf.model); io re-exports them for convenience
-from ..model import (  # noqa: E402
-    MODEL_FORMAT,
-    MODEL_FORMAT_VERSION,
-    load_model,
-    read_model_validation,
-    save_model,
-)
-
 __all__ = [
     "CatalogColumnWarning",
     "DEFAULT_SEXTRACTOR_CONFIG",
     "DEFAULT_SEXTRACTOR_PARAMS",
     "FITSHeaderWarning",
     "InputError",
-    "MODEL_FORMAT",
-    "MODEL_FORMAT_VERSION",
     "ProgramError",
     "ProgramNotFoundError",
     "celestial_wcs",
     "draw_psf",
     "extrapolation_flags",
     "find_program",
-    "load_model",
     "pixel_to_sky",
     "read_catalog",
     "read_image",
-    "read_model_validation",
     "read_psf_stamps",
     "run_psfex",
     "run_sextractor",
     "write_sextractor_config",
-    "save_model",
     "sky_to_pixel",
     "write_catalog_rows",
     "write_ldac",
