@@ -37,7 +37,7 @@ from threadpoolctl import threadpool_limits
 from sklearn_psf.io import find_program, read_catalog, run_psfex, run_sextractor
 from sklearn_psf.measure import adaptive_moments
 from sklearn_psf.simulate import render_galsim_ccd
-from sklearn_psf.validation import fit_exposure
+from sklearn_psf.exposure import fit_exposure
 
 
 def _match(xy, truth_xy, radius=1.0):

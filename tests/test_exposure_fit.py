@@ -9,7 +9,8 @@ from astropy.table import Table
 
 from sklearn_psf import make_psf_field
 from sklearn_psf.exposure import neighbour_masks, select_stars
-from sklearn_psf.validation import StarSelectionError, fit_and_validate, fit_exposure, read_exposure
+from sklearn_psf.validation import fit_and_validate
+from sklearn_psf.exposure import StarSelectionError, fit_exposure, read_exposure
 
 
 def _field(seed=3, n_stars=200):
@@ -200,7 +201,7 @@ def test_internal_error_of_one_of_many_fits_is_reported_as_a_bug(tmp_path, capsy
                                                                   monkeypatch):
     """Several inputs (fitted one after the other here): a failure inside numpy is reported as
     a bug of the package (exit status 3, --debug named), an input error as an error (2)."""
-    import sklearn_psf.validation as validation
+    import sklearn_psf.exposure as exposure
     from sklearn_psf.cli import main
     from sklearn_psf.io import write_ldac
 
@@ -215,16 +216,16 @@ def test_internal_error_of_one_of_many_fits_is_reported_as_a_bug(tmp_path, capsy
     def broken(*args, **kwargs):
         return np.ones(2).reshape(3)   # a numpy failure, not about the input
 
-    monkeypatch.setattr(validation, "fit_exposure", broken)
+    monkeypatch.setattr(exposure, "fit_exposure", broken)
     args = ["fit", "--stars", *map(str, paths), "--no-plots", "-o", str(tmp_path / "m.fits")]
     assert main(args) == 3
     err = capsys.readouterr().err
     assert err.count("sklearn-psf: internal error") == 3 and "--debug" in err
 
     def refused(*args, **kwargs):
-        raise validation.StarSelectionError("0 of 30 sources pass", {"low_snr": 30}, "hint")
+        raise exposure.StarSelectionError("0 of 30 sources pass", {"low_snr": 30}, "hint")
 
-    monkeypatch.setattr(validation, "fit_exposure", refused)
+    monkeypatch.setattr(exposure, "fit_exposure", refused)
     assert main(args + ["--overwrite"]) == 2
     err = capsys.readouterr().err
     assert "internal error" not in err and err.count("sklearn-psf: error:") == 3

@@ -102,7 +102,7 @@ def test_model_rests_on_most_of_psfexs_stars(realdata, tmp_path, name, share):
     import warnings
 
     from sklearn_psf.io import run_sextractor
-    from sklearn_psf.validation import fit_exposure
+    from sklearn_psf.exposure import fit_exposure
     from sklearn_psf.validation._crossval import _psfex_accepted
 
     path = realdata(name)

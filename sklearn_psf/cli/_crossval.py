@@ -152,7 +152,7 @@ def _crossval(args, out, psfex) -> int:
     """The run of ``crossval`` once its inputs are checked and its folder made."""
     from tqdm.auto import tqdm
 
-    from ..validation import cross_validate_catalog
+    from ..exposure import cross_validate_catalog
 
     models = {os.path.basename(p).replace("{fold}", "K"):
               (lambda k, train, p=p: p.format(fold=k + 1)) for p in args.model}

@@ -1,6 +1,6 @@
 """The ``fit`` and ``predict`` commands of ``sklearn-psf``: their parsers and runners.
 
-``fit`` is :func:`sklearn_psf.validation.fit_exposure` for each input, its report printed and
+``fit`` is :func:`sklearn_psf.exposure.fit_exposure` for each input, its report printed and
 its model and figures saved; errors are raised as :class:`CLIInputError` (see ``_common``).
 """
 
@@ -422,7 +422,7 @@ def _show(outcome, warnings_registry, shown_output=None):
 
 
 def _fit_steps(args, lines, fit_warnings, quiet=False):
-    """Fit one input with :func:`~sklearn_psf.validation.fit_exposure`, save the model and
+    """Fit one input with :func:`~sklearn_psf.exposure.fit_exposure`, save the model and
     its figures; ``lines`` gets the report, ``fit_warnings`` the warnings of the fit (those
     of the reading and selection go on to the caller's record). Returns the files written."""
     import warnings
@@ -430,7 +430,7 @@ def _fit_steps(args, lines, fit_warnings, quiet=False):
     from tqdm.auto import tqdm
 
     from ..model import save_model
-    from ..validation import StarSelectionError, fit_exposure
+    from ..exposure import StarSelectionError, fit_exposure
 
     with tqdm(total=5, desc="reading", unit="step", disable=quiet) as bar:
         fitting = []  # where the fit's own warnings start among those caught
@@ -552,7 +552,7 @@ def _predict(args):
     from ..model import load_model, read_model_validation
     from .._files import check_memory, write_fits_atomic
     from ..measure import adaptive_moments
-    from ..validation import key_columns
+    from ..exposure import key_columns
 
     if (args.x_col is None) != (args.y_col is None):
         raise CLIInputError("give both --x-col and --y-col, or neither")

@@ -78,7 +78,7 @@ def _stars(args):
 
     from ..io import celestial_wcs
     from ..exposure import select_stars
-    from ..validation import read_exposure
+    from ..exposure import read_exposure
 
     with _about(args.stars):
         inputs = read_exposure(args.image, args.stars, hdu=args.hdu,
@@ -174,7 +174,7 @@ def _validate(args, out) -> int:
     if keys:  # the extra dimensions, from the stars' own columns
         import numpy as np
 
-        from ..validation import key_columns
+        from ..exposure import key_columns
 
         used = np.flatnonzero(np.asarray(cut.catalog["used"], dtype=bool))
         extra = key_columns(cut.catalog[used], keys, f"the catalogue {args.stars!r}")

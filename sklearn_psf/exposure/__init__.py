@@ -6,12 +6,23 @@ neighbours' masks), the stars' stamps (:func:`extract_star_stamps` from an image
 :func:`extract_vignettes` from a catalogue's ``VIGNET``).
 """
 
+from ._crossval import CrossValidation, cross_validate_catalog
+from ._fit import (ExposureFit, ExposureInputs, StarSelectionError, fit_exposure, key_columns,
+                   read_exposure)
 from ._select import (PSFEX_FLAG_MASK, SELECTION_OPTIONS, SELECTION_REASONS, neighbour_masks,
                       saturation_level, select_stars)
 from ._stars import REJECTION_REASONS, StarStamps, extract_star_stamps, find_stars
 from ._vignettes import VIGNET_MASKED, extract_vignettes
 
 __all__ = [
+    "CrossValidation",
+    "ExposureFit",
+    "ExposureInputs",
+    "StarSelectionError",
+    "cross_validate_catalog",
+    "fit_exposure",
+    "key_columns",
+    "read_exposure",
     "PSFEX_FLAG_MASK",
     "REJECTION_REASONS",
     "SELECTION_OPTIONS",

@@ -272,7 +272,7 @@ class StarStamps:
         no weight map was given.
     rows : ndarray of shape (m,) or None
         Each used star's row in the catalogue the selection started from (set by
-        :func:`~sklearn_psf.validation.fit_exposure`; None otherwise).
+        :func:`~sklearn_psf.exposure.fit_exposure`; None otherwise).
     """
 
     def __init__(self, positions, stamps, catalog, counts, weights=None):

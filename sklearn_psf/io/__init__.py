@@ -54,7 +54,7 @@ A SExtractor FITS_LDAC catalogue of every detection with ``VIGNET`` stamps is en
     sklearn-psf fit --stars ccd01.ldac -o ccd01_psf.fits
     sklearn-psf predict ccd01_psf.fits --positions galaxies.cat --centered -o psfs.fits
 
-or, in Python, in one call (:func:`sklearn_psf.validation.fit_exposure`, what ``fit`` runs)::
+or, in Python, in one call (:func:`sklearn_psf.exposure.fit_exposure`, what ``fit`` runs)::
 
     fit = fit_exposure(catalog="ccd01.ldac")            # model, residuals, summary, report()
 

@@ -46,12 +46,12 @@ class StarSelectionError(InputError):
 
         Examples
         --------
-        >>> from sklearn_psf.validation import StarSelectionError
+        >>> from sklearn_psf.exposure import StarSelectionError
         >>> err = StarSelectionError("3 of 40 sources pass", {"low_snr": 37}, "or give more")
         >>> err.text({"min_snr": "--min-snr"})
         '3 of 40 sources pass: too few for a PSF model (need 5); dropped by cut (option relaxing it): low_snr 37 (--min-snr); or give more'
         """
-        from ..exposure import SELECTION_OPTIONS, SELECTION_REASONS
+        from ._select import SELECTION_OPTIONS, SELECTION_REASONS
 
         names = names or {}
         per_cut = ", ".join(
@@ -137,7 +137,8 @@ class ExposureInputs(NamedTuple):
         """The stars' stamps (:class:`~sklearn_psf.exposure.StarStamps`): the catalogue's VIGNETs
         without an image (cropped to ``stamp_size``), else cut from the image (side 25 by
         default), with the weight map and the saturation level."""
-        from ..exposure import extract_star_stamps, extract_vignettes
+        from ._stars import extract_star_stamps
+        from ._vignettes import extract_vignettes
 
         catalog = self.catalog if catalog is None else catalog
         with _naming(self.catalog_path or self.image_path):
@@ -188,14 +189,14 @@ def read_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     --------
     >>> import numpy as np
     >>> from astropy.table import Table
-    >>> from sklearn_psf.validation import read_exposure
+    >>> from sklearn_psf.exposure import read_exposure
     >>> cat = Table({"x": [10.0, 20.0], "y": [5.0, 8.0], "VIGNET": np.zeros((2, 15, 15))})
     >>> inputs = read_exposure(catalog=cat)
     >>> inputs.has_vignettes, inputs.default_stamp_size, inputs.image_shape
     (True, 15, None)
     """
     from ..io import read_catalog, read_image
-    from ..exposure import saturation_level
+    from ._select import saturation_level
 
     if image is None and catalog is None:
         raise InputError("Give an image, or a catalogue with VIGNET stamps.")
@@ -227,9 +228,9 @@ class ExposureFit:
     model : PSFModel
         Fitted on the selected, non-reserved stars.
     residuals : astropy.table.Table
-        The reserved stars' residuals (see :func:`fit_and_validate`).
+        The reserved stars' residuals (see :func:`~sklearn_psf.validation.fit_and_validate`).
     summary : dict
-        The verdict (see :func:`fit_and_validate`) with ``selection`` (the stamp cut's
+        The verdict (see :func:`~sklearn_psf.validation.fit_and_validate`) with ``selection`` (the stamp cut's
         counts), ``image`` (the input's path), ``interpolator``, ``nan_pixels``,
         ``saturation``, ``gain`` and ``wcs`` (header string) when the image has a celestial
         WCS.
@@ -264,8 +265,8 @@ class ExposureFit:
         ``whiskers`` (e of stars, model, residuals), ``maps`` (model e and size across the
         field) and ``rho`` (rho1-rho5, with enough reserved stars); {} without measured
         reserved stars."""
-        from ._figures import plot_psf_maps, plot_rho_statistics, plot_stamp_residuals, \
-            plot_whiskers
+        from ..validation import (plot_psf_maps, plot_rho_statistics, plot_stamp_residuals,
+                                  plot_whiskers)
 
         if not self.summary.get("n_measured"):
             return {}
@@ -305,7 +306,7 @@ def key_columns(catalog, keys, where="the catalogue") -> np.ndarray:
     Examples
     --------
     >>> from astropy.table import Table
-    >>> from sklearn_psf.validation import key_columns
+    >>> from sklearn_psf.exposure import key_columns
     >>> cat = Table({"x": [1.0, 2.0], "y": [3.0, 4.0], "G_I": [0.5, 1.5]})
     >>> key_columns(cat, ["g_i"]).tolist()
     [[0.5], [1.5]]
@@ -356,7 +357,7 @@ def _drop_missing_keys(stars, keys, where):
 
 
 def _selection_lines(counts, n_kept, head, max_spread_model, min_class_star):
-    from ..exposure import SELECTION_REASONS
+    from ._select import SELECTION_REASONS
 
     rejected = ", ".join(f"{k} {counts[k]}" for k in SELECTION_REASONS if counts.get(k))
     lines = [f"{head}{n_kept}" + (f" (rejected: {rejected})" if rejected else "")]
@@ -395,7 +396,7 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     What ``sklearn-psf fit`` does, as one call: read the exposure (:func:`read_exposure`),
     select the stars (:func:`~sklearn_psf.exposure.select_stars` with a catalogue,
     :func:`~sklearn_psf.exposure.find_stars` without), cut their stamps and mask their neighbours,
-    then fit and judge the model (:func:`fit_and_validate`). The steps:
+    then fit and judge the model (:func:`~sklearn_psf.validation.fit_and_validate`). The steps:
     :ref:`exposure-details` in the user guide.
 
     Parameters
@@ -448,7 +449,7 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     >>> import numpy as np
     >>> from astropy.table import Table
     >>> from sklearn_psf import make_psf_field
-    >>> from sklearn_psf.validation import fit_exposure
+    >>> from sklearn_psf.exposure import fit_exposure
     >>> field = make_psf_field(n_stars=60, n_galaxies=1, image_shape=(1000, 1000),
     ...                        random_state=0)
     >>> stamps, weights, flags = field.star_stamps(normalize=False, return_weights=True)
@@ -470,10 +471,11 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     ['PSFQualityWarning']
     """
     from ..io import celestial_wcs
-    from ..exposure import find_stars, select_stars
     from ..model import INTERPOLATORS, PSFModel, make_interpolator
     from ..preprocessing import SuperResolvedPCA
-    from ._fit import fit_and_validate
+    from ..validation import fit_and_validate
+    from ._select import select_stars
+    from ._stars import find_stars
 
     step = progress or (lambda name: None)
     inputs = read_exposure(image, catalog, hdu=hdu, weight_hdu=weight_hdu,
@@ -525,7 +527,7 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
             if data is not None and not any(c.upper() == "VIGNET" for c in table.colnames):
                 # sources measured on the image's cut-outs, their neighbours masked, as on
                 # a catalogue's VIGNETs (FLUX_RADIUS would carry the neighbours' light)
-                from ..exposure._stars import _image_vignettes
+                from ._stars import _image_vignettes
 
                 table = table.copy(copy_data=False)
                 table["VIGNET"] = _image_vignettes(data, table, stamp_size, inputs.weight)
@@ -611,7 +613,7 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
 def _mask_neighbours(stars, catalog, rows, lines):
     """Zero the weight (and the value) of the stamps' pixels that the catalogue's other
     sources cover (:func:`~sklearn_psf.exposure.neighbour_masks`); say how many."""
-    from ..exposure import neighbour_masks
+    from ._select import neighbour_masks
     from ..preprocessing import estimate_pixel_weights
 
     side = int(round(np.sqrt(stars.stamps.shape[1])))
