@@ -9,6 +9,7 @@ neighbours' masks), the stars' stamps (:func:`extract_star_stamps` from an image
 from ._crossval import CrossValidation, cross_validate_catalog
 from ._fit import (ExposureFit, ExposureInputs, StarSelectionError, fit_exposure, key_columns,
                    read_exposure)
+from ._predict import predict_catalog
 from ._select import (PSFEX_FLAG_MASK, SELECTION_OPTIONS, SELECTION_REASONS, neighbour_masks,
                       saturation_level, select_stars)
 from ._stars import REJECTION_REASONS, StarStamps, extract_star_stamps, find_stars
@@ -33,6 +34,7 @@ __all__ = [
     "extract_vignettes",
     "find_stars",
     "neighbour_masks",
+    "predict_catalog",
     "saturation_level",
     "select_stars",
 ]
