@@ -38,7 +38,7 @@ from threadpoolctl import threadpool_limits
 
 from sklearn_psf.io import find_program, run_sextractor
 from sklearn_psf.exposure import cross_validate_catalog, fit_exposure
-from sklearn_psf.validation._crossval import _psfex_accepted
+from sklearn_psf.exposure._crossval import _psfex_accepted
 
 REALDATA = Path(__file__).resolve().parents[1].parent / "shared" / "realdata"
 #: name -> (file in realdata, is a catalogue, PSFEx settings beyond the defaults)

@@ -430,7 +430,7 @@ def _fit_steps(args, lines, fit_warnings, quiet=False):
     from tqdm.auto import tqdm
 
     from ..model import save_model
-    from ..exposure import StarSelectionError, fit_exposure
+    from ..exposure import SelectionCuts, StarSelectionError, fit_exposure
 
     with tqdm(total=5, desc="reading", unit="step", disable=quiet) as bar:
         fitting = []  # where the fit's own warnings start among those caught
@@ -444,13 +444,15 @@ def _fit_steps(args, lines, fit_warnings, quiet=False):
         try:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
+                cuts = SelectionCuts(
+                    flag_mask=args.flag_mask, min_snr=args.min_snr, isolation=args.isolation,
+                    locus_width=args.locus_width, max_spread_model=args.max_spread_model,
+                    min_class_star=args.min_class_star)
                 fit = fit_exposure(
                     args.image, args.stars, hdu=args.hdu, weight_hdu=args.weight_hdu,
                     one_based=True if args.one_based else None, x_col=args.x_col,
-                    y_col=args.y_col, select=not args.no_select, flag_mask=args.flag_mask,
-                    min_snr=args.min_snr, saturation=args.saturation, isolation=args.isolation,
-                    locus_width=args.locus_width, max_spread_model=args.max_spread_model,
-                    min_class_star=args.min_class_star, stamp_size=args.stamp_size,
+                    y_col=args.y_col, select=not args.no_select, cuts=cuts,
+                    saturation=args.saturation, stamp_size=args.stamp_size,
                     interpolator=args.interpolator, reserve=args.reserve,
                     random_state=args.seed, keys=args.keys, band_limit=args.band_limit,
                     progress=progress)

@@ -7,8 +7,8 @@ neighbours' masks), the stars' stamps (:func:`extract_star_stamps` from an image
 """
 
 from ._crossval import CrossValidation, cross_validate_catalog
-from ._fit import (ExposureFit, ExposureInputs, StarSelectionError, fit_exposure, key_columns,
-                   read_exposure)
+from ._fit import ExposureFit, SelectionCuts, StarSelectionError, fit_exposure
+from ._inputs import ExposureInputs, key_columns, read_exposure
 from ._predict import predict_catalog
 from ._select import (PSFEX_FLAG_MASK, SELECTION_OPTIONS, SELECTION_REASONS, neighbour_masks,
                       saturation_level, select_stars)
@@ -19,6 +19,7 @@ __all__ = [
     "CrossValidation",
     "ExposureFit",
     "ExposureInputs",
+    "SelectionCuts",
     "StarSelectionError",
     "cross_validate_catalog",
     "fit_exposure",

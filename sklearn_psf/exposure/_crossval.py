@@ -117,7 +117,8 @@ def cross_validate_catalog(catalog, *, n_folds: int = 5, psfex=None, fit_options
         them (named ``psfex_1``, ``psfex_2``, ...) or a dict of them by name; PSFEx must be
         installed. None: no PSFEx model.
     fit_options : dict, optional
-        Options of :func:`fit_exposure` for this package's model (``reserve`` is 0).
+        Options of :func:`fit_exposure` for this package's model (``reserve`` is 0); its
+        ``cuts`` (:class:`SelectionCuts`) also select the stars to fold.
     models : dict, optional
         ``{name: callable(fold, train_catalog_path) -> model}``: further models per fold
         (an object with ``predict``, or a model file), ``fold`` from 0.
@@ -142,7 +143,8 @@ def cross_validate_catalog(catalog, *, n_folds: int = 5, psfex=None, fit_options
 
     from ..io import run_psfex, write_catalog_rows
     from ..validation import load_psf_model, validate_models
-    from ._fit import _mask_neighbours, fit_exposure, read_exposure
+    from ._fit import SelectionCuts, _mask_neighbours, fit_exposure
+    from ._inputs import read_exposure
     from ._select import select_stars
 
     path = os.fspath(catalog)
@@ -162,12 +164,10 @@ def cross_validate_catalog(catalog, *, n_folds: int = 5, psfex=None, fit_options
         raise InputError(f"{path} has no VIGNET column: cross-validation reads the stars' "
                          "stamps from the catalogue (PSFEx's input)")
     side = inputs.default_stamp_size
-    sel = {k: fit_options[k] for k in ("min_snr", "flag_mask", "isolation", "locus_width",
-                                       "max_spread_model", "min_class_star")
-           if k in fit_options}
-    flag_mask = sel.pop("flag_mask", 0xfe)
-    keep, _ = select_stars(table, saturation=inputs.saturation, flag_mask=flag_mask,
-                           stamp_size=side, min_stars=0, **sel)
+    cuts = fit_options.get("cuts") or SelectionCuts()
+    flag_mask = cuts.flag_mask
+    keep, _ = select_stars(table, saturation=inputs.saturation, stamp_size=side, min_stars=0,
+                           **cuts.select_kwargs())
     stars_table = table.copy(copy_data=False)
     if flag_mask is not None and "flags" in stars_table.colnames:
         stars_table["flags"] = np.asarray(stars_table["flags"]).astype(np.int64) & int(flag_mask)

@@ -45,7 +45,7 @@ def _positions(catalog, source, radec, wcs):
 
 def _key_values(catalog, keys, source):
     """The model's extra dimensions at each row, from the catalogue's own columns."""
-    from ._fit import key_columns
+    from ._inputs import key_columns
 
     extra = key_columns(catalog, keys, f"the catalogue {source!r}")
     bad = ~np.isfinite(extra).all(axis=1)
@@ -128,7 +128,7 @@ def predict_catalog(model, catalog, *, summary=None, one_based: bool | None = No
     """
     from ..io import celestial_wcs, draw_psf, extrapolation_flags, read_catalog
     from ..measure import adaptive_moments
-    from ._fit import _naming
+    from ._inputs import _naming
 
     model, summary, name = _model_and_summary(model, summary)
     wcs = celestial_wcs(summary.get("wcs"))
