@@ -389,7 +389,7 @@ def _fit_of_many(args) -> _FitOutcome:
     from threadpoolctl import threadpool_limits
 
     # the BLAS and OpenMP libraries the fit uses are loaded with these: limited once loaded
-    from .. import io, model, validation  # noqa: F401
+    from .. import exposure, io, model, validation  # noqa: F401
 
     with threadpool_limits(limits=1):
         return _fit_one(args, quiet=True)

@@ -310,7 +310,8 @@ def extract_star_stamps(image, catalog, stamp_size: int = 25, *, weight=None,
         Not modified.
     catalog : astropy.table.Table or array-like of shape (n, 2)
         Star positions: a table with 0-based ``x``, ``y`` columns (and optionally ``flags``),
-        as returned by :func:`read_catalog` or :func:`find_stars`, or an (n, 2) array.
+        as returned by :func:`~sklearn_psf.io.read_catalog` or :func:`find_stars`, or an
+        (n, 2) array.
     stamp_size : int, default=25
         Stamp side. The star's pixel ``floor(x + 0.5)`` is at index ``stamp_size // 2``: the
         centre of an odd stamp; of an even one (e.g. 32), the pixel right of and above its
