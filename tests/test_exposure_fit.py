@@ -8,9 +8,11 @@ import pytest
 from astropy.table import Table
 
 from sklearn_psf import make_psf_field
-from sklearn_psf.exposure import neighbour_masks, select_stars
+from sklearn_psf.exposure import (ExposureFit, SelectionCuts, StarSelectionError, fit_exposure,
+                                  neighbour_masks, predict_catalog, read_exposure,
+                                  select_stars)
+from sklearn_psf.io import InputError
 from sklearn_psf.validation import fit_and_validate
-from sklearn_psf.exposure import StarSelectionError, fit_exposure, read_exposure
 
 
 def _field(seed=3, n_stars=200):
@@ -259,3 +261,33 @@ def test_saturation_found_where_the_peaks_pile_up(tmp_path):
     assert any(line.startswith("saturation level: 16383,") for line in fit.report())
     write_ldac(tmp_path / "unclipped.ldac", cat[8:])
     assert read_exposure(catalog=tmp_path / "unclipped.ldac").saturation is None
+
+
+def test_selection_cuts_and_predict_catalog_of_a_fit():
+    """fit_exposure's cuts are select_stars' keywords; its result is a dataclass whose
+    summary predict_catalog reads (keys, WCS), refusing what the model cannot take."""
+    import dataclasses
+
+    X, stamps, _ = _field(seed=4, n_stars=60)
+    side = int(np.sqrt(stamps.shape[1]))
+    cat = Table({"x": X[:, 0], "y": X[:, 1], "VIGNET": stamps.reshape(-1, side, side)})
+    assert SelectionCuts(min_snr=5).select_kwargs() == {
+        "flag_mask": 0xfe, "min_snr": 5, "isolation": None, "locus_width": "auto",
+        "max_spread_model": 0.003, "min_class_star": 0.8}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = fit_exposure(catalog=cat, select=False, interpolator="polynomial")
+    assert isinstance(fit, ExposureFit) and dataclasses.is_dataclass(fit)
+    assert [f.name for f in dataclasses.fields(fit)] == [
+        "model", "residuals", "summary", "selection", "stars", "lines", "image_shape"]
+    galaxies = Table({"x": [100.0, 1500.5], "y": [300.0, 20.25], "id": [7, 8]})
+    out = predict_catalog(fit.model, galaxies, summary=fit.summary, oversampling=2)
+    assert out["psf"].shape == (2, 2 * side, 2 * side) and list(out["id"]) == [7, 8]
+    assert np.allclose(out["psf"].sum(axis=(1, 2)), 1.0)
+    assert galaxies.colnames == ["x", "y", "id"]  # not modified
+    with pytest.raises(InputError, match="has no WCS"):
+        predict_catalog(fit.model, galaxies, summary=fit.summary, radec=True)
+    with pytest.raises(InputError, match="0 dimensions after x, y; --keys gives 1"):
+        predict_catalog(fit.model, galaxies, keys=["id"])
+    with pytest.raises(InputError, match="no rows"):
+        predict_catalog(fit.model, galaxies[:0])
