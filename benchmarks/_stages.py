@@ -25,8 +25,8 @@ import time
 #: starting with spaces are parts of the stage above.
 STAGES = [
     ("command (after its start)", "sklearn_psf.cli._fit:_fit"),
-    ("read, select stars, cut stamps", "sklearn_psf.validation._exposure:fit_exposure"),
-    ("  select stars", "sklearn_psf.io:select_stars"),
+    ("read, select stars, cut stamps", "sklearn_psf.exposure._fit:fit_exposure"),
+    ("  select stars", "sklearn_psf.exposure:select_stars"),
     ("  celestial WCS", "sklearn_psf.io:celestial_wcs"),
     ("fit and validate", "sklearn_psf.validation._fit:fit_and_validate"),
     ("  PSFModel.fit", "sklearn_psf.model._psf_model:PSFModel.fit"),

@@ -123,7 +123,7 @@ def machine_ratio():
 
 def same_files(a, b):
     """Differences between the model files of folders ``a`` and ``b`` (DATE card aside)."""
-    from sklearn_psf.io import load_model
+    from sklearn_psf.model import load_model
 
     problems = []
     names = sorted(p.name for p in a.glob("*.fits"))

@@ -8,7 +8,7 @@ Usage::
 
 Each real image is catalogued by Source Extractor with PSFEx's recipe
 (:func:`sklearn_psf.io.run_sextractor`, 35 x 35 VIGNETs; the DECam file is PSFEx's own input
-catalogue, 63 x 63 VIGNETs); then :func:`sklearn_psf.validation.cross_validate_catalog`
+catalogue, 63 x 63 VIGNETs); then :func:`sklearn_psf.exposure.cross_validate_catalog`
 splits the stars this package selects into folds, fits ``sklearn-psf fit``'s model
 (defaults, no reserve) and PSFEx 3.21 (``PSFVAR_DEGREES`` 2 and 3, one thread;
 ``SAMPLE_FWHMRANGE 1,10`` where the stars are undersampled, as PSFEx's default range keeps
@@ -37,8 +37,8 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from sklearn_psf.io import find_program, run_sextractor
-from sklearn_psf.validation import cross_validate_catalog, fit_exposure
-from sklearn_psf.validation._crossval import _psfex_accepted
+from sklearn_psf.exposure import cross_validate_catalog, fit_exposure
+from sklearn_psf.exposure._crossval import _psfex_accepted
 
 REALDATA = Path(__file__).resolve().parents[1].parent / "shared" / "realdata"
 #: name -> (file in realdata, is a catalogue, PSFEx settings beyond the defaults)

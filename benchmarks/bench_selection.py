@@ -37,7 +37,7 @@ from threadpoolctl import threadpool_limits
 from sklearn_psf.io import find_program, read_catalog, run_psfex, run_sextractor
 from sklearn_psf.measure import adaptive_moments
 from sklearn_psf.simulate import render_galsim_ccd
-from sklearn_psf.validation import fit_exposure
+from sklearn_psf.exposure import SelectionCuts, fit_exposure
 
 
 def _match(xy, truth_xy, radius=1.0):
@@ -75,8 +75,8 @@ def run(seed, n_galaxies, folder, n_truth):
     row["PSFEx true"], row["PSFEx other"] = int(np.sum(got >= 0)), int(np.sum(got < 0))
     row["PSFEx ACCEPTED"] = int(fits.getheader(out, 1).get("ACCEPTED", -1))
     side = int(np.shape(cat["VIGNET"])[1])
-    for name, options in (("ours", {}), ("isolation", {"isolation": side // 2 + 3,
-                                                      "flag_mask": None})):
+    for name, options in (("ours", {}), ("isolation", {"cuts": SelectionCuts(
+            isolation=side // 2 + 3, flag_mask=None)})):
         start = time.process_time()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")

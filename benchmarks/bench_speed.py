@@ -272,7 +272,8 @@ def scaling(args, root):
     import time
     import warnings
 
-    from sklearn_psf.validation import fit_and_validate, fit_exposure
+    from sklearn_psf.validation import fit_and_validate
+    from sklearn_psf.exposure import fit_exposure
 
     ns = argparse.Namespace(quick=args.quick, cache=args.cache, positions=args.positions)
     folder = os.path.join(root, "decam")

@@ -109,9 +109,9 @@ def _truth(psf, P, side, scale):
 
 def _selected_stars(cat, side):
     """0-based positions of the catalogue's stars as ``sklearn-psf fit`` selects them
-    (:func:`sklearn_psf.io.select_stars` with fit's defaults): the stars PIFF is given."""
-    from sklearn_psf.io import select_stars
-    from sklearn_psf.validation import read_exposure
+    (:func:`sklearn_psf.exposure.select_stars` with fit's defaults): the stars PIFF is given."""
+    from sklearn_psf.exposure import select_stars
+    from sklearn_psf.exposure import read_exposure
 
     inputs = read_exposure(catalog=cat)
     table = inputs.catalog
@@ -361,7 +361,7 @@ def _clean(truth, cat):
     a mask over ``truth``'s rows, and each one's catalogue position."""
     from scipy.spatial import cKDTree
 
-    from sklearn_psf.validation import read_exposure
+    from sklearn_psf.exposure import read_exposure
 
     table = read_exposure(catalog=cat).catalog
     xy = np.column_stack([table["x"], table["y"]])

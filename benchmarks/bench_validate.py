@@ -42,7 +42,8 @@ from astropy.io import fits
 from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
-from sklearn_psf.io import extract_vignettes, read_catalog
+from sklearn_psf.io import read_catalog
+from sklearn_psf.exposure import extract_vignettes
 from sklearn_psf.measure import adaptive_moments
 from sklearn_psf.model import PSFModel, save_model
 from sklearn_psf.preprocessing import StampNormalizer

@@ -15,8 +15,9 @@ The Monday-morning workflow of PIFF and PSFEx users, with sklearn_psf:
 The exposure is simulated by the package itself
 (:func:`sklearn_psf.simulate.write_example_exposure`, built on
 :func:`sklearn_psf.simulate.make_psf_field`), so the example needs no download and we can
-compare with the true PSF. On a real CCD, replace the file names (see :mod:`sklearn_psf.io`);
-the command line does the same in two commands::
+compare with the true PSF. On a real CCD, replace the file names (see
+:mod:`sklearn_psf.exposure`; :func:`sklearn_psf.exposure.fit_exposure` is the whole path in
+one call); the command line does the same in two commands::
 
     sklearn-psf fit exposure.fits.fz --hdu SCI --weight-hdu WGT -o psf.fits
     sklearn-psf predict psf.fits --positions galaxies.csv -o galaxy_psfs.fits
@@ -40,11 +41,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 from astropy.table import Table
 
-from sklearn_psf.io import (
-    extract_star_stamps,
-    find_stars,
-    read_image,
-)
+from sklearn_psf.exposure import extract_star_stamps, find_stars
+from sklearn_psf.io import read_image
 from sklearn_psf.simulate import write_example_exposure, write_example_ldac
 from sklearn_psf.measure import adaptive_moments
 from sklearn_psf.model import PSFModel
@@ -62,8 +60,8 @@ print(f"image {image.shape}, {np.isnan(image).sum()} NaN pixel, "
 # %%
 # Star selection and stamps
 # -------------------------
-# Without a catalogue, :func:`~sklearn_psf.io.find_stars` detects sources with ``sep`` and
-# keeps isolated, unsaturated point sources on the flux-radius locus; each rejected
+# Without a catalogue, :func:`~sklearn_psf.exposure.find_stars` detects sources with ``sep``
+# and keeps isolated, unsaturated point sources on the flux-radius locus; each rejected
 # detection is counted under its reason. (With a SExtractor catalogue,
 # ``read_catalog("stars.fits")`` reads 1-based ``X_IMAGE``/``Y_IMAGE``.)
 stars = find_stars(image, weight=weight, stamp_size=25, saturation=header["SATURATE"])
@@ -94,9 +92,9 @@ plot_whiskers(residuals)
 # %%
 # Save, load, predict at galaxy positions
 # ---------------------------------------
-# The model file is a self-describing FITS file (format in :func:`sklearn_psf.io.save_model`);
-# it stores the reserved-star residuals too. Loading refits nothing but the interpolator on the
-# stored coefficients: predictions are identical.
+# The model file is a self-describing FITS file (format in
+# :func:`sklearn_psf.model.save_model`); it stores the reserved-star residuals too. Loading
+# refits nothing but the interpolator on the stored coefficients: predictions are identical.
 model_path = os.path.join(folder, "psf.fits")
 model.save(model_path, residuals=residuals, summary=summary)
 loaded = PSFModel.load(model_path)
@@ -128,16 +126,12 @@ ax.legend()
 # ---------------------------------------------------------
 # PSFEx's input: every detection (here half of them galaxies, some barely resolved, plus
 # cosmic rays, saturated stars and masked pixels) with its ``VIGNET`` stamp.
-# :func:`~sklearn_psf.io.select_stars` keeps the unflagged, unsaturated sources of high S/N
-# on the stellar locus of the size-magnitude diagram (``FLUX_RADIUS`` against ``MAG_AUTO``);
-# :func:`~sklearn_psf.io.extract_vignettes` turns the masked pixels (-1e30) into zero-weight
-# pixels.
-from sklearn_psf.io import (
-    draw_psf,
-    extract_vignettes,
-    read_catalog,
-    select_stars,
-)
+# :func:`~sklearn_psf.exposure.select_stars` keeps the unflagged, unsaturated sources of high
+# S/N on the stellar locus of the size-magnitude diagram (``FLUX_RADIUS`` against
+# ``MAG_AUTO``); :func:`~sklearn_psf.exposure.extract_vignettes` turns the masked pixels
+# (-1e30) into zero-weight pixels.
+from sklearn_psf.exposure import extract_vignettes, select_stars
+from sklearn_psf.io import draw_psf, read_catalog
 from sklearn_psf.simulate import realistic_snr
 from sklearn_psf.validation import plot_psf_maps, plot_rho_statistics
 

@@ -11,9 +11,8 @@ from astropy.io import fits
 from astropy.table import Table
 
 from sklearn_psf.cli import main
-from sklearn_psf.io import (CatalogColumnWarning, InputError, extract_star_stamps,
-                            extract_vignettes, read_catalog, read_image, select_stars,
-                            write_ldac)
+from sklearn_psf.io import CatalogColumnWarning, InputError, read_catalog, read_image, write_ldac
+from sklearn_psf.exposure import extract_star_stamps, extract_vignettes, select_stars
 from sklearn_psf.simulate import write_example_exposure, write_example_ldac
 
 

@@ -15,12 +15,8 @@ from astropy.table import Table
 from numpy.testing import assert_allclose
 
 from sklearn_psf.cli import main
-from sklearn_psf.io import (
-    FITSHeaderWarning,
-    load_model,
-    read_model_validation,
-    write_ldac,
-)
+from sklearn_psf.io import FITSHeaderWarning, write_ldac
+from sklearn_psf.model import load_model, read_model_validation
 from sklearn_psf.simulate import write_example_exposure
 from sklearn_psf.measure import adaptive_moments
 
@@ -271,6 +267,7 @@ def test_predict_x_col_oversampling_and_errors(tmp_path, exposure, capsys, monke
     assert_allclose(table["sigma"][0], sigma_plain, rtol=0.02)   # in image pixels
     # an unwritable output fails before any work, naming the user's path
     import sklearn_psf.io
+    import sklearn_psf.model
 
     def no_work(*args, **kwargs):
         raise AssertionError("the output must be checked before the work starts")
@@ -288,7 +285,7 @@ def test_predict_x_col_oversampling_and_errors(tmp_path, exposure, capsys, monke
     try:
         with monkeypatch.context() as patch:
             patch.setattr(sklearn_psf.io, "read_image", no_work)
-            patch.setattr(sklearn_psf.io, "load_model", no_work)
+            patch.setattr(sklearn_psf.model, "load_model", no_work)
             for args, pattern in early:
                 code, _, err = _run(args, capsys)
                 _one_line_error(code, err, pattern)

@@ -8,11 +8,11 @@ from astropy.table import Table
 from numpy.testing import assert_allclose
 
 from sklearn_psf.cli import main
-from sklearn_psf.io import CatalogColumnWarning, draw_psf, extrapolation_flags, load_model, \
-    read_model_validation
+from sklearn_psf.io import CatalogColumnWarning, draw_psf, extrapolation_flags
+from sklearn_psf.model import load_model, read_model_validation
 from sklearn_psf.simulate import make_psf_field
-from sklearn_psf.validation import (PSFQualityWarning, fit_exposure, key_columns,
-                                    validate_models)
+from sklearn_psf.validation import PSFQualityWarning, validate_models
+from sklearn_psf.exposure import fit_exposure, key_columns
 
 
 @pytest.fixture(scope="module")

@@ -81,7 +81,8 @@ def test_tutorial_prose_quotes_what_fit_prints(tmp_path):
     figures its prose quotes from it (the stars' ellipticity noise, the model's own error,
     the warning) are those of the same fit."""
     from sklearn_psf.simulate import write_example_exposure
-    from sklearn_psf.validation import PSFQualityWarning, fit_exposure
+    from sklearn_psf.validation import PSFQualityWarning
+    from sklearn_psf.exposure import fit_exposure
 
     text = " ".join((ROOT / "docs" / "user_guide.rst").read_text().split())
     noise = re.search(r"their ellipticity noise is about ([0-9.]+)\)", text).group(1)

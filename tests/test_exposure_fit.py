@@ -8,8 +8,11 @@ import pytest
 from astropy.table import Table
 
 from sklearn_psf import make_psf_field
-from sklearn_psf.io import neighbour_masks, select_stars
-from sklearn_psf.validation import StarSelectionError, fit_and_validate, fit_exposure, read_exposure
+from sklearn_psf.exposure import (ExposureFit, SelectionCuts, StarSelectionError, fit_exposure,
+                                  neighbour_masks, predict_catalog, read_exposure,
+                                  select_stars)
+from sklearn_psf.io import InputError
+from sklearn_psf.validation import fit_and_validate
 
 
 def _field(seed=3, n_stars=200):
@@ -90,7 +93,7 @@ def test_neighbour_masks_equal_every_disc_drawn_one_by_one():
     """On a crowded random field (sizes and fluxes within 100x of each other, NaN and edge
     positions), the masks equal each other source's disc drawn pixel by pixel over the whole
     stamp, and a star is crowded exactly when such a disc reaches alpha of its centre."""
-    from sklearn_psf.io._select import _crowded, _mask_radius, _sizes_fluxes
+    from sklearn_psf.exposure._select import _crowded, _mask_radius, _sizes_fluxes
 
     rng = np.random.default_rng(3)
     n, s = 120, 21
@@ -123,7 +126,8 @@ def test_neighbour_masks_equal_every_disc_drawn_one_by_one():
 def test_fit_exposure_is_the_command_s_fit(tmp_path, capsys):
     """fit_exposure gives the model and verdict that ``sklearn-psf fit`` saves."""
     from sklearn_psf.cli import main
-    from sklearn_psf.io import load_model, read_model_validation, write_ldac
+    from sklearn_psf.io import write_ldac
+    from sklearn_psf.model import load_model, read_model_validation
 
     X, stamps, _ = _field(seed=5, n_stars=80)
     side = int(np.sqrt(stamps.shape[1]))
@@ -158,7 +162,8 @@ def test_real_decam_psfex_input_beside_psfex(realdata, tmp_path, capsys, monkeyp
     from astropy.io import fits
 
     from sklearn_psf.cli import main
-    from sklearn_psf.io import read_catalog, read_model_validation
+    from sklearn_psf.io import read_catalog
+    from sklearn_psf.model import read_model_validation
 
     cat = realdata("DECam_00241238_01_psfcat.ldac.fits")
     psf = realdata("DECam_00241238_01_psfcat.psf")
@@ -198,7 +203,7 @@ def test_internal_error_of_one_of_many_fits_is_reported_as_a_bug(tmp_path, capsy
                                                                   monkeypatch):
     """Several inputs (fitted one after the other here): a failure inside numpy is reported as
     a bug of the package (exit status 3, --debug named), an input error as an error (2)."""
-    import sklearn_psf.validation as validation
+    import sklearn_psf.exposure as exposure
     from sklearn_psf.cli import main
     from sklearn_psf.io import write_ldac
 
@@ -213,16 +218,16 @@ def test_internal_error_of_one_of_many_fits_is_reported_as_a_bug(tmp_path, capsy
     def broken(*args, **kwargs):
         return np.ones(2).reshape(3)   # a numpy failure, not about the input
 
-    monkeypatch.setattr(validation, "fit_exposure", broken)
+    monkeypatch.setattr(exposure, "fit_exposure", broken)
     args = ["fit", "--stars", *map(str, paths), "--no-plots", "-o", str(tmp_path / "m.fits")]
     assert main(args) == 3
     err = capsys.readouterr().err
     assert err.count("sklearn-psf: internal error") == 3 and "--debug" in err
 
     def refused(*args, **kwargs):
-        raise validation.StarSelectionError("0 of 30 sources pass", {"low_snr": 30}, "hint")
+        raise exposure.StarSelectionError("0 of 30 sources pass", {"low_snr": 30}, "hint")
 
-    monkeypatch.setattr(validation, "fit_exposure", refused)
+    monkeypatch.setattr(exposure, "fit_exposure", refused)
     assert main(args + ["--overwrite"]) == 2
     err = capsys.readouterr().err
     assert "internal error" not in err and err.count("sklearn-psf: error:") == 3
@@ -256,3 +261,33 @@ def test_saturation_found_where_the_peaks_pile_up(tmp_path):
     assert any(line.startswith("saturation level: 16383,") for line in fit.report())
     write_ldac(tmp_path / "unclipped.ldac", cat[8:])
     assert read_exposure(catalog=tmp_path / "unclipped.ldac").saturation is None
+
+
+def test_selection_cuts_and_predict_catalog_of_a_fit():
+    """fit_exposure's cuts are select_stars' keywords; its result is a dataclass whose
+    summary predict_catalog reads (keys, WCS), refusing what the model cannot take."""
+    import dataclasses
+
+    X, stamps, _ = _field(seed=4, n_stars=60)
+    side = int(np.sqrt(stamps.shape[1]))
+    cat = Table({"x": X[:, 0], "y": X[:, 1], "VIGNET": stamps.reshape(-1, side, side)})
+    assert SelectionCuts(min_snr=5).select_kwargs() == {
+        "flag_mask": 0xfe, "min_snr": 5, "isolation": None, "locus_width": "auto",
+        "max_spread_model": 0.003, "min_class_star": 0.8}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = fit_exposure(catalog=cat, select=False, interpolator="polynomial")
+    assert isinstance(fit, ExposureFit) and dataclasses.is_dataclass(fit)
+    assert [f.name for f in dataclasses.fields(fit)] == [
+        "model", "residuals", "summary", "selection", "stars", "lines", "image_shape"]
+    galaxies = Table({"x": [100.0, 1500.5], "y": [300.0, 20.25], "id": [7, 8]})
+    out = predict_catalog(fit.model, galaxies, summary=fit.summary, oversampling=2)
+    assert out["psf"].shape == (2, 2 * side, 2 * side) and list(out["id"]) == [7, 8]
+    assert np.allclose(out["psf"].sum(axis=(1, 2)), 1.0)
+    assert galaxies.colnames == ["x", "y", "id"]  # not modified
+    with pytest.raises(InputError, match="has no WCS"):
+        predict_catalog(fit.model, galaxies, summary=fit.summary, radec=True)
+    with pytest.raises(InputError, match="0 dimensions after x, y; --keys gives 1"):
+        predict_catalog(fit.model, galaxies, keys=["id"])
+    with pytest.raises(InputError, match="no rows"):
+        predict_catalog(fit.model, galaxies[:0])

@@ -68,7 +68,8 @@ def test_eso_like_image_gets_a_model_as_good_as_psfex_constant(n_stars, seed, sp
     (measured: 1.104 against 1.103 for the constant, 1.028 against 1.083 with the
     Kriging)."""
     from sklearn_psf.simulate import render_galsim_ccd
-    from sklearn_psf.validation import fit_exposure, validate_models
+    from sklearn_psf.validation import validate_models
+    from sklearn_psf.exposure import fit_exposure
 
     ccd = render_galsim_ccd(shape=(256, 256), n_stars=n_stars, n_galaxies=8, n_saturated=1,
                             n_bad_columns=0, random_state=seed)

@@ -16,16 +16,9 @@ from sklearn.neighbors import KNeighborsRegressor
 from sklearn.pipeline import make_pipeline
 
 from sklearn_psf.study.compare import SimulationConfig, default_schemes, make_psf_model, run_study
-from sklearn_psf.io import (
-    MODEL_FORMAT_VERSION,
-    extract_star_stamps,
-    find_stars,
-    load_model,
-    read_catalog,
-    read_image,
-    read_model_validation,
-    save_model,
-)
+from sklearn_psf.io import read_catalog, read_image
+from sklearn_psf.model import MODEL_FORMAT_VERSION, load_model, read_model_validation, save_model
+from sklearn_psf.exposure import extract_star_stamps, find_stars
 from sklearn_psf.simulate import write_example_exposure
 from sklearn_psf.measure import adaptive_moments
 from sklearn_psf.interpolate import IsotropicScaler

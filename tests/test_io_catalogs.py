@@ -9,16 +9,9 @@ from astropy.io import fits
 from astropy.table import Table
 from numpy.testing import assert_allclose
 
-from sklearn_psf.io import (
-    FITSHeaderWarning,
-    SELECTION_REASONS,
-    extract_vignettes,
-    read_catalog,
-    read_image,
-    select_stars,
-    write_ldac,
-)
-from sklearn_psf.io._select import _windowed_snr
+from sklearn_psf.io import FITSHeaderWarning, read_catalog, read_image, write_ldac
+from sklearn_psf.exposure import SELECTION_REASONS, extract_vignettes, select_stars
+from sklearn_psf.exposure._select import _windowed_snr
 from sklearn_psf.simulate import write_example_ldac
 from sklearn_psf.measure import adaptive_moments
 from sklearn_psf.validation import fit_and_validate

@@ -8,7 +8,7 @@ import sklearn_psf
 
 ROOT = pathlib.Path(sklearn_psf.__file__).parent
 LIBRARY = {"interpolate", "preprocessing", "measure", "model", "metrics", "simulate",
-           "datasets", "io", "validation"}
+           "datasets", "io", "exposure", "validation"}
 
 
 def _edges():
@@ -41,6 +41,18 @@ def test_library_imports_neither_study_nor_cli():
     upward = {name: sorted(edges.get(name, set()) & {"study", "cli"}) for name in LIBRARY}
     assert not any(upward.values()), upward
     assert "cli" not in edges.get("study", set())
+
+
+#: What ``io`` must not import: it reads and writes files, nothing more (issue 50); the path
+#: from files to a model is ``exposure``'s.
+NOT_FOR_IO = {"model", "validation", "preprocessing", "measure", "interpolate", "exposure",
+              "study", "cli"}
+
+
+def test_io_reads_and_writes_files_only():
+    edges = _edges()
+    assert "io" in edges  # it imports _files at least: the walk found it
+    assert not edges["io"] & NOT_FOR_IO, sorted(edges["io"] & NOT_FOR_IO)
 
 
 #: The longest a module of the package may be (issue 50: a module a reader can hold).

@@ -19,8 +19,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from sklearn_psf.cli import main
-from sklearn_psf.io import (InputError, extract_star_stamps, extract_vignettes, read_catalog,
-                            read_image, select_stars, write_ldac)
+from sklearn_psf.io import InputError, read_catalog, read_image, write_ldac
+from sklearn_psf.exposure import extract_star_stamps, extract_vignettes, select_stars
 from sklearn_psf.simulate import write_example_exposure, write_example_ldac
 
 COUNT = {"library": 0, "cli": 0, "library_read": 0, "cli_ok": 0}

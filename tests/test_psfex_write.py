@@ -9,13 +9,8 @@ galsim = pytest.importorskip("galsim")
 import galsim.des  # noqa: E402
 
 from sklearn_psf import make_psf_field  # noqa: E402
-from sklearn_psf.io import (  # noqa: E402
-    extract_vignettes,
-    find_program,
-    read_catalog,
-    run_sextractor,
-    select_stars,
-)
+from sklearn_psf.io import find_program, read_catalog, run_sextractor
+from sklearn_psf.exposure import extract_vignettes, select_stars
 from sklearn_psf.model import PSFModel, make_interpolator  # noqa: E402
 from sklearn_psf.validation import PSFExModel, psfex_terms, to_psfex, write_psfex  # noqa: E402
 

@@ -102,8 +102,8 @@ def test_model_rests_on_most_of_psfexs_stars(realdata, tmp_path, name, share):
     import warnings
 
     from sklearn_psf.io import run_sextractor
-    from sklearn_psf.validation import fit_exposure
-    from sklearn_psf.validation._crossval import _psfex_accepted
+    from sklearn_psf.exposure import fit_exposure
+    from sklearn_psf.exposure._crossval import _psfex_accepted
 
     path = realdata(name)
     if name.endswith("ldac.fits"):

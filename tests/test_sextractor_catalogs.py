@@ -15,8 +15,8 @@ from astropy.io import fits
 from astropy.table import Table
 
 from sklearn_psf.cli import main
-from sklearn_psf.io import (extract_vignettes, find_program, read_catalog, run_psfex,
-                            run_sextractor, select_stars, write_ldac)
+from sklearn_psf.io import find_program, read_catalog, run_psfex, run_sextractor, write_ldac
+from sklearn_psf.exposure import extract_vignettes, select_stars
 
 galsim = pytest.importorskip("galsim")
 SEX = find_program("source-extractor")
@@ -104,7 +104,8 @@ def test_fit_on_ascii_catalogue_with_12_apertures(image, tmp_path, capsys):
     out = str(tmp_path / "m.fits")
     assert main(["fit", "--stars", str(path), "-o", out, "--no-plots",
                  "--interpolator", "polynomial"]) == 0
-    from sklearn_psf.io import draw_psf, load_model
+    from sklearn_psf.io import draw_psf
+    from sklearn_psf.model import load_model
 
     model = load_model(out)
     stamp = draw_psf(model, [[160.0, 160.0]])[0]

@@ -15,7 +15,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from sklearn_psf.io import DEFAULT_SEXTRACTOR_PARAMS, InputError, find_program, run_sextractor
-from sklearn_psf.validation import fit_exposure
+from sklearn_psf.exposure import fit_exposure
 
 pytest.importorskip("galsim")
 pytestmark = pytest.mark.skipif(find_program("source-extractor") is None,

@@ -406,7 +406,7 @@ def test_star_selection_keeps_undersampled_stars(optical):
     # fixed-weight moments: the stars are kept, the galaxies (larger) rejected
     from astropy.table import Table
 
-    from sklearn_psf.io import select_stars
+    from sklearn_psf.exposure import select_stars
 
     rng = np.random.default_rng(6)
     n_stars, n_gal = 60, 20
@@ -436,7 +436,7 @@ def test_locus_width_covers_the_pixel_phase_scatter_of_undersampled_sizes(optica
     # benchmarks/bench_undersampled.py: 82.6% of the clean stars kept)
     from astropy.table import Table
 
-    from sklearn_psf.io import select_stars
+    from sklearn_psf.exposure import select_stars
 
     rng = np.random.default_rng(0)
     fwhm = stamp_fwhm(np.array([_draw(optical, o) for o in rng.uniform(-0.5, 0.5, (400, 2))]))

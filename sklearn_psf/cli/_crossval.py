@@ -152,7 +152,7 @@ def _crossval(args, out, psfex) -> int:
     """The run of ``crossval`` once its inputs are checked and its folder made."""
     from tqdm.auto import tqdm
 
-    from ..validation import cross_validate_catalog
+    from ..exposure import SelectionCuts, cross_validate_catalog
 
     models = {os.path.basename(p).replace("{fold}", "K"):
               (lambda k, train, p=p: p.format(fold=k + 1)) for p in args.model}
@@ -164,7 +164,8 @@ def _crossval(args, out, psfex) -> int:
 
         cv = cross_validate_catalog(
             args.stars, n_folds=args.folds, psfex=psfex, random_state=args.seed,
-            fit_options={"interpolator": args.interpolator, "min_snr": args.min_snr},
+            fit_options={"interpolator": args.interpolator,
+                         "cuts": SelectionCuts(min_snr=args.min_snr)},
             models=models, progress=progress, work_dir=out if args.write_folds else None)
         bar.update(bar.total - bar.n)
     written = [os.path.join(out, OUTPUTS["table"])]

@@ -1,6 +1,6 @@
 """The ``fit`` and ``predict`` commands of ``sklearn-psf``: their parsers and runners.
 
-``fit`` is :func:`sklearn_psf.validation.fit_exposure` for each input, its report printed and
+``fit`` is :func:`sklearn_psf.exposure.fit_exposure` for each input, its report printed and
 its model and figures saved; errors are raised as :class:`CLIInputError` (see ``_common``).
 """
 
@@ -389,7 +389,7 @@ def _fit_of_many(args) -> _FitOutcome:
     from threadpoolctl import threadpool_limits
 
     # the BLAS and OpenMP libraries the fit uses are loaded with these: limited once loaded
-    from .. import io, model, validation  # noqa: F401
+    from .. import exposure, io, model, validation  # noqa: F401
 
     with threadpool_limits(limits=1):
         return _fit_one(args, quiet=True)
@@ -422,15 +422,15 @@ def _show(outcome, warnings_registry, shown_output=None):
 
 
 def _fit_steps(args, lines, fit_warnings, quiet=False):
-    """Fit one input with :func:`~sklearn_psf.validation.fit_exposure`, save the model and
+    """Fit one input with :func:`~sklearn_psf.exposure.fit_exposure`, save the model and
     its figures; ``lines`` gets the report, ``fit_warnings`` the warnings of the fit (those
     of the reading and selection go on to the caller's record). Returns the files written."""
     import warnings
 
     from tqdm.auto import tqdm
 
-    from ..io import save_model
-    from ..validation import StarSelectionError, fit_exposure
+    from ..model import save_model
+    from ..exposure import SelectionCuts, StarSelectionError, fit_exposure
 
     with tqdm(total=5, desc="reading", unit="step", disable=quiet) as bar:
         fitting = []  # where the fit's own warnings start among those caught
@@ -444,13 +444,15 @@ def _fit_steps(args, lines, fit_warnings, quiet=False):
         try:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
+                cuts = SelectionCuts(
+                    flag_mask=args.flag_mask, min_snr=args.min_snr, isolation=args.isolation,
+                    locus_width=args.locus_width, max_spread_model=args.max_spread_model,
+                    min_class_star=args.min_class_star)
                 fit = fit_exposure(
                     args.image, args.stars, hdu=args.hdu, weight_hdu=args.weight_hdu,
                     one_based=True if args.one_based else None, x_col=args.x_col,
-                    y_col=args.y_col, select=not args.no_select, flag_mask=args.flag_mask,
-                    min_snr=args.min_snr, saturation=args.saturation, isolation=args.isolation,
-                    locus_width=args.locus_width, max_spread_model=args.max_spread_model,
-                    min_class_star=args.min_class_star, stamp_size=args.stamp_size,
+                    y_col=args.y_col, select=not args.no_select, cuts=cuts,
+                    saturation=args.saturation, stamp_size=args.stamp_size,
                     interpolator=args.interpolator, reserve=args.reserve,
                     random_state=args.seed, keys=args.keys, band_limit=args.band_limit,
                     progress=progress)
@@ -539,84 +541,37 @@ def _save_figures(figures, paths):
 
 
 def _predict(args):
+    """``predict``: :func:`~sklearn_psf.exposure.predict_catalog` at the catalogue's
+    positions, written to a FITS table."""
     _check_input(args.model, "model file")
     _check_input(args.positions, "catalogue")
     _check_output_file(args.output, args.overwrite, inputs=(args.model, args.positions))
-    import numpy as np
-    from astropy.io import fits
-    from astropy.table import Table
-    from tqdm.auto import tqdm
-
-    from ..io import (celestial_wcs, draw_psf, extrapolation_flags, load_model, pixel_to_sky,
-                     read_catalog, read_model_validation, sky_to_pixel)
-    from .._files import check_memory, write_fits_atomic
-    from ..measure import adaptive_moments
-    from ..validation import key_columns
-
     if (args.x_col is None) != (args.y_col is None):
         raise CLIInputError("give both --x-col and --y-col, or neither")
-    model = load_model(args.model)
-    summary = read_model_validation(args.model)[1] or {}
-    wcs = celestial_wcs(summary.get("wcs"))
-    keys = list(args.keys or summary.get("keys") or ())
-    n_extra = model.X_fit_.shape[1] - 2
-    if len(keys) != n_extra:
-        named = f" ({', '.join(summary['keys'])})" if summary.get("keys") else ""
-        raise CLIInputError(
-            f"the model {args.model!r} has {n_extra} dimensions after x, y{named}; "
-            + (f"--keys gives {len(keys)}" if args.keys
-               else "it does not name their columns: give them with --keys"))
-    if args.radec and wcs is None:
-        raise CLIInputError(f"--radec: the model {args.model!r} has no WCS (its image had none)")
-    with _about(args.positions):
-        catalog = read_catalog(args.positions, one_based=True if args.one_based else None,
-                               x_col=args.x_col, y_col=args.y_col, sky=args.radec)
-    X = np.column_stack([np.asarray(catalog["x"]), np.asarray(catalog["y"])])
-    if len(X) == 0:
-        raise CLIInputError(f"the catalogue {args.positions} has no rows")
-    bad = ~np.isfinite(X).all(axis=1)
-    if bad.any():
-        raise CLIInputError(f"{int(bad.sum())} positions of {args.positions} are NaN or "
-                            f"infinite (first at row {int(np.flatnonzero(bad)[0])})")
-    radec = X if args.radec else None
-    if args.radec:
-        X = sky_to_pixel(wcs, radec)
-    elif wcs is not None:
-        radec = pixel_to_sky(wcs, X)
-    if keys:  # the model's extra dimensions, from the galaxies' own columns
-        with _about(args.positions):
-            extra = key_columns(catalog, keys, f"the catalogue {args.positions!r}")
-        bad = ~np.isfinite(extra).all(axis=1)
-        if bad.any():
-            raise CLIInputError(f"{int(bad.sum())} rows of {args.positions} have NaN or "
-                                f"infinite values in {', '.join(keys)} (first at row "
-                                f"{int(np.flatnonzero(bad)[0])}): the model needs them")
-        X = np.column_stack([X, extra])
-    size = model.stamp_size_ * args.oversampling
-    check_memory(3 * 8 * len(X) * size**2, f"{len(X)} PSF stamps of {size} x {size} samples "
-                 f"(--oversampling {args.oversampling})")
-    stamps = np.empty((len(X), size, size))
-    chunk = 5000
-    with tqdm(total=len(X), desc="predicting", unit="PSF") as bar:
-        for start in range(0, len(X), chunk):
-            stop = min(start + chunk, len(X))
-            stamps[start:stop] = draw_psf(model, X[start:stop], centered=args.centered,
-                                          oversampling=args.oversampling)
-            bar.update(stop - start)
-    mom = adaptive_moments(stamps)
-    out = Table({"x": X[:, 0], "y": X[:, 1]})
-    if radec is not None:
-        out["ra"], out["dec"] = radec[:, 0], radec[:, 1]
-    for name in catalog.colnames:
-        if name not in out.colnames:
-            out[name] = catalog[name]
-    out["psf"] = stamps
-    for name in ("e1", "e2", "sigma"):
-        out[name] = np.asarray(mom[name], dtype=np.float64)
-    if args.oversampling > 1:
-        out["sigma"] /= args.oversampling  # in image pixels
-    out["moments_flag"] = np.asarray(mom["flag"], dtype=np.int64)
-    out["extrapolated"] = extrapolation_flags(model.X_fit_, X)
+    import numpy as np
+    from astropy.io import fits
+    from tqdm.auto import tqdm
+
+    from .._files import write_fits_atomic
+    from ..exposure import predict_catalog
+
+    bars = []  # the bar starts with the drawing, as its total is known
+
+    def progress(done, total):
+        if not bars:
+            bars.append(tqdm(total=total, desc="predicting", unit="PSF"))
+        bars[0].update(done - bars[0].n)
+
+    try:
+        out = predict_catalog(args.model, args.positions,
+                              one_based=True if args.one_based else None, x_col=args.x_col,
+                              y_col=args.y_col, radec=args.radec, keys=args.keys,
+                              centered=args.centered, oversampling=args.oversampling,
+                              progress=progress)
+    finally:
+        for bar in bars:
+            bar.close()
+    keys, size = out.meta.pop("keys"), out["psf"].shape[1]
     hdu = fits.table_to_hdu(out)
     hdu.name = "PSF"
     hdu.header["MODEL"] = (os.path.basename(args.model), "PSF model file")
@@ -632,7 +587,7 @@ def _predict(args):
         raise CLIInputError(f"cannot write {args.output!r}: {exc.strerror or exc}") from None
     flagged = int(np.sum(out["moments_flag"] != 0))
     n_out = int(np.sum(out["extrapolated"]))
-    print(f"PSFs at {len(X)} positions ({size}x{size} stamps, e1/e2/sigma measured"
+    print(f"PSFs at {len(out)} positions ({size}x{size} stamps, e1/e2/sigma measured"
           + (f"; {flagged} could not be measured" if flagged else "")
           + (f"; model dimensions x, y, {', '.join(keys)}" if keys else "") + ")"
           + (f"; {n_out} extrapolated (flagged in column 'extrapolated'"

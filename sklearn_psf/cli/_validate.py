@@ -76,8 +76,9 @@ def _stars(args):
     """Positions, stamps, weights, WCS and a line on the stars used."""
     import numpy as np
 
-    from ..io import celestial_wcs, select_stars
-    from ..validation import read_exposure
+    from ..io import celestial_wcs
+    from ..exposure import select_stars
+    from ..exposure import read_exposure
 
     with _about(args.stars):
         inputs = read_exposure(args.image, args.stars, hdu=args.hdu,
@@ -124,7 +125,7 @@ def _print_table(table):
 
 def _model_keys(path):
     """The catalogue keys a model file of this package names (None for other files)."""
-    from ..io import read_model_validation
+    from ..model import read_model_validation
     from ..validation import model_kind
 
     if model_kind(path) != "sklearn_psf":
@@ -173,7 +174,7 @@ def _validate(args, out) -> int:
     if keys:  # the extra dimensions, from the stars' own columns
         import numpy as np
 
-        from ..validation import key_columns
+        from ..exposure import key_columns
 
         used = np.flatnonzero(np.asarray(cut.catalog["used"], dtype=bool))
         extra = key_columns(cut.catalog[used], keys, f"the catalogue {args.stars!r}")

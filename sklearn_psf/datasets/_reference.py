@@ -269,7 +269,7 @@ class ReferenceBasis:
         """Extract stars from an image with ``sep`` and build their PCA basis.
 
         Steps (the same for a real image and a simulated one; 1 to 3 are the package's star
-        finder, :func:`sklearn_psf.io.find_stars`):
+        finder, :func:`sklearn_psf.exposure.find_stars`):
 
         1. background and its rms with ``sep.Background``; detection with ``sep.extract`` at
            ``detect_thresh`` times the global rms (min. area 5 pixels);
@@ -334,7 +334,7 @@ class ReferenceBasis:
         >>> len(ref.positions) >= 50
         True
         """
-        from ..io._stars import _find_stars
+        from ..exposure._stars import _find_stars
 
         header = None
         if isinstance(image, (str, os.PathLike)):

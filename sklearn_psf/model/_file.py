@@ -327,7 +327,7 @@ def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = F
     >>> import os, tempfile
     >>> import numpy as np
     >>> from astropy.io import fits
-    >>> from sklearn_psf.io import save_model
+    >>> from sklearn_psf.model import save_model
     >>> from sklearn_psf.model import PSFModel
     >>> from sklearn_psf.interpolate import PolynomialRegressor
     >>> rng = np.random.default_rng(0)
@@ -780,7 +780,7 @@ def read_model_validation(path):
 
     Examples
     --------
-    >>> from sklearn_psf.io import read_model_validation
+    >>> from sklearn_psf.model import read_model_validation
     >>> read_model_validation  # doctest: +ELLIPSIS
     <function read_model_validation at ...>
     """

@@ -176,7 +176,7 @@ class PSFModel(_OutlierRounds, RegressorMixin, BaseEstimator):
     See Also
     --------
     sklearn_psf.validation.fit_and_validate : fit with reserved stars and report residuals.
-    sklearn_psf.io.save_model : the model file format.
+    sklearn_psf.model.save_model : the model file format.
 
     Examples
     --------
@@ -440,7 +440,7 @@ class PSFModel(_OutlierRounds, RegressorMixin, BaseEstimator):
     def save(self, path, *, residuals=None, summary=None, overwrite: bool = False) -> None:
         """Write the fitted model to a self-describing FITS file (atomically).
 
-        See :func:`sklearn_psf.io.save_model` for the format; joblib/pickle work too.
+        See :func:`sklearn_psf.model.save_model` for the format; joblib/pickle work too.
 
         Parameters
         ----------

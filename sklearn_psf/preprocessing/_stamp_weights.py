@@ -31,7 +31,7 @@ def _mean_variance(w, scale, u):
 def _poisson_slope(d, w):
     """Slope ``c`` when each stamp's pixel variances ``1 / w`` are exactly ``sky + c *
     max(pixel, 0)`` (one ``sky`` per stamp): weights whose Poisson part was computed from
-    the noisy pixels themselves (:func:`~sklearn_psf.io.extract_vignettes` with a gain, as
+    the noisy pixels themselves (:func:`~sklearn_psf.exposure.extract_vignettes` with a gain, as
     ``sklearn-psf fit --stars`` reads a catalogue, ``c = 1 / gain``); 0 for any other
     weights."""
     m = w > 0

@@ -31,21 +31,18 @@ from ._figures import (
     plot_whiskers,
 )
 from ._fit import fit_and_validate
-from ._exposure import (ExposureFit, ExposureInputs, StarSelectionError, fit_exposure,
-                        key_columns, read_exposure)
 from ._compare import COMPARISON_COLUMNS, UNUSABLE_STAR_REASONS, validate_models
 from ._compare_figures import plot_model_comparison
-from ._crossval import CrossValidation, cross_validate_catalog, paired_comparison
+from ._paired import paired_comparison
 from ._external import PiffModel, PSFExModel, load_psf_model, model_kind
 from ._psfex import psfex_terms, to_psfex, write_psfex
 from ._residuals import measure_residuals, rho_bins
 from ._verdict import PSFQualityWarning
 
-__all__ = ["fit_and_validate", "fit_exposure", "read_exposure", "ExposureFit",
-           "ExposureInputs", "StarSelectionError", "key_columns", "PSFQualityWarning",
+__all__ = ["fit_and_validate", "PSFQualityWarning",
            "plot_stamp_residuals",
            "plot_whiskers", "plot_rho1", "plot_rho_statistics", "plot_psf_maps",
            "plot_residuals_against", "COMPARISON_COLUMNS", "UNUSABLE_STAR_REASONS",
            "PSFExModel", "PiffModel", "load_psf_model", "measure_residuals", "model_kind",
            "plot_model_comparison", "psfex_terms", "rho_bins", "to_psfex", "validate_models",
-           "write_psfex", "CrossValidation", "cross_validate_catalog", "paired_comparison"]
+           "write_psfex", "paired_comparison"]

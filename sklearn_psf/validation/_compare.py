@@ -161,11 +161,11 @@ def validate_models(X, stamps, models, *, weights=None, wcs=None, nbins: int = 6
     ----------
     X : array-like of shape (n, 2) or (n, 2 + m)
         Star positions (x, y), 0-based pixels, then the extra dimensions (catalogue keys, see
-        :func:`fit_exposure`) of the models that have them: each model is given as many
-        columns as it was fitted on (PSFEx and PIFF models: x, y).
+        :func:`~sklearn_psf.exposure.fit_exposure`) of the models that have them: each model is
+        given as many columns as it was fitted on (PSFEx and PIFF models: x, y).
     stamps : array-like of shape (n, s*s) or (n, s, s)
-        Raw, background-subtracted star stamps (e.g. :func:`sklearn_psf.io.extract_vignettes`
-        or :func:`~sklearn_psf.io.extract_star_stamps`), NaN = masked. Not modified.
+        Raw, background-subtracted star stamps (e.g. :func:`sklearn_psf.exposure.extract_vignettes`
+        or :func:`~sklearn_psf.exposure.extract_star_stamps`), NaN = masked. Not modified.
     models : dict or list
         ``{name: model}`` or a list of models (named by file name); each a fitted
         :class:`~sklearn_psf.model.PSFModel` (or any object with ``predict`` giving

@@ -99,7 +99,7 @@ def fit_and_validate(X, stamps, model=None, reserve: float = 0.2, random_state=N
     X : array-like of shape (n, 2) or (n, 2 + m)
         Star positions (x, y), 0-based pixels, then optionally the model's extra dimensions.
     stamps : array-like of shape (n, s*s) or (n, s, s)
-        Background-subtracted star stamps (e.g. :func:`sklearn_psf.io.extract_star_stamps`).
+        Background-subtracted star stamps (e.g. :func:`sklearn_psf.exposure.extract_star_stamps`).
     model : PSFModel, optional
         Unfitted model (cloned); default ``PSFModel()``, the noise-aware model.
     reserve : float, default=0.2

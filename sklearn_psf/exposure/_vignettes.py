@@ -20,7 +20,7 @@ from astropy.table import Table
 
 from .._files import InputError
 from ..preprocessing import estimate_pixel_weights
-from ._image import _level
+from ..io._image import _level
 from ._select import _on_field
 from ._stars import REJECTION_REASONS, StarStamps
 
@@ -65,7 +65,7 @@ def extract_vignettes(catalog: Table, stamp_size: int | None = None, *,
     -------
     StarStamps
         With ``weights``; ``counts`` holds every reason of
-        :data:`~sklearn_psf.io.REJECTION_REASONS`.
+        :data:`~sklearn_psf.exposure.REJECTION_REASONS`.
 
     Raises
     ------
@@ -77,7 +77,7 @@ def extract_vignettes(catalog: Table, stamp_size: int | None = None, *,
     --------
     >>> import numpy as np
     >>> from astropy.table import Table
-    >>> from sklearn_psf.io import extract_vignettes
+    >>> from sklearn_psf.exposure import extract_vignettes
     >>> vig = np.random.default_rng(0).normal(0.0, 1.0, (2, 9, 9))
     >>> vig[:, 4, 4] += 100.0
     >>> vig[1, 0, 0] = -1e30                      # a masked pixel in the wing

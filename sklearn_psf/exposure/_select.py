@@ -1,8 +1,8 @@
 """The star selector: cuts of a source catalogue down to clean, isolated point sources.
 
 :func:`select_stars` works on any catalogue with 0-based ``x``, ``y`` (and optional measured
-columns, as :func:`~sklearn_psf.io.read_catalog` names them); :func:`~sklearn_psf.io.find_stars`
-measures the sources of an image and applies the same cuts.
+columns, as :func:`~sklearn_psf.io.read_catalog` names them); :func:`find_stars` measures the
+sources of an image and applies the same cuts.
 
 The primary point-source criterion is the size-magnitude locus, as PSFEx and PIFF select stars:
 point sources share the PSF's size at every flux, galaxies are larger, cosmic rays smaller.
@@ -154,7 +154,7 @@ def neighbour_masks(catalog, rows, stamp_size: int):
     Examples
     --------
     >>> from astropy.table import Table
-    >>> from sklearn_psf.io import neighbour_masks
+    >>> from sklearn_psf.exposure import neighbour_masks
     >>> cat = Table({"x": [50.0, 58.0], "y": [50.0, 50.0], "flux_radius": [1.5, 1.5],
     ...              "flux": [1000.0, 100.0]})
     >>> m = neighbour_masks(cat, [0], 25)
@@ -500,52 +500,13 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
     """Select clean, isolated point sources of a catalogue, counting each rejection by reason.
 
     Cuts, in this order (a source is counted under the first it fails; a cut whose columns
-    are absent is skipped):
-
-    - ``bad_position``: ``x`` or ``y`` NaN or infinite, or off the image (``image_shape``, else
-      the ``NAXIS1`` x ``NAXIS2`` of ``catalog.meta["image_header"]``, SExtractor's
-      ``LDAC_IMHEAD``);
-    - ``flags``: ``flags & flag_mask`` non-zero (SExtractor ``FLAGS``: neighbours, blended,
-      saturated, truncated...);
-    - ``low_snr``: ``snr`` below ``min_snr`` (for a catalogue without ``SNR_WIN``, whose
-      S/N comes from its fluxes, the S/N in ``SNR_WIN``'s window on the ``VIGNET``s: see
-      ``counts["snr_from"]``);
-    - ``saturated``: highest raw pixel (``peak`` + ``background``, or the maximum of the
-      ``VIGNET`` + ``background``) at or above 0.9 x ``saturation``;
-    - ``near_edge``: closer than half a stamp + 2 pixels to the edge of ``image_shape``;
-    - ``crowded``: by default, a neighbour whose light reaches the star's core (a Moffat
-      alpha, about a FWHM, from its centre): each other source covers a disc out to where
-      its surface brightness (a Moffat profile, beta = 3, of its ``flux_radius`` and flux)
-      falls below 1% of the star's peak, so a bright or large neighbour reaches farther
-      than a faint one.
-      Neighbours farther out are kept in the stamp and their discs masked when the stamps are
-      cut (:func:`neighbour_masks`): the stars of a real image have neighbours (PSFEx keeps
-      them too), and a fixed distance would grow with the stamp. With ``isolation`` given,
-      the old rule instead: another source closer than ``isolation`` pixels along x and y;
-    - ``off_locus``, the primary point-source criterion: the size-magnitude locus. The size is
-      the adaptive-moment sigma of the ``VIGNET`` (fixed-weight moments where these fail, on
-      undersampled stars: see :func:`~sklearn_psf.preprocessing.stamp_fwhm`) with the
-      neighbours masked (the default crowding cut and VIGNETs), else ``flux_radius``
-      (SExtractor ``FLUX_RADIUS``, which a neighbour's light inflates), else that sigma of the
-      whole ``VIGNET``; the locus is found as the densest size among the brighter half of the
-      sources, follows the PSF's size over the field (a polynomial in x, y) and widens at low
-      S/N by the measured scatter of the sources below it (galaxies lie only above it). With
-      ``locus_width="auto"``, a source is a point source from 3 times that scatter at its
-      S/N below the locus to 2.5 times above it (galaxies, which lie above, are the danger: on
-      GalSim-rendered CCDs the narrower upper side keeps 98% of the true stars and 60% of the
-      compact galaxies, ``benchmarks/bench_selection.py``). On an undersampled locus (FWHM
-      under 2.3 pixels) that scatter includes the stars' sub-pixel phase, which changes their
-      measured size, and is fitted without favouring the S/N bins that happen to scatter
-      least (see ``_locus``: 96-99% of the clean stars kept on the Euclid- and Roman-like
-      GalSim CCDs of ``benchmarks/bench_undersampled.py``);
-      a float is a fixed relative half-width below (five sixths of it above);
-    - ``extended``, secondary: ``|spread_model|`` above ``max_spread_model`` (plus 2 times
-      ``spreaderr_model`` when given) if that column exists. The cut is first checked against
-      the locus: when it would reject more than half of the sources on the locus it is not
-      applied, and reported in ``counts["not_applied"]``. ``class_star`` below
-      ``min_class_star`` is used only without a size column: SExtractor's ``CLASS_STAR``
-      changes with its ``SEEING_FWHM`` and detection threshold, and the locus is the better
-      judge (the fraction of the locus it would reject is then in ``counts["not_applied"]``).
+    are absent is skipped; each is explained in :ref:`star-selection`): ``bad_position``
+    (NaN, or off the image), ``flags`` (``flags & flag_mask``), ``low_snr``, ``saturated``
+    (peak at or above 0.9 ``saturation``), ``near_edge``, ``crowded`` (a neighbour whose light
+    reaches the star's core; farther ones are masked when the stamps are cut, see
+    :func:`neighbour_masks`), ``off_locus`` (the size-magnitude locus, the primary
+    point-source test), ``extended`` (``spread_model``, else ``class_star``, secondary: not
+    applied where it would reject most of the locus).
 
     Parameters
     ----------
@@ -568,11 +529,14 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
         Shape of the image; None: no edge cut.
     isolation : float, optional
         Smallest Chebyshev distance to another source, pixels, instead of the default
-        neighbour-aware ``crowded`` cut (see above). 0: no crowding cut.
+        neighbour-aware ``crowded`` cut. 0: no crowding cut.
     locus_width : float or "auto", default="auto"
-        Relative half-width of the locus (see above).
+        Relative half-width of the locus below it (five sixths of it above); ``"auto"``: 3
+        times the locus's scatter at each source's S/N below, 2.5 times above.
     max_spread_model : float, default=0.003
+        Largest ``|spread_model|`` (plus 2 ``spreaderr_model``) of a point source.
     min_class_star : float, default=0.8
+        Smallest ``class_star`` of a point source, used without a size column only.
     min_stars : int, default=1
         Fewer selected stars raise a ValueError that counts the sources dropped by each cut
         and names the parameter relaxing it. 0: never raise.
@@ -587,11 +551,9 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
         ``locus_radius`` (median size of the locus at the selected stars) and
         ``locus_width`` (their median relative half-width), NaN without a locus;
         ``not_applied``: secondary cut (``"spread_model"`` or ``"class_star"``) -> fraction
-        of the locus it would have rejected, for cuts left out; ``snr_from``, for a
-        catalogue whose S/N comes from its fluxes (``meta["snr_from_fluxes"]`` of
-        :func:`~sklearn_psf.io.read_catalog`: no ``SNR_WIN``): ``"vignets"`` when the S/N
-        was measured instead in a Gaussian window on the ``VIGNET``s, as Source Extractor's
-        ``SNR_WIN`` (the fluxes' S/N is lower for faint stars), ``"fluxes"`` without them.
+        of the locus it would have rejected, for cuts left out; ``snr_from`` (a catalogue
+        without ``SNR_WIN``): ``"vignets"`` when the S/N was measured in a Gaussian window on
+        the ``VIGNET``s, ``"fluxes"`` without them.
 
     Raises
     ------
@@ -602,7 +564,7 @@ def select_stars(catalog, *, min_snr: float = 20.0, saturation: float | None = N
     --------
     >>> import numpy as np
     >>> from astropy.table import Table
-    >>> from sklearn_psf.io import select_stars
+    >>> from sklearn_psf.exposure import select_stars
     >>> rng = np.random.default_rng(0)
     >>> radius = np.r_[rng.normal(2.0, 0.02, 60), rng.uniform(2.6, 5.0, 40)]
     >>> cat = Table({"x": rng.uniform(0, 4000, 100), "y": rng.uniform(0, 4000, 100),

@@ -12,7 +12,7 @@ from astropy.table import Table
 from .._files import InputError, check_memory
 from ..preprocessing import cut_stamps
 from ..preprocessing._stamps import CUT_BAD_POSITION, CUT_NAN, CUT_OFF_EDGE
-from ._image import _level
+from ..io._image import _level
 from ._select import SELECTION_REASONS, select_stars
 
 __all__ = ["find_stars", "extract_star_stamps", "StarStamps", "REJECTION_REASONS"]
@@ -235,7 +235,7 @@ def find_stars(image, *, weight=None, stamp_size: int = 25, detect_thresh: float
 
     Examples
     --------
-    >>> from sklearn_psf.io import find_stars
+    >>> from sklearn_psf.exposure import find_stars
     >>> from sklearn_psf.simulate import make_psf_field
     >>> field = make_psf_field(n_stars=40, n_galaxies=0, image_shape=(600, 800),
     ...                        snr=300.0, random_state=0)
@@ -272,7 +272,7 @@ class StarStamps:
         no weight map was given.
     rows : ndarray of shape (m,) or None
         Each used star's row in the catalogue the selection started from (set by
-        :func:`~sklearn_psf.validation.fit_exposure`; None otherwise).
+        :func:`~sklearn_psf.exposure.fit_exposure`; None otherwise).
     """
 
     def __init__(self, positions, stamps, catalog, counts, weights=None):
@@ -310,7 +310,8 @@ def extract_star_stamps(image, catalog, stamp_size: int = 25, *, weight=None,
         Not modified.
     catalog : astropy.table.Table or array-like of shape (n, 2)
         Star positions: a table with 0-based ``x``, ``y`` columns (and optionally ``flags``),
-        as returned by :func:`read_catalog` or :func:`find_stars`, or an (n, 2) array.
+        as returned by :func:`~sklearn_psf.io.read_catalog` or :func:`find_stars`, or an
+        (n, 2) array.
     stamp_size : int, default=25
         Stamp side. The star's pixel ``floor(x + 0.5)`` is at index ``stamp_size // 2``: the
         centre of an odd stamp; of an even one (e.g. 32), the pixel right of and above its
@@ -339,7 +340,7 @@ def extract_star_stamps(image, catalog, stamp_size: int = 25, *, weight=None,
     Examples
     --------
     >>> import numpy as np
-    >>> from sklearn_psf.io import extract_star_stamps
+    >>> from sklearn_psf.exposure import extract_star_stamps
     >>> from sklearn_psf.simulate import make_psf_field
     >>> field = make_psf_field(n_stars=30, n_galaxies=0, image_shape=(500, 500),
     ...                        random_state=1)

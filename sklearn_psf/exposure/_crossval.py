@@ -11,60 +11,7 @@ from astropy.table import Table
 
 from .._files import InputError
 
-__all__ = ["CrossValidation", "cross_validate_catalog", "paired_comparison"]
-
-
-def paired_comparison(chi2_a, chi2_b, dof, *, n_boot: int = 2000, random_state=0) -> dict:
-    """Star-by-star comparison of two models' chi^2 on the same stars.
-
-    Parameters
-    ----------
-    chi2_a, chi2_b : array-like of shape (n,)
-        Each star's chi^2 against model a and model b (NaN: not measured, left out).
-    dof : array-like of shape (n,)
-        The stars' degrees of freedom (the same pixels for both models).
-    n_boot : int, default=2000
-        Bootstrap resamples of the stars for the interval of the mean difference.
-    random_state : int, default=0
-
-    Returns
-    -------
-    dict
-        ``n`` (stars measured by both), ``a_lower`` (fraction of them where a's chi^2/dof
-        is lower), ``sign_p`` (two-sided sign test of that fraction against 1/2),
-        ``sum_ratio`` (summed chi^2 of a over b's), ``mean_diff`` (mean of a's minus b's
-        chi^2/dof) and ``mean_diff_ci`` (its 95% bootstrap interval), ``median_ratio``
-        (median of the stars' chi^2 ratio a / b).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from sklearn_psf.validation import paired_comparison
-    >>> rng = np.random.default_rng(0)
-    >>> b = rng.chisquare(100, 200)
-    >>> out = paired_comparison(0.9 * b, b, np.full(200, 100))
-    >>> out["a_lower"], round(out["sum_ratio"], 3), bool(out["sign_p"] < 1e-10)
-    (1.0, 0.9, True)
-    """
-    from scipy.stats import binomtest
-
-    a, b = np.asarray(chi2_a, dtype=float), np.asarray(chi2_b, dtype=float)
-    d = np.asarray(dof, dtype=float)
-    ok = np.isfinite(a) & np.isfinite(b) & (d > 0)
-    a, b, d = a[ok], b[ok], d[ok]
-    n = int(ok.sum())
-    if n == 0:
-        return {"n": 0, "a_lower": np.nan, "sign_p": np.nan, "sum_ratio": np.nan,
-                "mean_diff": np.nan, "mean_diff_ci": (np.nan, np.nan), "median_ratio": np.nan}
-    diff = (a - b) / d
-    lower, ties = int(np.sum(diff < 0)), int(np.sum(diff == 0))
-    sign_p = binomtest(lower, n - ties, 0.5).pvalue if n > ties else 1.0
-    rng = np.random.default_rng(random_state)
-    boot = diff[rng.integers(0, n, (int(n_boot), n))].mean(axis=1)
-    return {"n": n, "a_lower": lower / n, "sign_p": float(sign_p),
-            "sum_ratio": float(a.sum() / b.sum()), "mean_diff": float(diff.mean()),
-            "mean_diff_ci": (float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5))),
-            "median_ratio": float(np.median(a / b))}
+__all__ = ["CrossValidation", "cross_validate_catalog"]
 
 
 class CrossValidation:
@@ -91,11 +38,13 @@ class CrossValidation:
         self.table, self.models, self.counts = table, list(models), dict(counts)
 
     def compare(self, a=None, b=None, **kwargs) -> dict:
-        """:func:`paired_comparison` of model ``a`` (default this package's) against ``b``
-        (default the next model)."""
+        """:func:`~sklearn_psf.validation.paired_comparison` of model ``a`` (default this
+        package's) against ``b`` (default the next model)."""
         a = self.models[0] if a is None else a
         b = self.models[1] if b is None else b
         t = self.table[np.asarray(self.table["judged"], dtype=bool)]
+        from ..validation import paired_comparison
+
         return paired_comparison(t[f"chi2_{a}"], t[f"chi2_{b}"], t["dof"], **kwargs)
 
     def lines(self) -> list:
@@ -152,8 +101,8 @@ def cross_validate_catalog(catalog, *, n_folds: int = 5, psfex=None, fit_options
     on the catalogue without that fold's stars (its own selection and outlier rejection on
     what is left: the catalogue written to a file, as PSFEx reads it) and judged on them:
     each star is judged once, out of sample, by every model, in the same pixels and noise
-    (:func:`validate_models`: chi^2 of the raw star against the model moved to it by a
-    fitted sub-pixel shift, its flux and background fitted; neighbours masked as
+    (:func:`~sklearn_psf.validation.validate_models`: chi^2 of the raw star against the model
+    moved to it by a fitted sub-pixel shift, its flux and background fitted; neighbours masked as
     :func:`fit_exposure` masks them). The comparisons (:meth:`CrossValidation.compare`)
     are on the stars that every PSFEx setting accepts when run on the whole catalogue
     (``FLAGS_PSF`` 0), the stars "both tools take".
@@ -168,7 +117,8 @@ def cross_validate_catalog(catalog, *, n_folds: int = 5, psfex=None, fit_options
         them (named ``psfex_1``, ``psfex_2``, ...) or a dict of them by name; PSFEx must be
         installed. None: no PSFEx model.
     fit_options : dict, optional
-        Options of :func:`fit_exposure` for this package's model (``reserve`` is 0).
+        Options of :func:`fit_exposure` for this package's model (``reserve`` is 0); its
+        ``cuts`` (:class:`SelectionCuts`) also select the stars to fold.
     models : dict, optional
         ``{name: callable(fold, train_catalog_path) -> model}``: further models per fold
         (an object with ``predict``, or a model file), ``fold`` from 0.
@@ -191,10 +141,11 @@ def cross_validate_catalog(catalog, *, n_folds: int = 5, psfex=None, fit_options
     """
     from sklearn.model_selection import KFold
 
-    from ..io import run_psfex, select_stars, write_catalog_rows
-    from ._compare import validate_models
-    from ._exposure import _mask_neighbours, fit_exposure, read_exposure
-    from ._external import load_psf_model
+    from ..io import run_psfex, write_catalog_rows
+    from ..validation import load_psf_model, validate_models
+    from ._fit import SelectionCuts, _mask_neighbours, fit_exposure
+    from ._inputs import read_exposure
+    from ._select import select_stars
 
     path = os.fspath(catalog)
     fit_options = {k: v for k, v in (fit_options or {}).items() if k != "reserve"}
@@ -213,12 +164,10 @@ def cross_validate_catalog(catalog, *, n_folds: int = 5, psfex=None, fit_options
         raise InputError(f"{path} has no VIGNET column: cross-validation reads the stars' "
                          "stamps from the catalogue (PSFEx's input)")
     side = inputs.default_stamp_size
-    sel = {k: fit_options[k] for k in ("min_snr", "flag_mask", "isolation", "locus_width",
-                                       "max_spread_model", "min_class_star")
-           if k in fit_options}
-    flag_mask = sel.pop("flag_mask", 0xfe)
-    keep, _ = select_stars(table, saturation=inputs.saturation, flag_mask=flag_mask,
-                           stamp_size=side, min_stars=0, **sel)
+    cuts = fit_options.get("cuts") or SelectionCuts()
+    flag_mask = cuts.flag_mask
+    keep, _ = select_stars(table, saturation=inputs.saturation, stamp_size=side, min_stars=0,
+                           **cuts.select_kwargs())
     stars_table = table.copy(copy_data=False)
     if flag_mask is not None and "flags" in stars_table.colnames:
         stars_table["flags"] = np.asarray(stars_table["flags"]).astype(np.int64) & int(flag_mask)
