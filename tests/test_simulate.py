@@ -412,9 +412,9 @@ def test_galaxy_contaminants_are_extended(dirty):
 
 @pytest.mark.parametrize("snr", [20.0, 1000.0])
 def test_contaminants_detectable_with_the_true_psf(snr):
-    """Contaminants raised to 20 sigma (contaminant_min_snr): with the true PSF, a chi^2 cut
-    keeping 98% of the clean stars catches >= 90% of the contaminated ones, at the faint and
-    the bright end: the strengthening makes them detectable (a model-based detector's
+    """Contaminants raised to 20 sigma (ContaminantSettings.min_snr): with the true PSF, a
+    chi^2 cut keeping 98% of the clean stars catches >= 90% of the contaminated ones, at the
+    faint and the bright end: the strengthening makes them detectable (a model-based detector's
     target)."""
     f = make_psf_field(n_stars=240, n_galaxies=0, image_shape=SMALL, snr=snr, random_state=5,
                        contaminants=ContaminantSettings(
