@@ -1,6 +1,7 @@
 """Catalogue columns as dimensions of the model: ``sklearn-psf fit --keys`` and ``predict``
 on a chromatic field (``make_psf_field(sources=SourceSettings(chromatic=True))``: each
-star's PSF depends on its g-i), checked against the library's ``fit_exposure(keys=...)`` and ``draw_psf``."""
+star's PSF depends on its g-i), checked against the library's ``fit_exposure(keys=...)``
+and ``draw_psf``."""
 
 import numpy as np
 import pytest

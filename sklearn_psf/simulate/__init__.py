@@ -89,10 +89,10 @@ and ``field.contaminants`` (one row each). Strengths are drawn from realistic ra
 
 ``ContaminantSettings(ranges=...)`` sets other flux ratios and separations for binaries and
 neighbours (e.g. ``{"binary": {"flux_ratio": (0.02, 0.08), "separation": (1, 3)}}``).
-Contaminants come at this natural strength, many below the star's noise: a detector is judged on what it
-catches of those that move the PSF (size, ellipticity), not on all. Its ``min_snr``
-(default 0: off) strengthens each contaminant whose own signal, the square root of the
-chi^2 it adds to the star's stamp after the flux and centroid are matched (column
+Contaminants come at this natural strength, many below the star's noise: a detector is
+judged on what it catches of those that move the PSF (size, ellipticity), not on all. Its
+``min_snr`` (default 0: off) strengthens each contaminant whose own signal, the square root
+of the chi^2 it adds to the star's stamp after the flux and centroid are matched (column
 ``contaminant_snr``), is below it (amplitude x2, neighbour flux x1.5, galaxy radius x1.4,
 binary separation and ratio x1.3, up to 6 times within caps), for tests on contaminants the
 data reveal. Its ``n_field_cosmic_rays`` and ``n_field_galaxies`` put cosmic rays and
