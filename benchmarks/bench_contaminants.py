@@ -33,7 +33,7 @@ from threadpoolctl import threadpool_limits
 
 from sklearn_psf import PSFModel
 from sklearn_psf.measure import adaptive_moments
-from sklearn_psf.simulate import make_psf_field, realistic_snr
+from sklearn_psf.simulate import ContaminantSettings, make_psf_field, realistic_snr
 
 FAINT = {"binary": {"flux_ratio": (0.02, 0.08), "separation": (1.0, 3.0)}}
 
@@ -59,8 +59,9 @@ def faint_binaries(seed, mix, kw):
         warnings.simplefilter("ignore")
         n = kw.get("n_stars", 1000)
         snr = 100.0 if mix == "100" else np.clip(realistic_snr(n, random_state=seed), 100, None)
-        dirty = make_psf_field(snr=snr, random_state=seed, contaminants={"binary": 0.1},
-                               contaminant_ranges=FAINT, **kw)
+        dirty = make_psf_field(snr=snr, random_state=seed,
+                               contaminants=ContaminantSettings({"binary": 0.1}, ranges=FAINT),
+                               **kw)
         X = np.column_stack([dirty.stars["x"], dirty.stars["y"]])
         X_gal = np.column_stack([dirty.galaxies["x"], dirty.galaxies["y"]])
         kw_clean = {k: v for k, v in kw.items() if k != "n_stars" and k != "n_galaxies"}

@@ -3,10 +3,10 @@
 For each simulation (``make_psf_field`` with S/N uniform in 50-500, the same seed for every
 variant, so that the stars, the PSF pattern and the noise are shared):
 
-- a control field (the PSF of the position only), a chromatic one (``chromatic=True,
-  airmass=1.2``: blackbody colours, stars g-i 0.3-3.0, galaxies 0-2) and a brighter-fatter one
-  (``brighter_fatter=0.02``: the brightest star 2% larger than the faintest, galaxies fainter
-  than every star);
+- a control field (the PSF of the position only), a chromatic one
+  (``SourceSettings(chromatic=True, airmass=1.2)``: blackbody colours, stars g-i 0.3-3.0,
+  galaxies 0-2) and a brighter-fatter one (``SourceSettings(brighter_fatter=0.02)``: the
+  brightest star 2% larger than the faintest, galaxies fainter than every star);
 - the default ``PSFModel`` on (x, y) and on (x, y, extra columns): g-i on the chromatic field,
   ``source_snr`` on the brighter-fatter one, both (doing nothing) on the control field.
 
@@ -47,7 +47,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from sklearn_psf.model import PSFModel
-from sklearn_psf.simulate import make_psf_field
+from sklearn_psf.simulate import SourceSettings, make_psf_field
 from sklearn_psf.study.colour import galaxy_residuals
 
 
@@ -82,8 +82,8 @@ def one_simulation(seed, n_stars, n_galaxies, repeat, drift=None):
     kw = dict(n_stars=n_stars, n_galaxies=n_galaxies, image_shape=(3000, 3000),
               snr=rng.uniform(50.0, 500.0, n_stars), random_state=seed)
     ctrl = make_psf_field(**kw)
-    chrom = make_psf_field(chromatic=True, airmass=1.2, **kw)
-    bf = make_psf_field(brighter_fatter=0.02, **kw)
+    chrom = make_psf_field(sources=SourceSettings(chromatic=True, airmass=1.2), **kw)
+    bf = make_psf_field(sources=SourceSettings(brighter_fatter=0.02), **kw)
     for name in ("stars", "galaxies"):  # the extra columns, doing nothing on the control
         getattr(ctrl, name)["g_i"] = getattr(chrom, name)["g_i"]
         getattr(ctrl, name)["source_snr"] = getattr(bf, name)["source_snr"]

@@ -41,7 +41,7 @@ def main(argv=None):
     p.add_argument("--quick", action="store_true")
     args = p.parse_args(argv)
     from sklearn_psf.datasets import load_default_reference
-    from sklearn_psf.simulate import make_psf_field
+    from sklearn_psf.simulate import ContaminantSettings, DetectorSettings, make_psf_field
     from sklearn_psf.simulate._contaminants import render
 
     if args.quick:
@@ -50,14 +50,16 @@ def main(argv=None):
         kw = dict(n_stars=1000, n_galaxies=2000, image_shape=(7769, 10032))
     ref = load_default_reference()
     n_field = 20 if args.quick else 200
-    real = dict(contaminants={k: 0.05 for k in ("cosmic_ray", "neighbour", "galaxy", "binary")},
-                n_field_cosmic_rays=n_field, n_field_galaxies=n_field, masked_fraction=1e-4,
-                bad_columns=3, saturation=5e4, gain=2.0)
+    fractions = {k: 0.05 for k in ("cosmic_ray", "neighbour", "galaxy", "binary")}
+    real = dict(contaminants=ContaminantSettings(fractions, n_field_cosmic_rays=n_field,
+                                                 n_field_galaxies=n_field),
+                detector=DetectorSettings(masked_fraction=1e-4, bad_columns=3, saturation=5e4,
+                                          gain=2.0))
     ok = True
     fields = {}
     with threadpool_limits(2):
         make_psf_field(ref, n_stars=20, n_galaxies=5, image_shape=(500, 500), random_state=0,
-                       contaminants=real["contaminants"])  # warm-up: imports, compiled kernels
+                       contaminants=fractions)  # warm-up: imports, compiled kernels
         for label, extra in (("default", {}), ("as real data", real)):
             t0 = time.perf_counter()
             field = make_psf_field(ref, random_state=0, **kw, **extra)

@@ -23,6 +23,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from sklearn_psf import load_default_reference, make_psf_field
+from sklearn_psf.simulate import DetectorSettings
 from sklearn_psf.study.plotting import plot_psf_examples
 
 SIZE = os.environ.get("SKLEARN_PSF_EXAMPLE_SIZE", "full")
@@ -104,14 +105,15 @@ print(f"standard deviation of e1 = {e1.std():.4f}, of e2 = {e2.std():.4f}")
 # -------------------------
 # ``contaminants`` gives a fraction of the stars a cosmic ray, a blended neighbour, a binary
 # companion or replaces them by a compact galaxy; ``field.stars["contaminant"]`` is the
-# truth. Masked pixels, bad columns and saturated pixels get weight 0 in ``field.weight``
-# (inverse variance, including the stars' Poisson noise with ``gain``). The strengths and
-# their reasons are in :mod:`sklearn_psf.simulate`.
+# truth. The ``detector`` settings mask pixels and columns and saturate pixels, all of
+# weight 0 in ``field.weight`` (inverse variance, including the stars' Poisson noise with
+# ``gain``). The strengths and their reasons are in :mod:`sklearn_psf.simulate`.
 dirty = make_psf_field(reference, n_stars=300, n_galaxies=0, image_shape=(1500, 2000),
                        snr=100.0, random_state=3,
                        contaminants={"cosmic_ray": 0.1, "neighbour": 0.1, "galaxy": 0.1,
                                      "binary": 0.1},
-                       masked_fraction=1e-3, bad_columns=2, saturation=3000.0, gain=2.0)
+                       detector=DetectorSettings(masked_fraction=1e-3, bad_columns=2,
+                                                 saturation=3000.0, gain=2.0))
 raw, weights, flags = dirty.star_stamps(return_weights=True)
 s = dirty.stamp_size
 kinds = ["", "cosmic_ray", "neighbour", "galaxy", "binary"]

@@ -1,6 +1,7 @@
 """Catalogue columns as dimensions of the model: ``sklearn-psf fit --keys`` and ``predict``
-on a chromatic field (``make_psf_field(chromatic=True)``: each star's PSF depends on its g-i),
-checked against the library's ``fit_exposure(keys=...)`` and ``draw_psf``."""
+on a chromatic field (``make_psf_field(sources=SourceSettings(chromatic=True))``: each
+star's PSF depends on its g-i), checked against the library's ``fit_exposure(keys=...)``
+and ``draw_psf``."""
 
 import numpy as np
 import pytest
@@ -8,11 +9,11 @@ from astropy.table import Table
 from numpy.testing import assert_allclose
 
 from sklearn_psf.cli import main
+from sklearn_psf.exposure import fit_exposure, key_columns
 from sklearn_psf.io import CatalogColumnWarning, draw_psf, extrapolation_flags
 from sklearn_psf.model import load_model, read_model_validation
-from sklearn_psf.simulate import make_psf_field
+from sklearn_psf.simulate import SourceSettings, make_psf_field
 from sklearn_psf.validation import PSFQualityWarning, validate_models
-from sklearn_psf.exposure import fit_exposure, key_columns
 
 
 @pytest.fixture(scope="module")
@@ -20,7 +21,8 @@ def chromatic(tmp_path_factory):
     """A star catalogue (VIGNETs, 0-based x, y, a G_I column with 3 NaN) and a galaxy one."""
     folder = tmp_path_factory.mktemp("chromatic")
     field = make_psf_field(n_stars=120, n_galaxies=40, image_shape=(1200, 1200), snr=300.0,
-                           chromatic=True, airmass=1.2, random_state=4)
+                           sources=SourceSettings(chromatic=True, airmass=1.2),
+                           random_state=4)
     stamps, _, _ = field.star_stamps(return_weights=True)
     side = int(round(np.sqrt(stamps.shape[1])))
     colour = np.array(field.stars["g_i"], dtype=float)

@@ -24,7 +24,7 @@ from sklearn_psf.metrics import make_ellipticity_rms_scorer
 from sklearn_psf.measure import adaptive_moments
 from sklearn_psf.model import PSFModel
 from sklearn_psf.preprocessing import fourier_shift
-from sklearn_psf.simulate import make_psf_field
+from sklearn_psf.simulate import DetectorSettings, make_psf_field
 
 SMALL = SimulationConfig(n_stars=120, n_galaxies=150, image_shape=(1200, 1600))
 BINS = (0.3, 4.0, 4)
@@ -272,7 +272,8 @@ def test_oracle_is_the_dense_cokriging_blup():
     """FieldOracle = the best linear unbiased predictor of all coefficients jointly, written
     out densely, on a field with mixed S/N and masked pixels (predictions, error variance)."""
     f = make_psf_field(n_stars=90, n_galaxies=40, image_shape=(1000, 1300), random_state=3,
-                       snr=np.r_[np.full(45, 30.0), np.full(45, 500.0)], masked_fraction=0.005)
+                       snr=np.r_[np.full(45, 30.0), np.full(45, 500.0)],
+                       detector=DetectorSettings(masked_fraction=0.005))
     X = np.column_stack([f.stars["x"], f.stars["y"]])
     X_gal = np.column_stack([f.galaxies["x"], f.galaxies["y"]])
     oracle = FieldOracle(f).fit(X)

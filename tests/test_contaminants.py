@@ -17,7 +17,7 @@ from sklearn_psf.model._companions import (
 )
 from sklearn_psf.model._noise import PixelNoise, pixel_inverse_variance
 from sklearn_psf.preprocessing import StampPCA, fourier_shift
-from sklearn_psf.simulate import make_psf_field, realistic_snr
+from sklearn_psf.simulate import ContaminantSettings, make_psf_field, realistic_snr
 
 KINDS = ("cosmic_ray", "neighbour", "galaxy", "binary")
 FAINT = {"binary": {"flux_ratio": (0.02, 0.08), "separation": (1.0, 3.0)}}
@@ -44,20 +44,20 @@ def test_binaries_come_at_their_natural_strength():
     assert np.median(ratio) == pytest.approx(np.sqrt(0.01 * 0.2), rel=0.25)  # log-uniform
     assert 0.5 <= c["size"].min() and c["size"].max() <= 4.0
     assert np.mean(f.stars["contaminant_snr"] < 20) > 0.3
-    faint = make_psf_field(contaminants={"binary": 1.0}, contaminant_ranges=FAINT, **kw)
+    faint = make_psf_field(contaminants=ContaminantSettings({"binary": 1.0}, ranges=FAINT),
+                           **kw)
     c = faint.contaminants
     ratio = np.asarray(c["flux"]) / (np.asarray(faint.stars["flux"])[np.asarray(c["star"])]
                                      - np.asarray(c["flux"]))
     assert 0.02 <= ratio.min() and ratio.max() <= 0.08
     assert 1.0 <= c["size"].min() and c["size"].max() <= 3.0
-    raised = make_psf_field(contaminants={"binary": 1.0}, contaminant_min_snr=20.0, **kw)
+    raised = make_psf_field(contaminants=ContaminantSettings({"binary": 1.0}, min_snr=20.0),
+                            **kw)
     assert np.mean(raised.stars["contaminant_snr"] >= 20) > 0.9
     with pytest.raises(ValueError, match="flux_ratio"):
-        make_psf_field(contaminants={"binary": 0.5},
-                       contaminant_ranges={"binary": {"flux_ratio": (0.2, 0.1)}}, **kw)
+        ContaminantSettings({"binary": 0.5}, ranges={"binary": {"flux_ratio": (0.2, 0.1)}})
     with pytest.raises(ValueError, match="galaxy"):
-        make_psf_field(contaminants={"binary": 0.5},
-                       contaminant_ranges={"galaxy": {"separation": (1, 2)}}, **kw)
+        ContaminantSettings({"binary": 0.5}, ranges={"galaxy": {"separation": (1, 2)}})
 
 
 @pytest.fixture(scope="module")
@@ -164,7 +164,8 @@ def test_faint_binaries_barely_move_the_psf():
     and the binaries it leaves are those that move the size least (the caught ones' mean
     size excess at least 1.5 times the others', measured 1.8-2.9 times)."""
     dirty = make_psf_field(n_galaxies=600, snr=200.0, random_state=2,
-                           contaminants={"binary": 0.1}, contaminant_ranges=FAINT, **DENSE)
+                           contaminants=ContaminantSettings({"binary": 0.1}, ranges=FAINT),
+                           **DENSE)
     X, stamps, weights = _stars(dirty)
     X_gal = np.column_stack([dirty.galaxies["x"], dirty.galaxies["y"]])
     clean = make_psf_field(snr=200.0, random_state=2, image_shape=DENSE["image_shape"],

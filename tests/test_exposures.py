@@ -21,7 +21,7 @@ from sklearn_psf.model import (
     PSFModel,
     make_default_interpolator,
 )
-from sklearn_psf.simulate import make_exposures, make_psf_field
+from sklearn_psf.simulate import DetectorSettings, make_exposures, make_psf_field
 
 SMALL = dict(n_stars=60, n_galaxies=40, image_shape=(700, 700), dither=40.0)
 
@@ -239,7 +239,8 @@ def test_sklearn_compatible(estimator, check):
 def test_pooled_on_realistic_exposures_rejects_contaminants():
     # masked pixels and cosmic rays on 10% of the stars of each exposure, weights given
     exp = make_exposures(2, n_stars=80, n_galaxies=20, image_shape=(900, 900), dither=40.0,
-                         contaminants={"cosmic_ray": 0.1}, masked_fraction=0.002,
+                         contaminants={"cosmic_ray": 0.1},
+                         detector=DetectorSettings(masked_fraction=0.002),
                          random_state=7)
     X, stamps, weights = exp.star_data(return_weights=True)
     assert np.any(weights == 0)

@@ -29,7 +29,7 @@ from sklearn_psf.interpolate import (
 )
 from sklearn_psf.measure import adaptive_moments
 from sklearn_psf.model import PSFModel, make_default_interpolator
-from sklearn_psf.simulate import make_psf_field
+from sklearn_psf.simulate import SourceSettings, make_psf_field
 
 
 # the checks' random data have no spatial correlation to find, and duplicated rows: warned by
@@ -165,8 +165,8 @@ def fields():
     kw = dict(n_stars=_N_STARS, n_galaxies=_N_GALAXIES, image_shape=_SHAPE,
               snr=rng.uniform(50.0, 500.0, _N_STARS), random_state=_SEED)
     ctrl = make_psf_field(**kw)
-    chrom = make_psf_field(chromatic=True, airmass=1.2, **kw)
-    bf = make_psf_field(brighter_fatter=0.02, **kw)
+    chrom = make_psf_field(sources=SourceSettings(chromatic=True, airmass=1.2), **kw)
+    bf = make_psf_field(sources=SourceSettings(brighter_fatter=0.02), **kw)
     return ctrl, chrom, bf, _size_residual(ctrl)
 
 

@@ -64,3 +64,67 @@ def test_no_module_over_max_lines():
              for path in sorted(ROOT.rglob("*.py"))}
     long = {name: n for name, n in lines.items() if n > MAX_MODULE_LINES}
     assert not long, f"modules over {MAX_MODULE_LINES} lines: {long}"
+
+
+#: The longest a function or method of the package may be, and the most parameters a public
+#: callable may take (issue 50: a function a reader can hold, a call one can write).
+MAX_FUNCTION_LINES = 200
+MAX_PUBLIC_PARAMETERS = 20
+
+
+def _functions():
+    """``{"path:qualname": (lines, node)}`` of every function and method of the package."""
+    found = {}
+
+    def visit(node, prefix, path):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                name = f"{prefix}{child.name}"
+                if not isinstance(child, ast.ClassDef):
+                    found[f"{path}:{name}"] = child.end_lineno - child.lineno + 1
+                visit(child, f"{name}.", path)
+            else:
+                visit(child, prefix, path)
+
+    for path in sorted(ROOT.rglob("*.py")):
+        visit(ast.parse(path.read_text()), "", path.relative_to(ROOT).as_posix())
+    return found
+
+
+def _public_callables():
+    """``{"path:qualname": number of parameters}`` of the functions and classes (their
+    ``__init__``, ``self`` left out) named in the ``__all__`` of a public module."""
+    import importlib
+    import inspect
+    import pkgutil
+
+    modules = [sklearn_psf] + [
+        importlib.import_module(info.name)
+        for info in pkgutil.walk_packages(sklearn_psf.__path__, "sklearn_psf.")
+        if not any(part.startswith("_") for part in info.name.split("."))]
+    found = {}
+    for module in modules:
+        for name in getattr(module, "__all__", ()):
+            obj = getattr(module, name)
+            if not callable(obj) or not (inspect.isfunction(obj) or inspect.isclass(obj)):
+                continue
+            func = obj.__init__ if inspect.isclass(obj) else obj
+            try:
+                source = pathlib.Path(inspect.getsourcefile(func))
+                params = inspect.signature(func).parameters
+            except (TypeError, ValueError):  # a C or inherited-from-object __init__
+                continue
+            if ROOT not in source.parents:
+                continue  # inherited from a dependency
+            key = f"{source.relative_to(ROOT).as_posix()}:{func.__qualname__}"
+            found[key] = len([p for p in params if p != "self"])
+    return found
+
+
+def test_no_function_over_max_lines_and_no_public_call_over_max_parameters():
+    long = {k: n for k, n in _functions().items() if n > MAX_FUNCTION_LINES}
+    wide = {k: n for k, n in _public_callables().items() if n > MAX_PUBLIC_PARAMETERS}
+    over = {f"{k} ({n} lines)" for k, n in long.items()}
+    over |= {f"{k} ({n} parameters)" for k, n in wide.items()}
+    assert not over, (f"functions over {MAX_FUNCTION_LINES} lines or public callables over "
+                      f"{MAX_PUBLIC_PARAMETERS} parameters: {sorted(over)}; split them")

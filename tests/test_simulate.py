@@ -11,6 +11,8 @@ from sklearn_psf.measure import adaptive_moments
 from sklearn_psf.preprocessing import StampNormalizer, fourier_shift
 from sklearn_psf.preprocessing._pca import _stamp_pca_on_basis
 from sklearn_psf.simulate import (
+    ContaminantSettings,
+    DetectorSettings,
     PSFField,
     RandomFieldSampler,
     ReferenceBasis,
@@ -45,10 +47,12 @@ def dirty():
     """A field as real data come: contaminants, masks, a bad column, saturation, Poisson."""
     return make_psf_field(
         n_stars=200, n_galaxies=50, image_shape=SMALL, random_state=11, snr=realistic_snr(
-            200, random_state=0), contaminants={"cosmic_ray": 0.1, "neighbour": 0.1,
-                                                "galaxy": 0.1, "binary": 0.1},
-        n_field_cosmic_rays=8, n_field_galaxies=8, masked_fraction=2e-3, bad_columns=2,
-        saturation=4000.0, gain=2.0)
+            200, random_state=0),
+        contaminants=ContaminantSettings(
+            {"cosmic_ray": 0.1, "neighbour": 0.1, "galaxy": 0.1, "binary": 0.1},
+            n_field_cosmic_rays=8, n_field_galaxies=8),
+        detector=DetectorSettings(masked_fraction=2e-3, bad_columns=2, saturation=4000.0,
+                                  gain=2.0))
 
 
 # ----------------------------------------------------------------------------- random fields
@@ -362,7 +366,7 @@ def test_star_stamps_weights_and_existing_return(dirty):
     with pytest.raises(ValueError, match="normalize=False"):
         dirty.star_stamps(normalize=True, return_weights=True)
     nan = make_psf_field(n_stars=10, n_galaxies=0, image_shape=(300, 400), random_state=0,
-                         bad_columns=3, mask_value=np.nan)
+                         detector=DetectorSettings(bad_columns=3, mask_value=np.nan))
     cols = np.flatnonzero((nan.weight == 0).all(axis=0))
     assert np.all(np.isnan(nan.image[:, cols]))
 
@@ -408,13 +412,14 @@ def test_galaxy_contaminants_are_extended(dirty):
 
 @pytest.mark.parametrize("snr", [20.0, 1000.0])
 def test_contaminants_detectable_with_the_true_psf(snr):
-    """Contaminants raised to 20 sigma (contaminant_min_snr): with the true PSF, a chi^2 cut
-    keeping 98% of the clean stars catches >= 90% of the contaminated ones, at the faint and
-    the bright end: the strengthening makes them detectable (a model-based detector's
+    """Contaminants raised to 20 sigma (ContaminantSettings.min_snr): with the true PSF, a
+    chi^2 cut keeping 98% of the clean stars catches >= 90% of the contaminated ones, at the
+    faint and the bright end: the strengthening makes them detectable (a model-based detector's
     target)."""
     f = make_psf_field(n_stars=240, n_galaxies=0, image_shape=SMALL, snr=snr, random_state=5,
-                       contaminants={"cosmic_ray": 0.1, "neighbour": 0.1, "galaxy": 0.1,
-                                     "binary": 0.1}, contaminant_min_snr=20.0)
+                       contaminants=ContaminantSettings(
+                           {"cosmic_ray": 0.1, "neighbour": 0.1, "galaxy": 0.1, "binary": 0.1},
+                           min_snr=20.0))
     s = f.stamp_size
     chi2 = _true_psf_chi2(f)
     clean = np.asarray(f.stars["contaminant"]) == ""
@@ -496,7 +501,8 @@ def test_weight_covariance_and_coefficient_noise():
     assert np.all((ratio > 0.8) & (ratio < 1.5)), ratio
 
 
-@pytest.mark.parametrize("kw", [dict(), dict(masked_fraction=0.01, gain=0.5)])
+@pytest.mark.parametrize("kw", [dict(), dict(detector=DetectorSettings(masked_fraction=0.01,
+                                                                        gain=0.5))])
 def test_coefficient_noise_cov_matches_noise_draws(kw):
     """The true noise covariance of the weighted least-squares coefficients against 1000
     noise draws of the same stars (S/N 30-300; masked pixels, whose offsets the fit refines,
@@ -634,9 +640,13 @@ def test_bad_inputs(tmp_path):
     with pytest.raises(TypeError, match="dict"):
         make_psf_field(n_stars=3, contaminants=["binary"], **kw)
     with pytest.raises(ValueError, match="masked_fraction"):
-        make_psf_field(n_stars=3, masked_fraction=1.5, **kw)
+        DetectorSettings(masked_fraction=1.5)
     with pytest.raises(ValueError, match="gain"):
-        make_psf_field(n_stars=3, gain=0.0, **kw)
+        DetectorSettings(gain=0.0)
+    with pytest.raises(ValueError, match="bad_columns"):
+        make_psf_field(n_stars=3, detector=DetectorSettings(bad_columns=10**6), **kw)
+    with pytest.raises(TypeError, match="DetectorSettings"):
+        make_psf_field(n_stars=3, detector={"gain": 2.0}, **kw)
     snr = np.array([50.0, 60.0, 70.0])
     make_psf_field(n_stars=3, snr=snr, random_state=0, **kw)
     np.testing.assert_array_equal(snr, [50.0, 60.0, 70.0])

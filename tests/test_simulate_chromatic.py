@@ -10,7 +10,7 @@ wavelength; the package dilates and shifts the same monochromatic PSF at the bas
 import numpy as np
 import pytest
 
-from sklearn_psf.simulate import blackbody_colour, make_psf_field, refraction
+from sklearn_psf.simulate import SourceSettings, blackbody_colour, make_psf_field, refraction
 from sklearn_psf.simulate._chromatic import (
     BASE_WAVELENGTH,
     R_BAND,
@@ -91,12 +91,12 @@ def test_field_columns_ranges_and_brighter_fatter():
     snr = np.linspace(50.0, 500.0, 120)
     kw = dict(n_stars=120, n_galaxies=150, image_shape=(1200, 1200), snr=snr, random_state=4)
     plain = make_psf_field(**kw)
-    field = make_psf_field(chromatic=True, brighter_fatter=0.02, **kw)
+    field = make_psf_field(sources=SourceSettings(chromatic=True, brighter_fatter=0.02), **kw)
     assert 0.3 <= field.stars["g_i"].min() and field.stars["g_i"].max() <= 3.0
     assert 0.0 <= field.galaxies["g_i"].min() and field.galaxies["g_i"].max() <= 2.0
     # the same PSF pattern (positions and fields); sizes change with colour and S/N only
     np.testing.assert_array_equal(plain.stars["x"], field.stars["x"])
-    bf = make_psf_field(brighter_fatter=0.02, **kw)
+    bf = make_psf_field(sources=SourceSettings(brighter_fatter=0.02), **kw)
     ratio = np.asarray(bf.stars["sigma"] / plain.stars["sigma"])
     growth = np.polyfit(snr, ratio, 1)[0] * (snr.max() - snr.min())
     assert growth == pytest.approx(0.02, rel=0.05)
@@ -105,4 +105,6 @@ def test_field_columns_ranges_and_brighter_fatter():
     np.testing.assert_allclose(gal["sigma"] / plain.galaxies["sigma"],
                                1 + 0.02 * (gal["source_snr"] - 50.0) / 450.0, atol=3e-4)
     with pytest.raises(ValueError, match="airmass"):
-        make_psf_field(airmass=1.2, **kw)
+        SourceSettings(airmass=1.2)
+    with pytest.raises(TypeError, match="SourceSettings"):
+        make_psf_field(sources={"chromatic": True}, **kw)

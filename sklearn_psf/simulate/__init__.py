@@ -47,8 +47,9 @@ Conventions
 - **Galaxy-PSFs** are drawn in the image with a fixed S/N (``galaxy_snr=1000``) or left out
   (``galaxy_snr=None``); their noiseless stamps (``field.galaxies["stamp"]``) are the truth a
   PSF model must predict.
-- **Noise and weights.** White Gaussian background of rms ``noise_rms`` (default: the
-  reference image's background rms), float32, zero mean (a sky-subtracted image); with
+- **Noise and weights** (:class:`DetectorSettings`, ``make_psf_field``'s ``detector``).
+  White Gaussian background of rms ``noise_rms`` (default: the reference image's background
+  rms), float32, zero mean (a sky-subtracted image); with
   ``gain`` (electrons per image unit) also the Poisson noise of the sources. ``field.weight``
   is the inverse variance of each pixel (``1 / (noise_rms^2 + source / gain)``), 0 on masked
   pixels: ``masked_fraction`` of random bad pixels and ``bad_columns`` full columns, where the
@@ -66,7 +67,8 @@ Conventions
 
 Contaminants
 ------------
-``make_psf_field(contaminants={"cosmic_ray": 0.05, "neighbour": 0.05, ...})`` gives that
+``make_psf_field(contaminants={"cosmic_ray": 0.05, "neighbour": 0.05, ...})`` (short for
+``contaminants=ContaminantSettings(fractions={...})``, :class:`ContaminantSettings`) gives that
 fraction of the stars (exact count, random stars) each contaminant; the default is none
 (the paper's study stays clean). The truth is ``field.stars["contaminant"]`` ("" = clean)
 and ``field.contaminants`` (one row each). Strengths are drawn from realistic ranges:
@@ -85,16 +87,16 @@ and ``field.contaminants`` (one row each). Strengths are drawn from realistic ra
   star's flux (log-uniform), same PSF, total flux kept: most are faint, and a companion of
   a few per cent at 1-3 pixels widens the star by more than the noise of a bright star.
 
-``contaminant_ranges`` sets other flux ratios and separations for binaries and neighbours
-(e.g. ``{"binary": {"flux_ratio": (0.02, 0.08), "separation": (1, 3)}}``). Contaminants come
-at this natural strength, many below the star's noise: a detector is judged on what it
-catches of those that move the PSF (size, ellipticity), not on all. ``contaminant_min_snr``
-(default 0: off) strengthens each contaminant whose own signal, the square root of the
-chi^2 it adds to the star's stamp after the flux and centroid are matched (column
+``ContaminantSettings(ranges=...)`` sets other flux ratios and separations for binaries and
+neighbours (e.g. ``{"binary": {"flux_ratio": (0.02, 0.08), "separation": (1, 3)}}``).
+Contaminants come at this natural strength, many below the star's noise: a detector is
+judged on what it catches of those that move the PSF (size, ellipticity), not on all. Its
+``min_snr`` (default 0: off) strengthens each contaminant whose own signal, the square root
+of the chi^2 it adds to the star's stamp after the flux and centroid are matched (column
 ``contaminant_snr``), is below it (amplitude x2, neighbour flux x1.5, galaxy radius x1.4,
 binary separation and ratio x1.3, up to 6 times within caps), for tests on contaminants the
-data reveal. ``n_field_cosmic_rays`` and ``n_field_galaxies`` put cosmic rays and galaxies
-(S/N from :func:`realistic_snr`) elsewhere in the image, away from stars, for
+data reveal. Its ``n_field_cosmic_rays`` and ``n_field_galaxies`` put cosmic rays and
+galaxies (S/N from :func:`realistic_snr`) elsewhere in the image, away from stars, for
 catalogue-level tests.
 
 Relation to :mod:`sklearn_psf.datasets`: the reference bases are data
@@ -110,13 +112,17 @@ from ._field import PSFField, core_mask, realistic_snr
 from ._galsim_ccd import GalSimCCD, render_galsim_ccd
 from ._make import make_psf_field
 from ._random_field import RandomFieldSampler, as_generator, gaussian_random_field, random_field_power
+from ._settings import ContaminantSettings, DetectorSettings, SourceSettings
 
 __all__ = [
+    "ContaminantSettings",
+    "DetectorSettings",
     "ExposureSet",
     "GalSimCCD",
     "PSFField",
     "RandomFieldSampler",
     "ReferenceBasis",
+    "SourceSettings",
     "as_generator",
     "blackbody_colour",
     "core_mask",

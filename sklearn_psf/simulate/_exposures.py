@@ -255,7 +255,7 @@ def make_exposures(
         Smallest scale of both patterns, arcsec.
     random_state : None, int or SeedSequence
     **field_kwargs
-        Passed to :func:`make_psf_field` (e.g. ``contaminants``, ``masked_fraction``,
+        Passed to :func:`make_psf_field` (e.g. ``contaminants``, ``detector``,
         ``galaxy_snr``, ``pixel_scale``).
 
     Returns

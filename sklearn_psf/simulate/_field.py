@@ -192,9 +192,10 @@ class PSFField:
 
         Examples
         --------
-        >>> from sklearn_psf.simulate import make_psf_field
+        >>> from sklearn_psf.simulate import DetectorSettings, make_psf_field
         >>> field = make_psf_field(n_stars=10, n_galaxies=0, image_shape=(300, 400),
-        ...                        masked_fraction=0.01, random_state=0)
+        ...                        detector=DetectorSettings(masked_fraction=0.01),
+        ...                        random_state=0)
         >>> stamps, weights, flags = field.star_stamps(return_weights=True)
         >>> stamps.shape == weights.shape, bool((weights == 0).any())
         (True, True)

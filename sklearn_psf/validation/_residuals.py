@@ -284,47 +284,8 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
         d = np.where(w > 0, y, 0.0)
         usable = (w > 0).any(axis=1) & (d.sum(axis=1) > 0)  # others: flagged, not normalised
         sigma = _fixed_sigma(moments, d, w, usable)
-        star = np.zeros_like(d)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # uncentrable stars show up as flagged rows
-            if not usable.any():
-                pass
-            elif sigma is None:
-                try:
-                    star[usable] = StampNormalizer().fit_transform(d[usable],
-                                                                   weights=w[usable])
-                except ValueError:  # one at a time: a star that cannot be normalised is flagged
-                    for i in np.flatnonzero(usable):
-                        try:
-                            star[i] = StampNormalizer().fit_transform(d[i:i + 1],
-                                                                      weights=w[i:i + 1])[0]
-                        except ValueError:
-                            usable[i] = False
-            else:  # undersampled: normalised, not moved (the model is at the star's phase);
-                # masked pixels filled from the model
-                star[usable] = np.where(w[usable] > 0, d[usable], pred[usable]
-                                        * d[usable].sum(axis=1, keepdims=True))
-                star[usable] /= star[usable].sum(axis=1, keepdims=True)
-        measure = shape_moments(sigma)
-        ms, mm = measure(star), measure(pred)
-        if sigma is None:
-            fs, fm = fourth_moments(star, ms), fourth_moments(pred, mm)
-        else:  # the fourth moments are adaptive-weight moments: not for undersampled stars
-            fs = fm = {q: np.full(n, np.nan) for q in ("M22", "M31", "M13")}
-        flag = ((np.asarray(ms["flag"]) != 0) | ~usable).astype(np.int64) \
-            | 2 * (np.asarray(mm["flag"]) != 0)
-        ok = flag == 0
-        table["flag"] = flag
-        table["stamp_star"], table["stamp_model"] = star, pred
-        for side, mom in (("star", ms), ("model", mm)):
-            for q in ("e1", "e2", "sigma"):
-                table[f"{q}_{side}"] = np.where(ok, np.asarray(mom[q], dtype=np.float64), np.nan)
-        table["de1"] = table["e1_star"] - table["e1_model"]
-        table["de2"] = table["e2_star"] - table["e2_model"]
-        table["dsigma"] = table["sigma_star"] - table["sigma_model"]
-        for q in ("M22", "M31", "M13"):  # fourth moments: spin 0, spin 2 (star - model)
-            table[f"d{q}"] = np.where(ok, np.asarray(fs[q]) - np.asarray(fm[q]), np.nan)
-        table["resid_rms"] = np.sqrt(np.mean((star - pred) ** 2, axis=1))
+        star = _normalised_stars(d, w, pred, usable, sigma)
+        _shape_columns(table, star, pred, usable, sigma)
         if render is not None:  # the model drawn again at each shift, from the star's phase
             chi2, dof = _chi2(y, w, pred, X[:, :2] - np.floor(X[:, :2] + 0.5), render=render)
         else:
@@ -359,38 +320,92 @@ def measure_residuals(X, stamps, predicted, *, weights=None, wcs=None, min_sep=N
     }
     summary.update(dict.fromkeys(RHO_NAMES[1:] + FOURTH_RHO_NAMES))
     if ok.sum() >= 10:
-        t = table[ok]
-        where, sky = X[ok][:, :2], {}
-        if wcs is not None:  # xi+ ignores the uniform rotation of e from pixels to sky
-            arcmin = 60.0 * float(np.sqrt(np.abs(np.linalg.det(wcs.pixel_scale_matrix))))
-            where = pixel_to_sky(wcs, where)
-            sky = {"sky": True, "min_sep": min_sep * arcmin, "max_sep": max_sep * arcmin}
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", EmptyBinsWarning)
-            rho = rho_statistics(where, t["e1_star"], t["e2_star"],
-                                 2 * np.asarray(t["sigma_star"]) ** 2, t["e1_model"],
-                                 t["e2_model"], 2 * np.asarray(t["sigma_model"]) ** 2,
-                                 **{"min_sep": min_sep, "max_sep": max_sep, **sky},
-                                 nbins=nbins, num_threads=1)
+        summary.update(_rho_summary(table[ok], X[ok][:, :2], wcs, min_sep, max_sep, nbins))
+    return table, summary
+
+
+def _normalised_stars(d, w, pred, usable, sigma):
+    """The stars' stamps normalised to unit flux, centred unless undersampled (``sigma``
+    given); ``usable`` loses (in place) the stars that cannot be normalised."""
+    star = np.zeros_like(d)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # uncentrable stars show up as flagged rows
+        if not usable.any():
+            pass
+        elif sigma is None:
+            try:
+                star[usable] = StampNormalizer().fit_transform(d[usable], weights=w[usable])
+            except ValueError:  # one at a time: a star that cannot be normalised is flagged
+                for i in np.flatnonzero(usable):
+                    try:
+                        star[i] = StampNormalizer().fit_transform(d[i:i + 1],
+                                                                  weights=w[i:i + 1])[0]
+                    except ValueError:
+                        usable[i] = False
+        else:  # undersampled: normalised, not moved (the model is at the star's phase);
+            # masked pixels filled from the model
+            star[usable] = np.where(w[usable] > 0, d[usable], pred[usable]
+                                    * d[usable].sum(axis=1, keepdims=True))
+            star[usable] /= star[usable].sum(axis=1, keepdims=True)
+    return star
+
+
+def _shape_columns(table, star, pred, usable, sigma):
+    """Fill the table's flag, stamps, moments and star-minus-model columns (in place)."""
+    n = len(star)
+    measure = shape_moments(sigma)
+    ms, mm = measure(star), measure(pred)
+    if sigma is None:
+        fs, fm = fourth_moments(star, ms), fourth_moments(pred, mm)
+    else:  # the fourth moments are adaptive-weight moments: not for undersampled stars
+        fs = fm = {q: np.full(n, np.nan) for q in ("M22", "M31", "M13")}
+    flag = ((np.asarray(ms["flag"]) != 0) | ~usable).astype(np.int64) \
+        | 2 * (np.asarray(mm["flag"]) != 0)
+    ok = flag == 0
+    table["flag"] = flag
+    table["stamp_star"], table["stamp_model"] = star, pred
+    for side, mom in (("star", ms), ("model", mm)):
+        for q in ("e1", "e2", "sigma"):
+            table[f"{q}_{side}"] = np.where(ok, np.asarray(mom[q], dtype=np.float64), np.nan)
+    table["de1"] = table["e1_star"] - table["e1_model"]
+    table["de2"] = table["e2_star"] - table["e2_model"]
+    table["dsigma"] = table["sigma_star"] - table["sigma_model"]
+    for q in ("M22", "M31", "M13"):  # fourth moments: spin 0, spin 2 (star - model)
+        table[f"d{q}"] = np.where(ok, np.asarray(fs[q]) - np.asarray(fm[q]), np.nan)
+    table["resid_rms"] = np.sqrt(np.mean((star - pred) ** 2, axis=1))
+
+
+def _rho_summary(t, where, wcs, min_sep, max_sep, nbins):
+    """The summary's rho statistics of the measured rows ``t`` at pixel positions
+    ``where`` (on the sky, in arcmin, with ``wcs``)."""
+    sky = {}
+    if wcs is not None:  # xi+ ignores the uniform rotation of e from pixels to sky
+        arcmin = 60.0 * float(np.sqrt(np.abs(np.linalg.det(wcs.pixel_scale_matrix))))
+        where = pixel_to_sky(wcs, where)
+        sky = {"sky": True, "min_sep": min_sep * arcmin, "max_sep": max_sep * arcmin}
+    bins = {"min_sep": min_sep, "max_sep": max_sep, **sky}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", EmptyBinsWarning)
+        rho = rho_statistics(where, t["e1_star"], t["e2_star"],
+                             2 * np.asarray(t["sigma_star"]) ** 2, t["e1_model"],
+                             t["e2_model"], 2 * np.asarray(t["sigma_model"]) ** 2,
+                             **bins, nbins=nbins, num_threads=1)
         four = _relative_fourth_columns(t)
         if np.isfinite(four["dM22"]).all():  # adaptive moments: the fourth moments too
             dT = 1 - (np.asarray(t["sigma_model"]) / np.asarray(t["sigma_star"])) ** 2
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", EmptyBinsWarning)
-                rho.update(fourth_moment_rho_statistics(
-                    where, four["dM31"], four["dM13"], four["dM22"], t["de1"], t["de2"], dT,
-                    **{"min_sep": min_sep, "max_sep": max_sep, **sky}, nbins=nbins,
-                    num_threads=1))
-        summary["rho_theta_units"] = "arcmin" if sky else "pixel"
-        for name, r in rho.items():
-            summary[name] = {"theta": np.asarray(r.theta_nominal, dtype=float).tolist(),
-                             "xi": np.asarray(r.xi, dtype=float).tolist(),
-                             "sigma_xi": np.asarray(r.sigma_xi, dtype=float).tolist(),
-                             "npairs": np.asarray(r.npairs, dtype=float).tolist()}
-        xi = np.asarray(rho["rho1"].xi, dtype=float)
-        if np.isfinite(xi).any():
-            summary["rho1_mean_abs"] = float(np.nanmean(np.abs(xi)))
-    return table, summary
+            rho.update(fourth_moment_rho_statistics(
+                where, four["dM31"], four["dM13"], four["dM22"], t["de1"], t["de2"], dT,
+                **bins, nbins=nbins, num_threads=1))
+    summary = {"rho_theta_units": "arcmin" if sky else "pixel"}
+    for name, r in rho.items():
+        summary[name] = {"theta": np.asarray(r.theta_nominal, dtype=float).tolist(),
+                         "xi": np.asarray(r.xi, dtype=float).tolist(),
+                         "sigma_xi": np.asarray(r.sigma_xi, dtype=float).tolist(),
+                         "npairs": np.asarray(r.npairs, dtype=float).tolist()}
+    xi = np.asarray(rho["rho1"].xi, dtype=float)
+    if np.isfinite(xi).any():
+        summary["rho1_mean_abs"] = float(np.nanmean(np.abs(xi)))
+    return summary
 
 
 def _relative_fourth_columns(table):

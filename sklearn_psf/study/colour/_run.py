@@ -15,7 +15,7 @@ from threadpoolctl import threadpool_limits
 
 from ...measure import adaptive_moments
 from ...model import PSFModel
-from ...simulate import make_psf_field
+from ...simulate import SourceSettings, make_psf_field
 
 #: Default sizes: 10 arcmin fields (3000 x 3000 pixels of 0.2 arcsec) of 600 stars at S/N
 #: uniform in 50-500 and 2000 galaxies; airmass 1.2; 5 bins of the galaxies' g-i in the figure.
@@ -97,7 +97,8 @@ def colour_simulation(seed: int, *, n_stars: int = DEFAULTS["n_stars"],
     kw = dict(n_stars=n_stars, n_galaxies=n_galaxies, image_shape=tuple(image_shape),
               snr=rng.uniform(lo, hi, n_stars), random_state=seed)
     fields = {"control": make_psf_field(**kw),
-              "chromatic": make_psf_field(chromatic=True, airmass=airmass, **kw)}
+              "chromatic": make_psf_field(
+                  sources=SourceSettings(chromatic=True, airmass=airmass), **kw)}
     for name in ("stars", "galaxies"):  # the colours, doing nothing on the control
         getattr(fields["control"], name)["g_i"] = getattr(fields["chromatic"], name)["g_i"]
     sigma = [np.asarray(fields[k].galaxies["sigma"], dtype=float)
