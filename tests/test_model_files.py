@@ -32,3 +32,42 @@ def test_old_model_files_predict_as_when_written(name):
         model = LOADERS.get(name, PSFModel.load)(os.path.join(HERE, f"{name}.fits.gz"))
     assert_allclose(model.predict(EXPECTED[f"{name}__queries"]), EXPECTED[name],
                     rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_saved_again_they_predict_the_same(name, tmp_path):
+    # written in the current format (each part's own state) and read back
+    load = LOADERS.get(name, PSFModel.load)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = load(os.path.join(HERE, f"{name}.fits.gz"))
+    model.save(tmp_path / "again.fits")
+    back = load(tmp_path / "again.fits")
+    queries = EXPECTED[f"{name}__queries"]
+    assert_allclose(back.predict(queries), EXPECTED[name], rtol=1e-12, atol=1e-15)
+    assert_allclose(back.predict(queries), model.predict(queries), rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize("name", ["default", "kriging_local", "pooled", "polynomial"])
+def test_loading_runs_no_likelihood_and_no_search(name, tmp_path, monkeypatch):
+    load = LOADERS.get(name, PSFModel.load)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = load(os.path.join(HERE, f"{name}.fits.gz"))
+    model.save(tmp_path / "again.fits")
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the likelihood ran on loading")
+
+    from sklearn_psf.interpolate import _exposure_kriging, _kriging_hyper, _polynomial
+
+    monkeypatch.setattr(_kriging_hyper, "fit_hyperparameters", refuse)
+    monkeypatch.setattr(_exposure_kriging, "fit_joint_hyperparameters", refuse)
+    solves, lstsq = [], _polynomial._weighted_lstsq
+    monkeypatch.setattr(_polynomial, "_weighted_lstsq",
+                        lambda *a: solves.append(1) or lstsq(*a))
+    back = load(tmp_path / "again.fits")
+    queries = EXPECTED[f"{name}__queries"]
+    assert_allclose(back.predict(queries), EXPECTED[name], rtol=1e-12, atol=1e-15)
+    # degree="auto" solved at the stored degree only, not at every candidate's
+    assert len(solves) == (name == "polynomial")
