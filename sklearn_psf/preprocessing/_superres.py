@@ -18,16 +18,14 @@ from ._normalize import phase_ramp
 from ._pca_noise import star_weights, sum_zero, weighted_pca
 from ._stamp_weights import (border_level, has_background, model_weights, poisson_slope,
                              variances)
-from ._stamp_basis import FALLBACK_SIGMA, _BaseStampBasis
+from ._stamp_basis import FALLBACK_SIGMA, _BaseStampBasis, stamp_fwhm
 from ._superres_grid import _CHUNK, _FineGrid
 
-__all__ = ["SuperResolvedPCA", "stamp_fwhm", "UNDERSAMPLED_FWHM"]
+__all__ = ["SuperResolvedPCA", "UNDERSAMPLED_FWHM"]
 
 #: Median star FWHM (pixels) below which stars count as undersampled (``PSFModel`` then
 #: chooses :class:`SuperResolvedPCA`).
 UNDERSAMPLED_FWHM = 2.0
-_FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
-_FWHM_WEIGHT = 1.0  # pixels: sigma of the fixed weight of stamp_fwhm
 _STEPS = 4  # Gauss-Newton steps on each star's offset
 _GN_TOL = 1e-4
 _MEAN_ROUNDS = 10  # at most, rounds of (mean, stars' offsets) before the components
@@ -38,55 +36,6 @@ _JOINT_ROUNDS = 4  # rounds of the spatial refinement (converged on Euclid-like 
 _REFINED_ITER = 2  # at most, rounds of the components' fit before the spatial refinement
 _STARS_PER_TERM = 30  # spatial_degree="auto": stars per term of the polynomial, at least
 _MAX_DEGREE = 3  # spatial_degree="auto": at most
-
-
-def stamp_fwhm(stamps, weights=None):
-    """FWHM (pixels) of each star, well sampled or not (NaN where not measurable).
-
-    Adaptive moments where they converge (FWHM = 2.355 sigma of the best-fitting Gaussian);
-    elsewhere (stars under ~2 pixels per FWHM) the moments with a fixed Gaussian weight of
-    sigma ``w`` = 1 pixel (:func:`~sklearn_psf.measure.fixed_moments`), corrected for the
-    weight as for a Gaussian star (``C = (M^-1 - I / w^2)^-1``).
-
-    Parameters
-    ----------
-    stamps : array-like of shape (n, s, s) or (n, s*s)
-        Background-subtracted stamps (NaN = masked).
-    weights : array-like of the stamps' shape, optional
-        Pixel weights (0 = masked).
-
-    Returns
-    -------
-    fwhm : ndarray of shape (n,)
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from sklearn_psf.preprocessing import stamp_fwhm
-    >>> y, x = np.mgrid[0:15, 0:15] - 7.0
-    >>> star = np.exp(-0.5 * ((x - 0.2) ** 2 + y**2) / 0.6**2)    # FWHM 1.41 px
-    >>> print(np.round(stamp_fwhm(star[None]), 1))
-    [1.4]
-    """
-    mom = adaptive_moments(stamps, weights=weights, guess_sigma=_FWHM_WEIGHT)
-    fwhm = _FWHM_PER_SIGMA * np.asarray(mom["sigma"], dtype=np.float64)
-    bad = np.flatnonzero(np.asarray(mom["flag"]) != 0)
-    if bad.size:
-        cube = np.asarray(stamps, dtype=np.float64)
-        cube = cube.reshape(cube.shape[0], -1)[bad]
-        wb = None if weights is None else np.asarray(weights, np.float64).reshape(
-            len(fwhm), -1)[bad]
-        t = fixed_moments(cube, _FWHM_WEIGHT, weights=wb)
-        mxx, mxy, myy = (np.asarray(t[c], dtype=np.float64) for c in ("Mxx", "Mxy", "Myy"))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            det = mxx * myy - mxy**2
-            ixx = myy / det - 1.0 / _FWHM_WEIGHT**2
-            iyy = mxx / det - 1.0 / _FWHM_WEIGHT**2
-            ixy = -mxy / det
-            idet = ixx * iyy - ixy**2
-            ok = (idet > 0) & (ixx > 0)
-            fwhm[bad] = np.where(ok, _FWHM_PER_SIGMA * np.abs(idet) ** -0.25, np.nan)
-    return fwhm
 
 
 @dataclass
