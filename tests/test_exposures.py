@@ -1,5 +1,6 @@
 """Multi-exposure simulations, per-exposure and pooled PSF models, focal-plane positions."""
 
+import os
 import pickle
 import warnings
 
@@ -299,14 +300,22 @@ def test_pooled_files_before_format_4_keep_their_scaling(exposures, tmp_path, mo
         new = PooledPSFModel().fit(X, stamps)
         monkeypatch.setattr(ExposureKrigingRegressor, "_per_axis_scaling", True)
         old = PooledPSFModel().fit(X, stamps)
+        old.save(tmp_path / "old.fits")  # (its interpolator's state says so)
     monkeypatch.undo()
-    old.save(tmp_path / "old.fits")
-    with fits.open(tmp_path / "old.fits") as hdul:
-        hdul[0].header["FORMAT"] = 3
-        hdul.writeto(tmp_path / "v3.fits")
-    np.testing.assert_allclose(PooledPSFModel.load(tmp_path / "v3.fits").predict(X_gal),
+    np.testing.assert_allclose(PooledPSFModel.load(tmp_path / "old.fits").predict(X_gal),
                                old.predict(X_gal), rtol=0, atol=1e-10)
     assert np.abs(old.predict(X_gal) - new.predict(X_gal)).max() > 1e-6
+    # a file of format 3 (the committed format-7 file of tests/data/models restamped) is
+    # read with that scaling, the format-7 file without
+    v7 = os.path.join(os.path.dirname(__file__), "data", "models", "pooled.fits.gz")
+    with fits.open(v7) as hdul:
+        hdul[0].header["FORMAT"] = 3
+        hdul.writeto(tmp_path / "v3.fits")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        v3 = PooledPSFModel.load(tmp_path / "v3.fits").model_.interpolator_
+        v7 = PooledPSFModel.load(v7).model_.interpolator_
+    assert v3._per_axis_scaling and not v7._per_axis_scaling
 
 
 def test_per_exposure_n_jobs_identical_to_serial(exposures):

@@ -1,6 +1,7 @@
 """sklearn_psf.io and sklearn_psf.validation: images, catalogues, star selection, model files,
 reserved-star validation."""
 
+import json
 import os
 import pickle
 
@@ -76,6 +77,9 @@ def test_fixed_basis_array_parameters_and_pickle(tmp_path, star_data, field):
     assert_allclose(pickle.loads(pickle.dumps(back)).predict(X[:3]), model.predict(X[:3]), **tol)
 
 
+MODELS = os.path.join(os.path.dirname(__file__), "data", "models")
+
+
 def _restamp(path, out, **cards):
     with fits.open(path) as hdul:
         for key, value in cards.items():
@@ -88,15 +92,19 @@ def test_format_versions(tmp_path, star_data):
     model = PSFModel(interpolator=KNeighborsRegressor(4), outliers=None).fit(X, stamps)
     path = tmp_path / "m.fits"
     model.save(path)
-    assert fits.getheader(path)["FORMAT"] == MODEL_FORMAT_VERSION == 7
-    # the oldest known version (1) loads
-    _restamp(path, tmp_path / "v1.fits", FORMAT=1)
-    assert_allclose(load_model(tmp_path / "v1.fits").predict(X[:4]), model.predict(X[:4]),
-                    rtol=1e-12, atol=1e-15)
+    assert fits.getheader(path)["FORMAT"] == MODEL_FORMAT_VERSION == 8
+    assert_allclose(load_model(path).predict(X[:4]), model.predict(X[:4]), rtol=1e-12,
+                    atol=1e-15)
+    # the oldest known version (1; read as 3) loads: a format-3 file of tests/data/models
+    # restamped (see test_model_files.py)
+    expected = np.load(os.path.join(MODELS, "predictions.npz"))
+    _restamp(os.path.join(MODELS, "default_v3.fits.gz"), tmp_path / "v1.fits", FORMAT=1)
+    assert_allclose(load_model(tmp_path / "v1.fits").predict(expected["default_v3__queries"]),
+                    expected["default_v3"], rtol=1e-12, atol=1e-15)
     # a newer version: a clear message, not a wrong model
-    _restamp(path, tmp_path / "v8.fits", FORMAT=8)
-    with pytest.raises(ValueError, match="format version 8.*upgrade sklearn_psf"):
-        load_model(tmp_path / "v8.fits")
+    _restamp(path, tmp_path / "v9.fits", FORMAT=9)
+    with pytest.raises(ValueError, match="format version 9.*upgrade sklearn_psf"):
+        load_model(tmp_path / "v9.fits")
     # an older, unknown version
     _restamp(path, tmp_path / "v0.fits", FORMAT=0)
     with pytest.raises(ValueError, match="format version 0, which no sklearn_psf release"):
@@ -106,26 +114,34 @@ def test_format_versions(tmp_path, star_data):
         load_model(tmp_path / "vs.fits")
 
 
-def test_files_before_format_4_keep_their_scaler(tmp_path, star_data):
-    """Formats 1-3 fitted the default Kriging on MinMaxScaler-scaled positions: such a file
-    still predicts as that model did, a format-4 file as the IsotropicScaler default."""
+def test_files_before_format_4_keep_their_scaler(tmp_path):
+    """Formats 1-3 fitted the default Kriging (a constant mean until format 5) on
+    MinMaxScaler-scaled positions: such a file is refitted so, a format-4 file with the
+    IsotropicScaler default (files of tests/data/models, written by format 7 and restamped)."""
     from sklearn.preprocessing import MinMaxScaler
 
-    X, stamps = star_data
-    X = X * [1.0, 0.6]  # a rectangular field, where the two scalers differ
-    path = tmp_path / "m.fits"
-    PSFModel(outliers=None).fit(X, stamps).save(path)
-    _restamp(path, tmp_path / "v3.fits", FORMAT=3)
+    v3 = load_model(os.path.join(MODELS, "default_v3.fits.gz"))
+    v4 = load_model(os.path.join(MODELS, "default_v4.fits.gz"))
+    assert isinstance(v3.interpolator_[0], MinMaxScaler)
+    assert isinstance(v4.interpolator_[0], IsotropicScaler)
+    assert v3.interpolator_[-1].drift is None and v4.interpolator_[-1].drift is None
+    # that is the model these stars give with the old default (from the file's warm start)
     old_default = make_pipeline(MinMaxScaler(), make_default_interpolator()[-1])
-    old = PSFModel(interpolator=old_default, outliers=None).fit(X, stamps)
-    grid = X[:6] + 3.0
-    assert_allclose(load_model(tmp_path / "v3.fits").predict(grid), old.predict(grid),
-                    rtol=1e-8, atol=1e-12)
-    new = load_model(path)
-    assert isinstance(new.interpolator_[0], IsotropicScaler)
-    assert_allclose(new.predict(grid), PSFModel(outliers=None).fit(X, stamps).predict(grid),
-                    rtol=1e-8, atol=1e-12)
-    assert np.abs(new.predict(grid) - old.predict(grid)).max() > 1e-6
+    old_default.set_params(krigingregressor__drift=None)
+    spec = fits.getdata(os.path.join(MODELS, "default_v3.fits.gz"), "SPEC")
+    starts = json.loads(dict(zip(spec["key"], spec["json"]))["warm_starts"])
+    old_default[-1]._set_start_state(starts["krigingregressor"])
+    mask = v3.inlier_mask_
+    old_default.fit(v3.X_fit_[mask], v3.coefficients_[mask],
+                    krigingregressor__noise_cov=v3.coefficient_cov_[mask])
+    grid = v3.X_fit_[:6] + 3.0
+    assert_allclose(v3.predict_coefficients(grid), old_default.predict(grid), rtol=1e-12,
+                    atol=1e-15)
+    assert np.abs(v4.predict(grid) - v3.predict(grid)).max() > 1e-8  # (a square field)
+    # saved again (format 8), each keeps its interpolator
+    v3.save(tmp_path / "v3_again.fits")
+    assert_allclose(load_model(tmp_path / "v3_again.fits").predict(grid), v3.predict(grid),
+                    rtol=1e-12, atol=1e-15)
 
 
 def test_wrong_or_damaged_model_files(tmp_path, star_data):
@@ -150,7 +166,7 @@ def test_wrong_or_damaged_model_files(tmp_path, star_data):
             load_model(tmp_path / "t.fits")
     # a model file missing one of its extensions
     with fits.open(path) as hdul:
-        del hdul["STARS"]
+        del hdul["COEFFICIENTS"]
         hdul.writeto(tmp_path / "nostars.fits")
     with pytest.raises(ValueError, match="incomplete"):
         load_model(tmp_path / "nostars.fits")

@@ -270,7 +270,7 @@ def test_fit_gives_the_stars_fit_that_project_gives():
     noisy.reshape(-1, S, S)[:20, :, S // 2 + 2] = np.nan  # a bad column on 20 stars
     w = estimate_pixel_weights(noisy)
     basis = StampPCA()
-    fitted = basis._fit_project(noisy, w)
+    fitted = basis.fit_project(noisy, w)
     again = basis.project(noisy, w)
     reference = StampPCA().fit(noisy, weights=w)
     np.testing.assert_array_equal(basis.components_, reference.components_)

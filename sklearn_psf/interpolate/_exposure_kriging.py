@@ -577,3 +577,33 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
         if not return_std:
             return pred
         return pred, self._format_output(np.sqrt(var))
+
+    # ------------------------------------------------------------------ persistence
+    # (the protocol of sklearn_psf._persist: the state is the hyperparameters the fit chose;
+    # restored, the next fit solves the system with them held, without the likelihood)
+    def _get_state(self):
+        from sklearn.utils.validation import check_is_fitted
+
+        check_is_fitted(self)
+        return {"range_": float(self.range_), "atmosphere_range_": float(self.atmosphere_range_),
+                "static_sill": np.asarray(self._p, float),
+                "atmosphere_sill": np.asarray(self._q, float),
+                "log_likelihood_": float(self.log_likelihood_),
+                "per_axis_scaling": bool(self._per_axis_scaling)}
+
+    def _set_state(self, state):
+        import functools
+
+        if state.get("per_axis_scaling"):
+            self._per_axis_scaling = True
+        # the next fit takes these hyperparameters instead of fitting them (an instance
+        # attribute standing for the method until it is used)
+        self._fit_hyperparameters = functools.partial(self._held_hyperparameters, dict(state))
+        return self
+
+    def _held_hyperparameters(self, held, U, exposure, Y, noise):
+        del self._fit_hyperparameters
+        self.range_, self.atmosphere_range_ = held["range_"], held["atmosphere_range_"]
+        self._p = np.asarray(held["static_sill"], dtype=np.float64)
+        self._q = np.asarray(held["atmosphere_sill"], dtype=np.float64)
+        self.log_likelihood_ = held["log_likelihood_"]

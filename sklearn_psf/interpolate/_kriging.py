@@ -571,3 +571,46 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
 
     def _predict(self, X):  # pragma: no cover - predict is overridden
         raise NotImplementedError
+
+    # ------------------------------------------------------------------ persistence
+    # (the protocol of sklearn_psf._persist: the state is what the fit chose, the drift and
+    # the hyperparameters; restored, the next fit solves the Kriging system with them held,
+    # without the likelihood)
+    def _get_state(self):
+        check_is_fitted(self)
+        ll, floor = self.log_likelihood_, self.range_floor_
+        return {"drift_": self.drift_, "range_": float(self.range_),
+                "nugget_": float(self.nugget_), "sill": np.asarray(self._sill_fit, float),
+                "noise_scale_": float(self.noise_scale_),
+                "anisotropy_scaling_": float(self.anisotropy_scaling_),
+                "anisotropy_angle_": float(self.anisotropy_angle_),
+                "extra_scaling_": np.asarray(self.extra_scaling_, float),
+                "log_likelihood_": None if ll is None else float(ll),
+                "likelihood_": self.likelihood_,
+                "range_floor_": None if floor is None else float(floor),
+                "range_at_floor_": bool(self.range_at_floor_)}
+
+    def _set_state(self, state):
+        self._held_state = dict(state)
+        return self
+
+    def _choose_drift(self, X, Y, noise):
+        held = getattr(self, "_held_state", None)
+        if held is None:
+            return super()._choose_drift(X, Y, noise)
+        return held["drift_"], None, None
+
+    def _fit_hyperparameters(self, X, Y, F, noise, start=None):
+        held = self.__dict__.pop("_held_state", None)
+        if held is None:
+            return super()._fit_hyperparameters(X, Y, F, noise, start)
+        self._set_anisotropy(held["anisotropy_scaling_"], held["anisotropy_angle_"],
+                             held["extra_scaling_"])
+        self.range_, self.nugget_ = held["range_"], held["nugget_"]
+        self.sill_ = np.asarray(held["sill"], dtype=np.float64)
+        self.noise_scale_, self.likelihood_ = held["noise_scale_"], held["likelihood_"]
+        self.range_floor_, self.range_at_floor_ = held["range_floor_"], held["range_at_floor_"]
+        self.log_likelihood_ = held["log_likelihood_"]
+        if self._frame is not None and self.log_likelihood_ is not None:
+            # (_fit adds the frame's Jacobian to the stored likelihood: taken out here)
+            self.log_likelihood_ -= X.shape[0] * np.linalg.slogdet(self._frame[0])[1]

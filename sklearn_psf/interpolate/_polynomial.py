@@ -11,6 +11,7 @@ from numbers import Integral
 import numpy as np
 from numpy.polynomial import chebyshev
 from sklearn.utils._param_validation import Interval, StrOptions
+from sklearn.utils.validation import check_is_fitted
 
 from ._base import RankDeficientWarning, _NoiseAwareInterpolator
 
@@ -258,7 +259,12 @@ class PolynomialRegressor(_PolynomialBase):
         U = self._scale(X)
         n, d = X.shape
         sqrt_w = None if noise is None else 1.0 / np.sqrt(noise)
-        if isinstance(self.degree, str):  # "auto"
+        held = self.__dict__.pop("_held_state", None)
+        if held is not None:  # restored (see _set_state): the degree that fit chose
+            degree = held["degree_"]
+            if held.get("criterion_") is not None:
+                self.criterion_ = {int(g): float(c) for g, c in held["criterion_"]}
+        elif isinstance(self.degree, str):  # "auto"
             self._check_degree(self.max_degree, "max_degree")
             candidates = [g for g in range(self.max_degree + 1) if _n_terms(d, g) < n]
             if not candidates:
@@ -282,6 +288,21 @@ class PolynomialRegressor(_PolynomialBase):
             self._check_degree(self.degree)
             degree = self.degree
         self._set_fit(X, U, Y, degree, sqrt_w)
+
+
+    # (the protocol of sklearn_psf._persist: the state is the degree the fit chose;
+    # restored, the next fit solves the least squares at that degree)
+    def _get_state(self):
+        check_is_fitted(self)
+        degree = self.degree_
+        criterion = getattr(self, "criterion_", None)
+        return {"degree_": int(degree) if np.ndim(degree) == 0 else [int(g) for g in degree],
+                "criterion_": None if criterion is None else [[int(g), float(c)] for g, c
+                                                              in criterion.items()]}
+
+    def _set_state(self, state):
+        self._held_state = dict(state)
+        return self
 
 
 class ChebyshevRegressor(_PolynomialBase):

@@ -1,7 +1,44 @@
 """PSF model files: a self-describing FITS format, written atomically.
 
-Format (``SKPSFFMT = 'SKPSF-MODEL'``, ``FORMAT = 1``)
----------------------------------------------------
+A model file is a container (:mod:`sklearn_psf._persist` describes the protocol): it writes
+the parameters and the fitted state of the model and of each of its parts, which their
+classes give (``_get_state``), and on loading builds each part from its parameters and asks
+its class to restore its state (``_set_state``). A new fitted attribute is added to its
+class's state, not here.
+
+Format 8 (``SKPSFFMT = 'SKPSF-MODEL'``, ``FORMAT = 8``)
+-------------------------------------------------------
+HDU 0 (primary, no data)
+    ``SKPSFFMT``, ``FORMAT`` (format version, int), ``SKPSFVER`` (package version that wrote
+    it), ``STAMPSZ`` (s), ``NCOMP`` (k), ``NSTARS``, ``NINLIER``, ``INTERP`` (interpolator
+    class), ``DATE`` (UTC); a multi-exposure model (:func:`save_exposure_model`) has
+    ``MULTIEXP`` (``'pooled'`` or ``'per-exposure'``), ``EXPCOL``, ``NFEAT`` and ``STAMPSZ``.
+``SPEC`` (binary table: ``key``, ``json``)
+    ``model``: the fitted model as JSON, ``{"__estimator__": "module.Class", "params":
+    {...}, "state": {...}}``: its ``get_params(deep=False)`` and its ``_get_state()``, whose
+    fitted parts (basis, outlier detector, interpolator, the models of a multi-exposure
+    model) are described in the same way, recursively (a part without state, e.g. a
+    scikit-learn estimator, by its parameters only); arrays of more than 16 values are
+    ``{"__array__": "EXTNAME", "dtype": ...}``, the image HDU of that name, smaller ones
+    are written inline; a tuple is ``{"__tuple__": [...]}``, a dict ``{"__dict__": {...}}``.
+    Also ``versions`` (numpy, scikit-learn, astropy, sklearn_psf) and, after validation,
+    ``validation_summary``.
+Image HDUs named after the path of their array in the state
+    ``BASIS_MEAN``, ``BASIS_COMPONENTS``, ``BASIS_FINE_MEAN``, ``X_FIT``, ``COEFFICIENTS``,
+    ``COEFFICIENT_COV``, ``INLIER_MASK`` (uint8 for booleans)...
+``RESERVED`` (binary table, optional)
+    Reserved-star residuals of :func:`sklearn_psf.validation.fit_and_validate`.
+``RHO1`` (binary table, optional)
+    rho1 on the reserved stars (``theta``, ``xi``, ``sigma_xi``, ``npairs``).
+
+Loading restores the basis and the outlier detector from their states, and fits the
+interpolator on the stored stars, which solves with the choices its state holds (Kriging's
+hyperparameters and drift, a polynomial's degree: no likelihood, no search); a part without
+state is fitted on the stored data (deterministic). Predictions are identical to the saved
+model's, and the file does not depend on pickled internals of any library version.
+
+Formats 1-7 (read by ``_file_legacy``)
+-------------------------------------
 HDU 0 (primary, no data)
     ``SKPSFFMT``, ``FORMAT`` (format version, int), ``SKPSFVER`` (package version that wrote
     it), ``STAMPSZ`` (s), ``NCOMP`` (k), ``NSTARS``, ``NINLIER``, ``INTERP`` (interpolator
@@ -67,36 +104,28 @@ Format 7 moves a super-resolved basis's fine grid out of ``SPEC``'s ``stamppca``
 text) into the images ``BASIS_FINE_MEAN`` (S, S) and ``BASIS_FINE_COMPONENTS`` (k, S, S):
 written as text, the grid of 35-pixel stamps sampled 3 times finer took 10 s to save (a
 2.5-million-character column) and as long to read; files of formats 1-6 are read as before.
-
-Loading rebuilds the basis (``StampNormalizer`` steps + a fitted :class:`FixedBasis` of the
-stored mean and components, or the ``StampPCA``) and refits the interpolator (with the
-stored hyperparameters and coefficient noise) and the outlier detector on the stored stars:
-our interpolators are deterministic, so predictions are identical to the saved model's, and
-the file does not depend on pickled internals of any library version.
 """
 
 from __future__ import annotations
 
+import copy
 import datetime
-import functools
 import importlib
 import json
 import os
 import warnings
+from typing import NamedTuple
 
 import numpy as np
 from astropy.io import fits
 from astropy.table import Table
 from astropy.utils.exceptions import AstropyUserWarning
-from sklearn.base import BaseEstimator, clone
-from sklearn.pipeline import Pipeline, make_pipeline
-from sklearn.preprocessing import MinMaxScaler
+from sklearn.base import BaseEstimator
+from sklearn.pipeline import Pipeline
+from sklearn.utils.validation import check_is_fitted
 
 from .._files import one_line, write_fits_atomic
-from ..interpolate import ExposureKrigingRegressor
 from .._version import __version__
-from ._defaults import _constant_interpolator, make_default_interpolator
-from ._noise import fit_interpolator, kriging_steps
 
 __all__ = ["save_model", "read_model", "read_model_validation", "MODEL_FORMAT",
            "MODEL_FORMAT_VERSION"]
@@ -106,11 +135,13 @@ MODEL_FORMAT = "SKPSF-MODEL"
 #: Format version written by this version of the package (``FORMAT`` keyword), for PSF
 #: model files and multi-exposure model files alike (the PSF model reader refuses the latter,
 #: which carry ``MULTIEXP``).
-MODEL_FORMAT_VERSION = 7
+MODEL_FORMAT_VERSION = 8
+_KNOWN_FORMATS = (1, 2, 3, 4, 5, 6, 7, 8)
 _ALLOWED_MODULES = ("sklearn", "sklearn_psf")
+_INLINE = 16  # arrays of at most this many values are written in the JSON
 
 
-# ----------------------------------------------------------------------------- estimator specs
+# ----------------------------------------------------------------------------- descriptions
 def _public_path(cls):
     """'package.Class' with the shortest public module exposing the class."""
     module = cls.__module__
@@ -127,33 +158,70 @@ def _public_path(cls):
     return f"{module}.{cls.__name__}"
 
 
-def _encode(obj, arrays, where):
-    if obj is None or isinstance(obj, (bool, str)):
-        return obj
-    if isinstance(obj, (int, float)):
+class _Step(NamedTuple):
+    """A pipeline's step (name, estimator), whose arrays are named after the step."""
+
+    name: str
+    step: object
+
+
+def _array_name(path, arrays):
+    """A unique EXTNAME for the array at ``path`` (its keys, trailing ``_`` dropped)."""
+    base = "_".join(str(p).rstrip("_") for p in path).upper()[:48] or "ARRAY"
+    name, i = base, 1
+    while name in arrays or name in _RESERVED_NAMES:
+        name, i = f"{base}_{i}", i + 1
+    return name
+
+
+_RESERVED_NAMES = ("PRIMARY", "SPEC", "RESERVED", "RHO1")
+
+
+def _encode(obj, arrays, where, fitted=False, path=()):
+    """JSON description of ``obj``; arrays of more than ``_INLINE`` values go to ``arrays``
+    (EXTNAME -> array). A ``fitted`` estimator gets its state (``_get_state``), its
+    parameters are described unfitted (a pipeline's steps fitted)."""
+    if obj is None or isinstance(obj, (bool, str, int, float)):
         return obj
     if isinstance(obj, np.generic):
         return obj.item()
     if isinstance(obj, np.ndarray):
-        arrays.append(np.asarray(obj))
-        return {"__array__": len(arrays) - 1}
-    if isinstance(obj, tuple):
-        return {"__tuple__": [_encode(v, arrays, where) for v in obj]}
-    if isinstance(obj, list):
-        return [_encode(v, arrays, where) for v in obj]
+        ref = {"__array__": None, "dtype": obj.dtype.str, "shape": list(obj.shape)}
+        if obj.size <= _INLINE:
+            return {**ref, "values": obj.ravel().tolist()}
+        same = [n for n, a in arrays.items() if a.dtype == obj.dtype and a.shape == obj.shape
+                and np.array_equal(a, obj, equal_nan=True)]  # (written once)
+        name = same[0] if same else _array_name(path, arrays)
+        arrays[name] = obj
+        return {**ref, "__array__": name}
+    if isinstance(obj, _Step):
+        return {"__tuple__": [obj.name, _encode(obj.step, arrays, obj.name, fitted,
+                                                path[:-2] + (obj.name,))]}
+    if isinstance(obj, (tuple, list)):
+        items = [_encode(v, arrays, where, fitted, path + (i,)) for i, v in enumerate(obj)]
+        return {"__tuple__": items} if isinstance(obj, tuple) else items
     if isinstance(obj, dict):
-        return {"__dict__": {str(k): _encode(v, arrays, where) for k, v in obj.items()}}
+        return {"__dict__": {str(k): _encode(v, arrays, where, fitted, path + (k,))
+                             for k, v in obj.items()}}
     if isinstance(obj, BaseEstimator):
-        path = _public_path(type(obj))
-        if path.split(".")[0] not in _ALLOWED_MODULES:
+        name = _public_path(type(obj))
+        if name.split(".")[0] not in _ALLOWED_MODULES:
             raise ValueError(
                 f"Cannot store the {where} {type(obj).__name__} (module {type(obj).__module__}) "
                 "in a model file: only scikit-learn and sklearn_psf estimators are described "
                 "there. Save this model with joblib.dump instead."
             )
+        # (the state first: its arrays get the plain names)
+        state = ({k: _encode(v, arrays, k.rstrip("_"), True, path + (k,))
+                  for k, v in obj._get_state().items()}
+                 if fitted and hasattr(obj, "_get_state") else None)
         params = obj.get_params(deep=False)
-        return {"__estimator__": path,
-                "params": {k: _encode(v, arrays, where) for k, v in params.items()}}
+        if isinstance(obj, Pipeline):  # a fitted pipeline's steps are fitted; by their names
+            params["steps"] = [_Step(n, s) for n, s in params["steps"]]
+        out = {"__estimator__": name, "params": {
+            k: _encode(v, arrays, k, fitted and isinstance(obj, Pipeline), path + (k,))
+            for k, v in params.items()}}
+        return out if state is None else {**out, "state": state}
     raise ValueError(
         f"Cannot store a parameter of type {type(obj).__name__} of the {where} in a model "
         "file; save this model with joblib.dump instead."
@@ -161,12 +229,18 @@ def _encode(obj, arrays, where):
 
 
 def _decode(obj, arrays):
+    """The object of an :func:`_encode` description (files of every format); a described
+    state is restored by the estimator's ``_set_state``."""
     if isinstance(obj, list):
         return [_decode(v, arrays) for v in obj]
     if not isinstance(obj, dict):
         return obj
     if "__array__" in obj:
-        return np.array(arrays[int(obj["__array__"])], copy=True)
+        ref = obj["__array__"]
+        if ref is None:
+            return np.array(obj["values"], dtype=obj["dtype"]).reshape(obj["shape"])
+        value = np.array(arrays[ref], copy=True)
+        return value.astype(obj["dtype"]).reshape(obj["shape"]) if "dtype" in obj else value
     if "__tuple__" in obj:
         return tuple(_decode(v, arrays) for v in obj["__tuple__"])
     if "__dict__" in obj:
@@ -186,9 +260,12 @@ def _decode(obj, arrays):
             ) from None
         params = {k: _decode(v, arrays) for k, v in obj["params"].items()}
         try:
-            return cls(**params)
+            estimator = cls(**params)
         except TypeError as exc:
             raise ValueError(f"Cannot rebuild {path} from the model file: {exc}.") from None
+        if "state" in obj:
+            estimator._set_state({k: _decode(v, arrays) for k, v in obj["state"].items()})
+        return estimator
     raise ValueError(f"Unknown entry in the model file's description: {obj!r}.")
 
 
@@ -197,97 +274,104 @@ def _json_default(obj):
         return obj.item()
     if isinstance(obj, np.ndarray):
         return obj.tolist()
-    if isinstance(obj, (dict,)):
-        return dict(obj)
     return str(obj)
 
 
-# ----------------------------------------------------------------------------- the basis
-def _leaf_steps(transformer):
-    if isinstance(transformer, Pipeline):
-        out = []
-        for _, step in transformer.steps:
-            if step is None or step == "passthrough":
-                continue
-            out.extend(_leaf_steps(step))
-        return out
-    return [transformer]
+def _persistent_basis(basis):
+    """The fitted basis with each part writing its state: a linear scikit-learn step (PCA
+    without whitening) becomes the fitted :class:`FixedBasis` of its mean and components;
+    any other part without state cannot be stored."""
+    from ..preprocessing import FixedBasis
 
-
-_STAMPPCA_STATE = ("explained_variance_", "noise_variance_", "noise_edge_", "background_")
-_SUPERRES_STATE = ("oversampling_", "fine_size_", "fwhm_", "spatial_degree_", "band_limit_")
-#: The super-resolved basis's fine grid: images of its own (format 7; in ``stamppca`` before).
-_FINE_HDUS = {"fine_mean_": "BASIS_FINE_MEAN", "fine_components_": "BASIS_FINE_COMPONENTS"}
-
-
-def _describe_basis(basis, s):
-    """(kind, normalizer params, mean (p,), components (k, p), extra state) of a fitted basis.
-
-    ``kind`` is ``"stamppca"`` for :class:`StampPCA`, ``"linear"`` for StampNormalizer steps
-    and a linear basis (PCA without whitening, FixedBasis); anything else raises.
-    """
-    from ..preprocessing import StampNormalizer, StampPCA, SuperResolvedPCA
-
-    if isinstance(basis, StampPCA):
-        fine = isinstance(basis, SuperResolvedPCA)
-        state = {name: np.asarray(getattr(basis, name)).tolist()
-                 for name in _STAMPPCA_STATE + _SUPERRES_STATE * fine}
-        return "superres" if fine else "stamppca", [], basis.mean_, basis.components_, state
-    leaves = _leaf_steps(basis)
-    *pre, last = leaves
-    bad = [type(t).__name__ for t in pre if not isinstance(t, StampNormalizer)]
-    comps = getattr(last, "components_", None)
-    mean = getattr(last, "mean_", None)
-    if bad or comps is None or mean is None or getattr(last, "whiten", False):
-        raise ValueError(
-            "save_model stores a StampPCA basis, or StampNormalizer steps and a linear basis "
-            "(PCA without whitening, FixedBasis); this model's basis is "
-            f"{[type(t).__name__ for t in leaves]}. Save it with joblib.dump instead."
-        )
-    comps = np.asarray(comps, dtype=np.float64).reshape(len(comps), -1)
-    mean = np.asarray(mean, dtype=np.float64).reshape(-1)
-    if comps.shape[1] != s * s or mean.size != s * s:
-        raise ValueError("The basis's components do not match the stamp size.")
-    # the rebuilt basis must give the same stamps: check inverse_transform on a probe
-    probe = np.random.default_rng(0).normal(size=(3, comps.shape[0]))
-    if not np.allclose(basis.inverse_transform(probe), probe @ comps + mean, rtol=1e-12,
-                       atol=1e-15):
-        raise ValueError("The model's basis is not linear (inverse_transform differs from "
-                         "coefficients @ components + mean): save it with joblib.dump instead.")
-    return "linear", [t.get_params(deep=False) for t in pre], mean, comps, {}
-
-
-def _rebuild_basis(kind, normalizer_params, mean, comps, params, state):
-    from ..preprocessing import FixedBasis, StampNormalizer, StampPCA, SuperResolvedPCA
-
-    if kind in ("stamppca", "superres"):
-        basis = (SuperResolvedPCA if kind == "superres" else StampPCA)(**params)
-        s = int(round(np.sqrt(mean.size)))
-        basis.mean_, basis.components_ = mean, comps
-        basis.n_components_, basis.stamp_size_, basis.n_features_in_ = len(comps), s, s * s
-        basis._n_features_out = len(comps)
-        for name in _STAMPPCA_STATE:
-            if name in state:  # files written before background_ existed: no background
-                setattr(basis, name, np.asarray(state[name], dtype=np.float64)
-                        if name == "explained_variance_" else float(state[name]))
-        basis.background_ = bool(getattr(basis, "background_", False))
-        if kind == "superres":
-            basis.fine_mean_ = np.asarray(state["fine_mean_"], dtype=np.float64).reshape(-1)
-            basis.fine_components_ = np.asarray(state["fine_components_"],
-                                                dtype=np.float64).reshape(len(comps), -1)
-            basis.oversampling_, basis.fine_size_ = (int(state["oversampling_"]),
-                                                     int(state["fine_size_"]))
-            basis.fwhm_ = float(state["fwhm_"])
-            # (files written before the joint refinement: none ran)
-            basis.spatial_degree_ = int(state.get("spatial_degree_", 0))
-            # (files written before band_limit_ was recorded: the grid's Nyquist disc)
-            basis.band_limit_ = float(state.get("band_limit_", basis.oversampling_ / 2.0))
+    if isinstance(basis, Pipeline):
+        stored = copy.copy(basis)
+        stored.steps = [(name, step if step is None or isinstance(step, str)
+                         else _persistent_basis(step)) for name, step in basis.steps]
+        return stored
+    if hasattr(basis, "_get_state"):
         return basis
-    steps = [(f"stampnormalizer{i or ''}", StampNormalizer(**p))
-             for i, p in enumerate(normalizer_params)]
-    steps.append(("fixedbasis", FixedBasis(comps, mean)))
-    pipe = Pipeline(steps)
-    return pipe.fit(mean.reshape(1, -1))
+    comps, mean = getattr(basis, "components_", None), getattr(basis, "mean_", None)
+    linear = comps is not None and mean is not None and not getattr(basis, "whiten", False)
+    if linear:
+        comps = np.asarray(comps, dtype=np.float64).reshape(len(comps), -1)
+        mean = np.asarray(mean, dtype=np.float64).reshape(-1)
+        # the rebuilt basis must give the same stamps: inverse_transform on a probe
+        probe = np.random.default_rng(0).normal(size=(3, comps.shape[0]))
+        linear = comps.shape[1] == mean.size and np.allclose(
+            basis.inverse_transform(probe), probe @ comps + mean, rtol=1e-12, atol=1e-15)
+    if not linear:
+        raise ValueError(
+            "save_model stores a sklearn_psf basis (StampPCA, SuperResolvedPCA, "
+            "StampNormalizer steps and a FixedBasis) or a linear basis (PCA without "
+            f"whitening); this model's basis has a {type(basis).__name__}. Save it with "
+            "joblib.dump instead.")
+    return FixedBasis(comps, mean)._set_state({
+        "components_": comps, "mean_": mean, "n_components_": len(comps),
+        "n_features_in_": mean.size})
+
+
+def _spec_hdus(entries, arrays, prefix=""):
+    """The ``SPEC`` table of JSON ``entries`` and the image HDUs of ``arrays``."""
+    rows = [(key, json.dumps(value, default=_json_default, allow_nan=True))
+            for key, value in entries.items()]
+    spec = fits.table_to_hdu(Table({"key": [r[0] for r in rows], "json": [r[1] for r in rows]}))
+    spec.name = f"{prefix}SPEC"
+    images = [fits.ImageHDU(np.asarray(a, dtype=np.uint8) if a.dtype == bool else a,
+                            name=name) for name, a in arrays.items()]
+    return [spec, *images]
+
+
+def _versions():
+    import astropy
+    import sklearn
+
+    return {"sklearn_psf": __version__, "numpy": np.__version__,
+            "scikit-learn": sklearn.__version__, "astropy": astropy.__version__}
+
+
+def _describe(model, where, summary=None):
+    """(SPEC entries, arrays) of a fitted model (its basis made persistent)."""
+    arrays = {}
+    entries = {"model": _encode(model, arrays, where, fitted=True), "versions": _versions()}
+    if summary is not None:
+        entries["validation_summary"] = summary
+    return entries, arrays
+
+
+def _stored(model):
+    """A shallow copy of a fitted PSFModel whose basis writes its state."""
+    if not all(hasattr(model, name) for name in ("basis", "interpolator", "outliers")):
+        raise TypeError(f"save_model needs a PSFModel, got {type(model).__name__}.")
+    check_is_fitted(model)
+    if not hasattr(model, "coefficients_"):
+        raise ValueError("This PSFModel was fitted by an older sklearn_psf without the stars' "
+                         "coefficients (coefficients_): refit it, or use joblib.dump.")
+    stored = copy.copy(model)
+    stored.basis_ = _persistent_basis(model.basis_)
+    return stored
+
+
+def _primary(**cards):
+    primary = fits.PrimaryHDU()
+    h = primary.header
+    h["SKPSFFMT"] = (MODEL_FORMAT, "sklearn_psf PSF model file")
+    h["FORMAT"] = (MODEL_FORMAT_VERSION, "format version of this model file")
+    h["SKPSFVER"] = (__version__, "sklearn_psf version that wrote the file")
+    for key, value in cards.items():
+        h[key] = value
+    h["DATE"] = (datetime.datetime.now(datetime.timezone.utc).strftime(
+        "%Y-%m-%dT%H:%M:%S"), "UTC time of writing")
+    return primary
+
+
+def _model_cards(model):
+    interp = model.interpolator_
+    last = interp.steps[-1][1] if isinstance(interp, Pipeline) else interp
+    return {"STAMPSZ": (int(model.stamp_size_), "stamp side in pixels"),
+            "NCOMP": (int(model.n_components_), "number of basis components"),
+            "NSTARS": (len(model.inlier_mask_), "stars given to fit"),
+            "NINLIER": (int(np.sum(model.inlier_mask_)), "stars kept for the interpolation"),
+            "INTERP": (type(last).__name__, "interpolator of the coefficients")}
 
 
 # ----------------------------------------------------------------------------- save
@@ -296,17 +380,18 @@ def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = F
 
     The file format is described in :mod:`sklearn_psf.model` (module ``_file``; and the user guide):
     primary header with ``SKPSFFMT = 'SKPSF-MODEL'`` and ``FORMAT`` (version), a ``SPEC``
-    table of JSON parameter descriptions, the basis (``BASIS_MEAN``, ``BASIS_COMPONENTS``),
-    the fitted stars (``STARS``: positions, coefficients, inlier flag) and, optionally, the
-    reserved-star residuals (``RESERVED``) and their rho1 (``RHO1``). The file is written to
-    a temporary file in the same folder, then renamed: never left half-written.
+    table holding the model's parameters and fitted state (that of its basis, outlier
+    detector and interpolator), its arrays as images (``BASIS_MEAN``, ``X_FIT``,
+    ``COEFFICIENTS``...) and, optionally, the reserved-star residuals (``RESERVED``) and
+    their rho1 (``RHO1``). The file is written to a temporary file in the same folder, then
+    renamed: never left half-written.
 
     Parameters
     ----------
     model : PSFModel
-        Fitted model whose basis is StampNormalizer steps + a linear basis (PCA without
-        whitening or FixedBasis) and whose interpolator/outlier detector are scikit-learn or
-        sklearn_psf estimators (use joblib for anything else).
+        Fitted model whose basis is a sklearn_psf basis (or pipeline of them, a PCA without
+        whitening standing for a FixedBasis) and whose interpolator/outlier detector are
+        scikit-learn or sklearn_psf estimators (use joblib for anything else).
     path : str or os.PathLike
     residuals : astropy.table.Table, optional
         Reserved-star residuals.
@@ -338,18 +423,11 @@ def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = F
     >>> path = os.path.join(tempfile.mkdtemp(), "psf.fits")
     >>> save_model(model, path)
     >>> fits.getheader(path)["FORMAT"], [h.name for h in fits.open(path)][1:3]
-    (7, ['SPEC', 'BASIS_MEAN'])
+    (8, ['SPEC', 'BASIS_MEAN'])
     """
-    primary = fits.PrimaryHDU()
-    h = primary.header
-    h["SKPSFFMT"] = (MODEL_FORMAT, "sklearn_psf PSF model file")
-    h["FORMAT"] = (MODEL_FORMAT_VERSION, "format version of this model file")
-    h["SKPSFVER"] = (__version__, "sklearn_psf version that wrote the file")
-    cards, hdus = _model_hdus(model, summary=summary)
-    for key, value in cards.items():
-        h[key] = value
-    _stamp_date(h)
-    hdus = [primary, *hdus]
+    stored = _stored(model)
+    hdus = [_primary(**_model_cards(stored)),
+            *_spec_hdus(*_describe(stored, "model", summary))]
     if residuals is not None:
         res = fits.table_to_hdu(Table(residuals))
         res.name = "RESERVED"
@@ -362,110 +440,6 @@ def save_model(model, path, *, residuals=None, summary=None, overwrite: bool = F
         rho.name = "RHO1"
         hdus.append(rho)
     write_fits_atomic(fits.HDUList(hdus), path, overwrite=overwrite)
-
-
-def _stamp_date(header):
-    header["DATE"] = (datetime.datetime.now(datetime.timezone.utc).strftime(
-        "%Y-%m-%dT%H:%M:%S"), "UTC time of writing")
-
-
-def _model_hdus(model, *, summary=None, prefix="", exposure=False):
-    """(primary-header cards, HDUs) describing one fitted PSFModel; HDU names get ``prefix``.
-
-    With ``exposure``, the model's positions end with an exposure column (stored as the STARS
-    table's ``exposure``).
-    """
-    from sklearn.utils.validation import check_is_fitted
-
-    if not all(hasattr(model, name) for name in ("basis", "interpolator", "outliers")):
-        raise TypeError(f"save_model needs a PSFModel, got {type(model).__name__}.")
-    check_is_fitted(model)
-    if not hasattr(model, "coefficients_"):
-        raise ValueError("This PSFModel was fitted by an older sklearn_psf without the stars' "
-                         "coefficients (coefficients_): refit it, or use joblib.dump.")
-    d = model.X_fit_.shape[1]
-    if (d != 3) if exposure else (d < 2):
-        raise ValueError(f"Model files hold (x, y) star positions{' and an exposure' * exposure}"
-                         f"; this model was fitted on {model.X_fit_.shape[1]} position columns: "
-                         "use joblib.dump.")
-    s, k = int(model.stamp_size_), int(model.n_components_)
-    kind, normalizers, mean, comps, state = _describe_basis(model.basis_, s)
-    arrays = []
-    spec = {
-        "interpolator": _encode(model.interpolator, arrays, "interpolator"),
-        "basis_kind": kind,
-        "stamppca": state,
-        "basis_params": _encode(model.basis_.get_params(deep=False)
-                                if kind in ("stamppca", "superres")
-                                else {}, arrays, "basis"),
-        "basis": _encode(model.basis, arrays, "basis"),
-        "outliers": _encode(model.outliers, arrays, "outlier detector"),
-        "normalizers": [{k2: _encode(v, arrays, "normalizer") for k2, v in p.items()}
-                        for p in normalizers],
-        "versions": _versions(),
-    }
-    starts = {key: step._start_state() for key, step in kriging_steps(model.interpolator_)}
-    starts = {key: state for key, state in starts.items() if state is not None}
-    if starts:
-        spec["warm_starts"] = starts
-    if getattr(model, "spatial_model_", "interpolator") != "interpolator":
-        spec["spatial_model"] = model.spatial_model_  # too few stars: a constant PSF
-    if summary is not None:
-        spec["validation_summary"] = summary
-    rows = [(key, json.dumps(value, default=_json_default, allow_nan=True))
-            for key, value in spec.items()]
-    interp = model.interpolator_
-    last = interp.steps[-1][1] if isinstance(interp, Pipeline) else interp
-    cards = {"STAMPSZ": (s, "stamp side in pixels"),
-             "NCOMP": (k, "number of basis components"),
-             "NSTARS": (len(model.inlier_mask_), "stars given to fit"),
-             "NINLIER": (int(np.sum(model.inlier_mask_)), "stars kept for the interpolation"),
-             "INTERP": (type(last).__name__, "interpolator of the coefficients")}
-    spec_hdu = fits.table_to_hdu(Table({"key": [r[0] for r in rows],
-                                        "json": [r[1] for r in rows]}))
-    spec_hdu.name = f"{prefix}SPEC"
-    hdus = [spec_hdu,
-            fits.ImageHDU(mean.reshape(s, s), name=f"{prefix}BASIS_MEAN"),
-            fits.ImageHDU(comps.reshape(k, s, s), name=f"{prefix}BASIS_COMPONENTS")]
-    if kind == "superres":
-        size = int(model.basis_.fine_size_)
-        fine = {"fine_mean_": model.basis_.fine_mean_.reshape(size, size),
-                "fine_components_": model.basis_.fine_components_.reshape(-1, size, size)}
-        hdus += [fits.ImageHDU(np.asarray(fine[name], dtype=np.float64), name=prefix + hdu)
-                 for name, hdu in _FINE_HDUS.items()]
-    columns = {
-        "x": np.asarray(model.X_fit_[:, 0], dtype=np.float64),
-        "y": np.asarray(model.X_fit_[:, 1], dtype=np.float64),
-        "coeffs": np.asarray(model.coefficients_, dtype=np.float64).reshape(-1, k),
-        "inlier": np.asarray(model.inlier_mask_, dtype=bool),
-        "fit_flag": np.asarray(model.fit_flag_, dtype=np.int64),
-    }
-    if exposure:
-        columns["exposure"] = np.asarray(model.X_fit_[:, 2], dtype=np.int64)
-    elif d > 2:  # the model's extra dimensions (colour, magnitude...), in fit's order
-        columns["extra"] = np.asarray(model.X_fit_[:, 2:], dtype=np.float64)
-    if model.coefficient_var_ is not None:
-        columns["coeff_var"] = np.asarray(model.coefficient_var_, dtype=np.float64).reshape(-1, k)
-    if getattr(model, "coefficient_cov_", None) is not None:
-        columns["coeff_cov"] = np.asarray(model.coefficient_cov_,
-                                          dtype=np.float64).reshape(-1, k * k)
-    if model.outlier_score_ is not None:
-        columns["outlier_score"] = np.asarray(model.outlier_score_, dtype=np.float64)
-    stars = fits.table_to_hdu(Table(columns))
-    stars.name = f"{prefix}STARS"
-    hdus.append(stars)
-    for i, arr in enumerate(arrays):
-        hdus.append(fits.ImageHDU(np.asarray(arr), name=f"{prefix}ARRAY_{i}"))
-    return cards, hdus
-
-
-def _versions():
-    import astropy
-    import sklearn
-
-
-    return {"sklearn_psf": __version__, "numpy": np.__version__,
-            "scikit-learn": sklearn.__version__, "astropy": astropy.__version__}
 
 
 # ----------------------------------------------------------------------------- load
@@ -519,100 +493,33 @@ def _check_format(header, path):
             f"{header.get('SKPSFVER', '?')}; this sklearn_psf reads format versions up to "
             f"{MODEL_FORMAT_VERSION}: upgrade sklearn_psf to read it."
         )
-    if version not in _READERS:
+    if version not in _KNOWN_FORMATS:
         raise ValueError(
             f"{path!r} has format version {version}, which no sklearn_psf release wrote "
-            f"(known versions: {sorted(_READERS)}): the file is damaged or not a model file."
+            f"(known versions: {list(_KNOWN_FORMATS)}): the file is damaged or not a model file."
         )
     return version
 
 
-def _default_interpolator(version):
-    """The default interpolator that a file of format ``version`` was fitted with."""
-    interp = make_default_interpolator()
-    if version < 5:  # formats 1-4: a constant mean (drift=None)
-        interp.set_params(krigingregressor__drift=None)
-    if version >= 4:
-        return interp
-    # formats 1-3: the same Kriging on positions scaled by MinMaxScaler
-    return make_pipeline(MinMaxScaler(), interp[-1])
-
-
-def _read(header, content, path, model_class, version):
-    """Every format (format 1: linear basis, no noise, interpolator refitted as given)."""
+def _read_state(content, path, model_class):
+    """The fitted ``model_class`` described by the ``SPEC`` of a file of format 8."""
     try:
-        spec_table = content["SPEC"]
-        spec = {str(k): json.loads(str(v)) for k, v in zip(spec_table["key"], spec_table["json"])}
-        mean = np.asarray(content["BASIS_MEAN"], dtype=np.float64).reshape(-1)
-        comps = np.asarray(content["BASIS_COMPONENTS"], dtype=np.float64)
-        stars = content["STARS"]
-        s, k = int(header["STAMPSZ"]), int(header["NCOMP"])
-    except (KeyError, ValueError, TypeError) as exc:
+        spec = {str(k): json.loads(str(v))
+                for k, v in zip(content["SPEC"]["key"], content["SPEC"]["json"])}
+        description = spec["model"]
+        name = description["__estimator__"].rpartition(".")[2]
+    except (KeyError, ValueError, TypeError, AttributeError) as exc:
         raise ValueError(f"The model file {path!r} is incomplete (missing or damaged {exc}): "
                          "write it again.") from None
-    comps = comps.reshape(k, s * s)
-    arrays = [content[f"ARRAY_{i}"] for i in range(len([n for n in content
-                                                        if n.startswith("ARRAY_")]))]
-    interpolator = _decode(spec["interpolator"], arrays)
-    model = model_class(interpolator=interpolator, basis=_decode(spec["basis"], arrays),
-                        outliers=_decode(spec["outliers"], arrays))
-    X = np.column_stack([np.asarray(stars[c], dtype=np.float64).reshape(len(stars), -1)
-                         for c in ("x", "y", "exposure", "extra") if c in stars.colnames])
-    n = len(X)
-    coef = np.asarray(stars["coeffs"], dtype=np.float64).reshape(n, k)
-    mask = np.asarray(stars["inlier"], dtype=bool)
-    var = (np.asarray(stars["coeff_var"], dtype=np.float64).reshape(n, k)
-           if "coeff_var" in stars.colnames else None)
-    cov = (np.asarray(stars["coeff_cov"], dtype=np.float64).reshape(n, k, k)
-           if "coeff_cov" in stars.colnames else None)
-    # the model's own fit path, minus the basis: same interpolator, same data
-    detector = model._make_outliers()
-    if detector is not None:
-        detector.fit(coef[np.isfinite(coef).all(axis=1)])
-    interp = _default_interpolator(version) if interpolator is None else clone(interpolator)
-    spatial = spec.get("spatial_model", "interpolator")
-    if spatial == "constant":
-        interp = _constant_interpolator()
-    if version < 4 and isinstance(interp, ExposureKrigingRegressor):
-        interp._per_axis_scaling = True  # as fitted then: each axis scaled to [0, 1]
-    # (format 6: a fit that started from the previous outlier round's hyperparameters
-    # starts from them again)
-    steps = dict(kriging_steps(interp))
-    given = {key: step.warm_start for key, step in steps.items()}
-    for key, state in spec.get("warm_starts", {}).items():
-        steps[key]._set_start_state(state)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # warnings were already shown when the model was fitted
-        fit_interpolator(interp, X[mask], coef[mask], None if var is None else var[mask],
-                         None if cov is None else cov[mask])
-    for key in spec.get("warm_starts", {}):
-        steps[key].warm_start = given[key]
-    normalizers = [{key: _decode(v, arrays) for key, v in p.items()}
-                   for p in spec["normalizers"]]
-    model.basis_ = _rebuild_basis(spec.get("basis_kind", "linear"), normalizers, mean, comps,
-                                  _decode(spec.get("basis_params", {}), arrays) or {},
-                                  {**spec.get("stamppca", {}),
-                                   **{name: content[hdu] for name, hdu in _FINE_HDUS.items()
-                                      if hdu in content}})
-    model.outliers_ = detector
-    model.interpolator_ = interp
-    model.inlier_mask_ = mask
-    model.fit_flag_ = (np.asarray(stars["fit_flag"], dtype=np.int64)
-                       if "fit_flag" in stars.colnames else np.zeros(n, dtype=np.int64))
-    model.outlier_score_ = (np.asarray(stars["outlier_score"], dtype=np.float64)
-                            if "outlier_score" in stars.colnames else None)
-    model.n_components_ = k
-    model.stamp_size_ = s
-    model.n_features_in_ = X.shape[1]
-    model.X_fit_ = X
-    model.coefficients_ = coef
-    model.coefficient_var_ = var
-    model.coefficient_cov_ = cov
-    model.spatial_model_ = spatial
-    return model
-
-
-_READERS = {v: functools.partial(_read, version=v) for v in (1, 2, 3, 4, 5, 6, 7)}
+    if name not in [cls.__name__ for cls in model_class.__mro__]:
+        raise ValueError(f"{path!r} holds a {name}, not a {model_class.__name__}.")
+    try:  # (the class asked for: a subclass of the one saved)
+        params = {k: _decode(v, content) for k, v in description["params"].items()}
+        state = {k: _decode(v, content) for k, v in description["state"].items()}
+        return model_class(**params)._set_state(state)
+    except KeyError as exc:
+        raise ValueError(f"The model file {path!r} is incomplete (missing or damaged {exc}): "
+                         "write it again.") from None
 
 
 def read_model(path, model_class):
@@ -641,24 +548,22 @@ def read_model(path, model_class):
         raise ValueError(f"{path!r} holds a multi-exposure model ({header['MULTIEXP']}): load "
                          "it with PooledPSFModel.load or PerExposurePSFModel.load.")
     version = _check_format(header, path)
-    return _READERS[version](header, content, path, model_class)
+    if version < 8:
+        from ._file_legacy import read_legacy
+
+        return read_legacy(header, content, path, model_class, version)
+    return _read_state(content, path, model_class)
 
 
 # ----------------------------------------------------------------------------- many exposures
 def save_exposure_model(model, path, *, overwrite: bool = False) -> None:
-    """Write a fitted multi-exposure model to a FITS model file (format 3).
+    """Write a fitted multi-exposure model to a FITS model file.
 
-    The implementation of ``PooledPSFModel.save`` and ``PerExposurePSFModel.save``. The
-    primary header has ``MULTIEXP`` (``"pooled"`` or ``"per-exposure"``), ``EXPCOL`` (the
-    model's ``exposure_column``) and ``NFEAT`` (its number of input columns).
-
-    - pooled: the HDUs of its one :class:`PSFModel` (``model_``), whose ``STARS`` table has an
-      ``exposure`` column when it was fitted on several exposures;
-    - per-exposure: an ``EXPOSURES`` table (``exposure``, ``ncomp``) and, for exposure row
-      ``i``, the HDUs of its model with names prefixed by ``E<i>_``.
-
-    Loading refits each interpolator on the stored stars (deterministic), so the loaded model
-    predicts exactly as the saved one.
+    The implementation of ``PooledPSFModel.save`` and ``PerExposurePSFModel.save``: the
+    container of :func:`save_model`, whose ``SPEC`` ``model`` entry describes the
+    multi-exposure model (its PSF models in its state); the primary header has ``MULTIEXP``
+    (``"pooled"`` or ``"per-exposure"``), ``EXPCOL`` (the model's ``exposure_column``),
+    ``NFEAT`` (its number of input columns) and ``STAMPSZ``.
 
     Parameters
     ----------
@@ -667,38 +572,21 @@ def save_exposure_model(model, path, *, overwrite: bool = False) -> None:
     path : str or os.PathLike
     overwrite : bool, default=False
     """
-    from sklearn.utils.validation import check_is_fitted
-
     check_is_fitted(model)
-    primary = fits.PrimaryHDU()
-    h = primary.header
-    h["SKPSFFMT"] = (MODEL_FORMAT, "sklearn_psf PSF model file")
-    h["FORMAT"] = (MODEL_FORMAT_VERSION, "format version of this model file")
-    h["SKPSFVER"] = (__version__, "sklearn_psf version that wrote the file")
-    h["EXPCOL"] = (int(model.exposure_column), "column of X holding the exposure")
-    h["NFEAT"] = (int(model.n_features_in_), "columns of X (positions and exposure)")
+    stored = copy.copy(model)
     if hasattr(model, "models_"):
-        h["MULTIEXP"] = ("per-exposure", "one PSF model per exposure")
-        table = fits.table_to_hdu(Table({
-            "exposure": np.asarray(model.exposures_, dtype=np.int64),
-            "ncomp": np.array([m.n_components_ for m in model.models_], dtype=np.int64)}))
-        table.name = "EXPOSURES"
-        hdus = [table]
-        for i, m in enumerate(model.models_):
-            cards, parts = _model_hdus(m, prefix=f"E{i}_")
-            hdus += parts
+        kind, models = "per-exposure", [_stored(m) for m in model.models_]
+        stored.models_ = models
     else:
-        h["MULTIEXP"] = ("pooled", "one PSF model over all exposures")
-        cards, hdus = _model_hdus(model.model_, exposure=len(model.exposures_) > 1)
-        for key, value in cards.items():
-            h[key] = value
-        exposures = fits.table_to_hdu(Table({"exposure": np.asarray(model.exposures_,
-                                                                    dtype=np.int64)}))
-        exposures.name = "EXPOSURES"
-        hdus.append(exposures)
-    h["STAMPSZ"] = cards["STAMPSZ"]
-    _stamp_date(h)
-    write_fits_atomic(fits.HDUList([primary, *hdus]), path, overwrite=overwrite)
+        kind, models = "pooled", [_stored(model.model_)]
+        stored.model_ = models[0]
+    cards = {"MULTIEXP": (kind, "one PSF model per exposure" if kind == "per-exposure"
+                          else "one PSF model over all exposures"),
+             "EXPCOL": (int(model.exposure_column), "column of X holding the exposure"),
+             "NFEAT": (int(model.n_features_in_), "columns of X (positions and exposure)"),
+             "STAMPSZ": _model_cards(models[0])["STAMPSZ"]}
+    hdus = [_primary(**cards), *_spec_hdus(*_describe(stored, "model"))]
+    write_fits_atomic(fits.HDUList(hdus), path, overwrite=overwrite)
 
 
 def read_exposure_model(path, model_class, psf_class):
@@ -727,41 +615,11 @@ def read_exposure_model(path, model_class, psf_class):
                "per-exposure": "PerExposurePSFModel.load"}.get(kind, "the matching class")
         held = "a single PSFModel" if kind is None else f"a {kind} model"
         raise ValueError(f"{path!r} holds {held}, not a {wanted} model: load it with {how}.")
-    try:
-        exposures = np.asarray(content["EXPOSURES"]["exposure"], dtype=np.int64)
-    except KeyError:
-        raise ValueError(f"The model file {path!r} is incomplete (no EXPOSURES table): write "
-                         "it again.") from None
-    model = model_class(exposure_column=int(header["EXPCOL"]))
-    if kind == "per-exposure":
-        ncomp = np.asarray(content["EXPOSURES"]["ncomp"], dtype=np.int64)
-        models = []
-        for i, k in enumerate(ncomp):
-            prefix = f"E{i}_"
-            part = {name[len(prefix):]: value for name, value in content.items()
-                    if name.startswith(prefix)}
-            models.append(_READERS[version]({"STAMPSZ": header["STAMPSZ"], "NCOMP": int(k)},
-                                            part, path, psf_class))
-        model.models_ = models
-        model.inlier_mask_ = np.concatenate([m.inlier_mask_ for m in models])
-        model.set_params(model=_template(models[0], psf_class))
-    else:
-        inner = _READERS[version](header, content, path, psf_class)
-        model.model_ = inner
-        model.inlier_mask_ = inner.inlier_mask_
-        model.n_components_ = inner.n_components_
-        model.set_params(model=_template(inner, psf_class),
-                         interpolator=inner.interpolator if len(exposures) > 1 else None)
-    model.exposures_ = exposures
-    model.n_features_in_ = int(header["NFEAT"])
-    return model
+    if version < 8:
+        from ._file_legacy import read_legacy_exposure
 
-
-def _template(model, psf_class):
-    """The unfitted PSFModel template of a loaded model (its parameters but the interpolator)."""
-    params = model.get_params(deep=False)
-    params["interpolator"] = None
-    return psf_class(**params)
+        return read_legacy_exposure(header, content, path, model_class, psf_class, version)
+    return _read_state(content, path, model_class)
 
 
 def read_model_validation(path):

@@ -14,7 +14,8 @@ import warnings
 import numpy as np
 from sklearn.base import clone
 
-from ..preprocessing import ChiSquareOutlierDetector, StampPCA
+from ..preprocessing import ChiSquareOutlierDetector
+from ..preprocessing._stamp_basis import _BaseStampBasis
 from ._companions import COMPANION_P_VALUE, companion_log_p
 from ._noise import (
     coefficient_residuals,
@@ -82,11 +83,11 @@ class _OutlierRounds:
         params = inspect.signature(basis.fit).parameters
         takes_weights = "weights" in params
         where = {"positions": X[keep]} if "positions" in params and X is not None else {}
-        # (a StampPCA itself: a wrapper such as FrozenEstimator passes attributes through)
-        if isinstance(basis, StampPCA) and (weights is not None or keep.all()):
-            return basis, basis._fit_project(y[keep],
-                                             None if weights is None else weights[keep],
-                                             **where)
+        # (a stamp basis itself: a wrapper such as FrozenEstimator passes attributes through)
+        if isinstance(basis, _BaseStampBasis) and (weights is not None or keep.all()):
+            return basis, basis.fit_project(y[keep],
+                                            None if weights is None else weights[keep],
+                                            **where)
         if takes_weights and weights is not None:
             return basis.fit(y[keep], None, weights[keep], **where), None
         return basis.fit(y[keep], **where), None

@@ -21,6 +21,7 @@ from sklearn.utils.validation import check_is_fitted, validate_data
 
 from ..interpolate import ExposureKrigingRegressor
 from ..interpolate._exposure_kriging import split_exposure_column
+from .._persist import StateMixin
 from ..preprocessing import StampNormalizer
 from ._file import read_exposure_model, save_exposure_model
 from ._psf_model import PSFModel
@@ -28,7 +29,7 @@ from ._psf_model import PSFModel
 __all__ = ["FocalPlaneMapper", "PerExposurePSFModel", "PooledPSFModel"]
 
 
-class _ExposureModel(RegressorMixin, BaseEstimator):
+class _ExposureModel(StateMixin, RegressorMixin, BaseEstimator):
     """Shared parts: the exposure column, stamp targets, routing by exposure, R^2 score."""
 
     def _split_X(self, X, y=None, reset=True):
@@ -184,6 +185,8 @@ class PerExposurePSFModel(_ExposureModel):
         "n_jobs": [Integral, None],
     }
 
+    _state_attributes = ("models_", "exposures_", "inlier_mask_", "n_features_in_")
+
     def __init__(self, model=None, exposure_column=-1, n_jobs=None):
         self.model = model
         self.exposure_column = exposure_column
@@ -299,6 +302,9 @@ class PooledPSFModel(_ExposureModel):
         "interpolator": [HasMethods(["fit", "predict"]), None],
         "exposure_column": [Interval(Integral, None, None, closed="neither")],
     }
+
+    _state_attributes = ("model_", "exposures_", "inlier_mask_", "n_components_",
+                         "n_features_in_")
 
     def __init__(self, model=None, interpolator=None, exposure_column=-1):
         self.model = model

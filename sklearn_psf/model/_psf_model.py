@@ -9,7 +9,7 @@ import numpy as np
 from sklearn.base import BaseEstimator, RegressorMixin, _fit_context, clone
 from sklearn.metrics import r2_score
 from sklearn.utils._param_validation import HasMethods, Interval, StrOptions
-from sklearn.utils.validation import check_is_fitted, validate_data
+from sklearn.utils.validation import _is_fitted, check_is_fitted, validate_data
 
 from ..preprocessing import (
     FIT_OK,
@@ -22,6 +22,7 @@ from ..preprocessing import (
 from ..interpolate import FewStarsWarning
 from ..interpolate._kriging import _MIN_ML_STARS
 from ..preprocessing._superres import UNDERSAMPLED_FWHM
+from .._persist import StateMixin
 from .._validation import rows_text
 from ._defaults import _constant_interpolator, make_default_basis, make_default_interpolator
 from ._file import read_model, save_model
@@ -56,7 +57,7 @@ def _too_few_for(interpolator, n_stars):
                for _, step in kriging_steps(interpolator) for name in _LIKELIHOOD_PARAMS)
 
 
-class PSFModel(_OutlierRounds, RegressorMixin, BaseEstimator):
+class PSFModel(StateMixin, _OutlierRounds, RegressorMixin, BaseEstimator):
     """A PSF model: a stamp basis, outlier rejection and an interpolator of coefficients.
 
     What :class:`sklearn.compose.TransformedTargetRegressor` is to scikit-learn: ``fit(X, y,
@@ -246,6 +247,38 @@ class PSFModel(_OutlierRounds, RegressorMixin, BaseEstimator):
                 f"returning +1/-1, got {type(self.outliers).__name__}."
             )
         return clone(self.outliers)
+
+    # -- persisted state (see sklearn_psf._persist) ------------------------------------------
+    _state_attributes = ("basis_", "outliers_", "interpolator_", "inlier_mask_", "fit_flag_",
+                         "outlier_score_", "n_components_", "stamp_size_", "n_features_in_",
+                         "X_fit_", "coefficients_", "coefficient_var_", "coefficient_cov_",
+                         "spatial_model_")
+
+    def _set_state(self, state):
+        """Restore the fitted model: the basis and the outlier detector as given (fitted by
+        their own states), the interpolator fitted on the stored stars (the inliers of
+        ``X_fit_``, their ``coefficients_`` and noise), which solves with the choices its
+        state holds (Kriging's hyperparameters: no likelihood). A detector that is not fitted
+        (a scikit-learn one, which stores no state) is fitted on the stored coefficients, as
+        is the model's own detector (``outliers``) when ``state`` has no ``outliers_``
+        (files written before the detectors stored their state)."""
+        state = {"fit_flag_": np.zeros(len(state["X_fit_"]), dtype=np.int64),
+                 "outlier_score_": None, "coefficient_var_": None, "coefficient_cov_": None,
+                 "spatial_model_": "interpolator", **state}
+        if "outliers_" not in state:
+            state["outliers_"] = self._make_outliers()
+        super()._set_state(state)
+        coef, mask = self.coefficients_, self.inlier_mask_
+        detector = self.outliers_
+        if detector is not None and not _is_fitted(detector):
+            detector.fit(coef[np.isfinite(coef).all(axis=1)])
+        var, cov = self.coefficient_var_, self.coefficient_cov_
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # they were shown when the model was fitted
+            fit_interpolator(self.interpolator_, self.X_fit_[mask], coef[mask],
+                             None if var is None else var[mask],
+                             None if cov is None else cov[mask])
+        return self
 
     def _check_fit_data(self, X, y, weights):
         if y is None:

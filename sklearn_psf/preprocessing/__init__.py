@@ -5,8 +5,10 @@ from ._normalize import CentringWarning, StampNormalizer, fourier_shift
 from ._chi2 import ChiSquareOutlierDetector
 from ._noise import estimate_pixel_weights
 from ._outliers import IQROutlierDetector
-from ._pca import FIT_NO_CENTROID, FIT_NO_FLUX, FIT_OK, StampFit, StampFitWarning, StampPCA
-from ._superres import SuperResolvedPCA, stamp_fwhm
+from ._pca import StampPCA
+from ._stamp_basis import (FIT_NO_CENTROID, FIT_NO_FLUX, FIT_OK, StampFit, StampFitWarning,
+                           stamp_fwhm)
+from ._superres import SuperResolvedPCA
 from ._stamps import (
     CUT_BAD_POSITION,
     CUT_MASKED,

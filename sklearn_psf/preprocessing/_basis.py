@@ -11,10 +11,12 @@ from sklearn.base import (
 )
 from sklearn.utils.validation import check_is_fitted, validate_data
 
+from .._persist import StateMixin
+
 __all__ = ["FixedBasis"]
 
 
-class FixedBasis(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator):
+class FixedBasis(StateMixin, ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator):
     """Project stamps on a fixed, given set of basis stamps.
 
     ``transform`` returns the least-squares coefficients ``c`` minimising
@@ -50,6 +52,16 @@ class FixedBasis(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimato
     """
 
     _parameter_constraints: dict = {"components": ["array-like"], "mean": ["array-like", None]}
+
+    _state_attributes = ("components_", "mean_", "n_components_", "n_features_in_")
+
+    def _set_state(self, state):
+        super()._set_state(state)
+        self.components_ = np.asarray(self.components_, dtype=np.float64)
+        self.mean_ = np.asarray(self.mean_, dtype=np.float64)
+        self._pinv = np.linalg.pinv(self.components_)  # (p, k), as fit computes it
+        self._n_features_out = self.n_components_
+        return self
 
     def __init__(self, components, mean=None):
         self.components = components

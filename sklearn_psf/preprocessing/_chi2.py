@@ -10,12 +10,13 @@ from sklearn.base import BaseEstimator, _fit_context
 from sklearn.utils._param_validation import Interval
 from sklearn.utils.validation import check_is_fitted, validate_data
 
+from .._persist import StateMixin
 from ._outliers import _OffsetOutlierMixin
 
 __all__ = ["ChiSquareOutlierDetector"]
 
 
-class ChiSquareOutlierDetector(_OffsetOutlierMixin, BaseEstimator):
+class ChiSquareOutlierDetector(StateMixin, _OffsetOutlierMixin, BaseEstimator):
     """Flag rows of standardised residuals that noise alone would hardly make.
 
     Each row of ``X`` holds one star's residuals divided by their standard deviation
@@ -89,6 +90,14 @@ class ChiSquareOutlierDetector(_OffsetOutlierMixin, BaseEstimator):
         "population": ["boolean"],
         "max_remove": [Interval(Real, 0, 1, closed="right"), None],
     }
+
+    _state_attributes = ("location_", "scale_", "offset_", "n_features_in_")
+
+    def _set_state(self, state):
+        super()._set_state(state)
+        self.location_ = np.asarray(self.location_, dtype=np.float64)
+        self.scale_ = np.asarray(self.scale_, dtype=np.float64)
+        return self
 
     def __init__(self, p_value: float = 1e-4, population: bool = True, max_remove=0.25):
         self.p_value = p_value

@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 
 from .._validation import as_stamps, rows_text
-from ._pca_noise import _weighted_pca
+from ._pca_noise import weighted_pca
 
 __all__ = ["estimate_pixel_weights", "check_pixel_weights"]
 
@@ -362,6 +362,6 @@ def correlated_noise_factor(kernel, variances, star_weights, s, pixels=None, dra
         tinted = np.fft.irfft2(np.fft.rfft2(white) * filt, s=(s, s))
         for j, noise in enumerate((white, tinted)):
             flat = noise.reshape(len(sd), -1)
-            top[j, k] = _weighted_pca(sd * (flat if pixels is None else flat[:, pixels]), u,
+            top[j, k] = weighted_pca(sd * (flat if pixels is None else flat[:, pixels]), u,
                                       1)[2][0]
     return float(top[1].mean() / top[0].mean())

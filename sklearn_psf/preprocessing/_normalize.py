@@ -10,6 +10,7 @@ from sklearn.base import BaseEstimator, OneToOneFeatureMixin, TransformerMixin, 
 from sklearn.utils._param_validation import Interval
 from sklearn.utils.validation import check_is_fitted, validate_data
 
+from .._persist import StateMixin
 from .._validation import rows_text
 from ..measure._moments import adaptive_moments
 
@@ -69,7 +70,7 @@ def phase_ramp(s, dx, dy):
             * np.exp(-2j * np.pi * kx[None, None, :] * np.asarray(dx)[:, None, None]))
 
 
-class StampNormalizer(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
+class StampNormalizer(StateMixin, OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
     """Normalise flattened square stamps to unit flux and centre them.
 
     The convention, used everywhere in sklearn_psf (simulation, model, test) so that PCA
@@ -134,6 +135,8 @@ class StampNormalizer(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
         "max_centring_steps": [Interval(Integral, 0, None, closed="left")],
         "guess_sigma": [Interval(Real, 0, None, closed="neither")],
     }
+
+    _state_attributes = ("stamp_size_", "n_features_in_")
 
     def __init__(
         self,

@@ -9,6 +9,8 @@ from sklearn.base import BaseEstimator, OutlierMixin, _fit_context
 from sklearn.utils._param_validation import Interval
 from sklearn.utils.validation import check_is_fitted, validate_data
 
+from .._persist import StateMixin
+
 __all__ = ["IQROutlierDetector"]
 
 
@@ -43,7 +45,7 @@ class _OffsetOutlierMixin(OutlierMixin):
         return np.where(self.decision_function(X) >= 0, 1, -1)
 
 
-class IQROutlierDetector(_OffsetOutlierMixin, BaseEstimator):
+class IQROutlierDetector(StateMixin, _OffsetOutlierMixin, BaseEstimator):
     """Flag samples with any feature beyond the inter-quartile fences.
 
     A sample is an outlier when, for any column j, ``X[:, j] < Q1_j - alpha * IQR_j`` or
@@ -87,6 +89,16 @@ class IQROutlierDetector(_OffsetOutlierMixin, BaseEstimator):
     """
 
     _parameter_constraints: dict = {"alpha": [Interval(Real, 0, np.inf, closed="left")]}
+
+    _state_attributes = ("q1_", "q3_", "lower_", "upper_", "offset_", "n_features_in_")
+
+    def _set_state(self, state):
+        super()._set_state(state)
+        for name in ("q1_", "q3_", "lower_", "upper_"):
+            setattr(self, name, np.asarray(getattr(self, name), dtype=np.float64))
+        iqr = self.q3_ - self.q1_
+        self._scale = np.where(iqr > 0, iqr, 1.0)
+        return self
 
     def __init__(self, alpha: float = 3.5):
         self.alpha = alpha

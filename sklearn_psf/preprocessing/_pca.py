@@ -3,78 +3,26 @@
 from __future__ import annotations
 
 import numbers
-import warnings
-from numbers import Integral, Real
-from typing import NamedTuple
 
 import numpy as np
 import scipy.fft
-from sklearn.base import (
-    BaseEstimator,
-    ClassNamePrefixFeaturesOutMixin,
-    TransformerMixin,
-    _fit_context,
-)
-from sklearn.utils._param_validation import Interval, RealNotInt, StrOptions
-from sklearn.utils.validation import check_is_fitted, validate_data
+from sklearn.base import _fit_context
+from sklearn.utils._param_validation import StrOptions
+from sklearn.utils.validation import check_is_fitted
 
-from ..measure import adaptive_moments, fixed_moments
 from ._normalize import fourier_shift, phase_ramp
-from .._validation import rows_text
-from ._noise import (check_pixel_weights, correlated_noise_factor,
-                     estimate_pixel_weights, noise_correlation, standardised_residuals)
-from ._pca_noise import (_core, _rings, _star_weights, _sum_zero, _weighted_pca, noise_edge,
-                         radial_wings)
-from ._stamp_weights import (_border_level, _has_background, _mean_variance, _model_weights,
-                             _poisson_slope, _variances)
+from ._noise import correlated_noise_factor, noise_correlation, standardised_residuals
+from ._pca_noise import (core_pixels, noise_edge, radial_wings, ring_radii, star_weights,
+                         sum_zero, weighted_pca)
+from ._stamp_basis import (FIT_NO_CENTROID, FIT_NO_FLUX, FIT_OK, StampFit, _BaseStampBasis)
+from ._stamp_weights import (border_level, has_background, mean_variance, model_weights,
+                             poisson_slope, variances)
 
-__all__ = ["StampPCA", "StampFit", "StampFitWarning", "FIT_OK", "FIT_NO_CENTROID",
-           "FIT_NO_FLUX"]
-
-#: The star's flux, centroid and coefficients were fitted.
-FIT_OK = 0
-#: No centroid (adaptive moments and the fixed-weight fallback failed): the star was fitted
-#: at the stamp centre and left out of the basis.
-FIT_NO_CENTROID = 1
-#: Width (pixels) of the fixed Gaussian weight whose centre is a star's centroid where
-#: adaptive moments fail (undersampled stars, see :func:`~sklearn_psf.measure.fixed_moments`).
-FALLBACK_SIGMA = 1.5
-#: The fitted flux is not positive (noise or an empty stamp): coefficients are NaN.
-FIT_NO_FLUX = 2
+__all__ = ["StampPCA", "noise_edge", "radial_wings"]
 
 _CHUNK = 256  # stars per batch of shifted basis images
 #: Gauss-Newton steps on the offsets of stars with masked pixels, each with its template
 _REFINE = ("mean", "mean", "model", "model")
-
-
-class StampFitWarning(UserWarning):
-    """Some stamps could not be fitted on the basis (see :class:`StampFit` flags)."""
-
-
-class StampFit(NamedTuple):
-    """Weighted least-squares fit of stamps on a :class:`StampPCA` basis.
-
-    Each stamp ``d`` (raw units) is fitted as ``flux * shift(mean + coefficients @
-    components, offset)`` by weighted least squares with its pixel weights.
-    """
-
-    #: ndarray (n, k): coefficients of the normalised, centred stamp.
-    coefficients: np.ndarray
-    #: ndarray (n, k): their noise variance propagated from the pixel weights.
-    coefficient_var: np.ndarray
-    #: ndarray (n,): fitted flux (sum of the model stamp).
-    flux: np.ndarray
-    #: ndarray (n, 2): (dx, dy) of the adaptive centroid from the stamp centre, in pixels.
-    offsets: np.ndarray
-    #: ndarray (n, p): the fitted model stamps in the stars' frame (flux and offset applied).
-    model: np.ndarray
-    #: ndarray (n, p): pixel weights used (given or estimated; 0 = masked).
-    weights: np.ndarray
-    #: ndarray (n,): ``FIT_OK`` (0), ``FIT_NO_CENTROID`` (1), ``FIT_NO_FLUX`` (2).
-    flag: np.ndarray
-    #: ndarray (n, k, k): the coefficients' full noise covariance (their correlations come
-    #: mostly from the common flux normalisation), of diagonal ``coefficient_var``.
-    coefficient_cov: np.ndarray | None = None
 
 
 def _irfft2(spectra, s):
@@ -100,7 +48,7 @@ def _with_constant(A, extra):
     return np.concatenate([A, np.ones((A.shape[0], 1, A.shape[2]))], axis=1)
 
 
-class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator):
+class StampPCA(_BaseStampBasis):
     """PCA basis of noisy, masked star stamps, with as many components as the signal holds.
 
     The noise-aware replacement of ``make_pipeline(StampNormalizer(), PCA(0.9))``: it takes
@@ -254,13 +202,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
     """
 
     _parameter_constraints: dict = {
-        "n_components": [StrOptions({"noise"}), Interval(Integral, 1, None, closed="left"),
-                         Interval(RealNotInt, 0, 1, closed="neither")],
-        "max_components": [Interval(Integral, 1, None, closed="left")],
-        "n_iter": [Interval(Integral, 1, None, closed="left")],
-        "max_star_weight": [Interval(Real, 1, np.inf, closed="left")],
-        "guess_sigma": [Interval(Real, 0, None, closed="neither")],
-        "background": ["boolean", StrOptions({"auto"})],
+        **_BaseStampBasis._parameter_constraints,
         "wings": [StrOptions({"radial"}), None],
     }
 
@@ -275,73 +217,13 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         self.background = background
         self.wings = wings
 
+    _state_attributes = _BaseStampBasis._state_attributes + ("support_radius_",)
+
     # -- input ---------------------------------------------------------------------------
     def _check_params(self):
-        nc = self.n_components
-        ok = (nc == "noise" if isinstance(nc, str) else
-              isinstance(nc, numbers.Integral) and not isinstance(nc, bool) and nc >= 1
-              or isinstance(nc, numbers.Real) and 0 < nc < 1)
-        if not ok:
-            raise ValueError("n_components must be 'noise', an int >= 1 or a float in (0, 1), "
-                             f"got {nc!r}.")
-        for name in ("max_components", "n_iter"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
-                raise ValueError(f"{name} must be an int >= 1, got {value!r}.")
-        if not (np.isfinite(self.max_star_weight) and self.max_star_weight >= 1):
-            raise ValueError(f"max_star_weight must be >= 1, got {self.max_star_weight!r}.")
-        if not (isinstance(self.background, (bool, np.bool_)) or self.background == "auto"):
-            raise ValueError(f"background must be 'auto', True or False, got "
-                             f"{self.background!r}.")
+        super()._check_params()
         if self.wings not in ("radial", None):
             raise ValueError(f"wings must be 'radial' or None, got {self.wings!r}.")
-
-    def _stamps_and_weights(self, X, weights, reset):
-        X = validate_data(self, X, dtype=np.float64, reset=reset, ensure_all_finite="allow-nan")
-        n, p = X.shape
-        if reset and n < 2:
-            raise ValueError(f"StampPCA needs at least 2 stamps, got n_samples = {n}.")
-        if p < 9:
-            raise ValueError(f"StampPCA needs stamps of at least 3x3 pixels, got n_features = "
-                             f"{p}.")
-        s = int(round(np.sqrt(p)))
-        if s * s != p:
-            raise ValueError(f"Stamps have {p} pixels, not a square number: pass flattened "
-                             "square stamps of shape (n, s*s).")
-        if np.isinf(X).any():
-            rows = np.flatnonzero(np.isinf(X).any(axis=1))
-            raise ValueError(f"Stamps with infinite pixels at rows {rows_text(rows)}: mask "
-                             "them (NaN or weight 0).")
-        if weights is None:
-            w = estimate_pixel_weights(X)
-        else:
-            w = check_pixel_weights(weights, n, p, stamps=X)
-        empty = ~(w > 0).any(axis=1)
-        if empty.any():
-            raise ValueError(f"Stamps with every pixel masked at rows "
-                             f"{rows_text(np.flatnonzero(empty))}.")
-        d = np.where(w > 0, X, 0.0)
-        return d, w, s
-
-    def _centroids(self, d, w, s):
-        try:
-            mom = adaptive_moments(d.reshape(-1, s, s), weights=w.reshape(-1, s, s),
-                                   guess_sigma=self.guess_sigma)
-        except TypeError:  # moments without mask support: masked pixels are zero already
-            mom = adaptive_moments(d.reshape(-1, s, s), guess_sigma=self.guess_sigma)
-        ok = np.asarray(mom["flag"]) == 0
-        x0, y0 = np.asarray(mom["x0"], dtype=np.float64), np.asarray(mom["y0"], dtype=np.float64)
-        if not ok.all():  # undersampled stars (adaptive moments fail below ~2 px FWHM): the
-            # centre of a fixed Gaussian weight of FALLBACK_SIGMA
-            bad = np.flatnonzero(~ok)
-            fixed = fixed_moments(d[bad].reshape(-1, s, s), FALLBACK_SIGMA,
-                                  weights=w[bad].reshape(-1, s, s))
-            ok[bad] = np.asarray(fixed["flag"]) == 0
-            x0[bad], y0[bad] = np.asarray(fixed["x0"]), np.asarray(fixed["y0"])
-        centre = (s - 1) / 2.0
-        off = np.column_stack([x0 - centre, y0 - centre])
-        off[~ok | ~np.isfinite(off).all(axis=1)] = 0.0
-        return off, ok
 
     @staticmethod
     def _centred(stamps, offsets, s):
@@ -432,46 +314,6 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
                     solve(rows, _with_constant(_shifted(basis_fft32, phase), extra))
         return a, cov, model, offsets, level
 
-    @staticmethod
-    def _coefficients(a, cov):
-        """Flux, coefficients ``c = a[1:] / a[0]``, their noise covariance (delta method:
-        ``J cov(a) J^T`` with ``J = [-c, I] / flux``) and its diagonal, and the good rows."""
-        flux = a[:, 0]
-        good = flux > 0
-        safe = np.where(good, flux, 1.0)
-        coef = a[:, 1:] / safe[:, None]
-        cross = coef[:, :, None] * cov[:, None, 0, 1:]
-        ccov = (cov[:, 1:, 1:] - cross - cross.transpose(0, 2, 1)
-                + coef[:, :, None] * coef[:, None, :] * cov[:, :1, :1]) / safe[:, None, None] ** 2
-        ccov = 0.5 * (ccov + ccov.transpose(0, 2, 1))
-        var = np.maximum(np.einsum("bkk->bk", ccov), 0.0)
-        coef[~good] = np.nan
-        var[~good] = np.nan
-        ccov[~good] = np.nan
-        return flux, coef, var, ccov, good
-
-    def _choose(self, lam, total, noise, contributions, p, raise_by=1.0):
-        cap = lam.size
-        if not isinstance(self.n_components, numbers.Integral):
-            cap = min(int(self.max_components), cap)
-        lam = lam[:cap]
-        real = lam > 1e-12 * lam[0] if lam.size and lam[0] > 0 else np.zeros(lam.size, bool)
-        if isinstance(self.n_components, str):
-            edge = raise_by * noise_edge(contributions, p - 1, quantile=True)
-            k = int(np.count_nonzero((lam > edge) & real))
-        elif isinstance(self.n_components, numbers.Integral):
-            edge = np.nan
-            k = int(self.n_components)
-            if k > lam.size:
-                raise ValueError(f"n_components={k} but the stamps hold at most {lam.size} "
-                                 "principal components.")
-        else:
-            edge = np.nan
-            frac = np.cumsum(lam) / total if total > 0 else np.ones(lam.size)
-            k = int(np.searchsorted(frac, self.n_components) + 1)
-        return max(1, min(k, cap)), edge
-
-    # -- estimator API ------------------------------------------------------------------------
     @_fit_context(prefer_skip_nested_validation=True)
     def fit(self, X, y=None, weights=None):
         """Fit the basis on raw star stamps.
@@ -492,22 +334,15 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         self._fit(X, weights)
         return self
 
-    def _fit_project(self, X, weights=None):
-        """``fit(X, weights=weights)`` and the :class:`StampFit` of X on the basis, from the
-        fit's last iteration: what :meth:`project` gives, except for the offsets of stars
-        with masked pixels, refined from that iteration's instead of from their centroids
-        (a subclass with its own ``fit`` projects again)."""
-        if type(self).fit is not StampPCA.fit:
-            return self.fit(X, weights=weights).project(X, weights)
-        return self._fit(X, weights)
-
-    def _fit(self, X, weights):
+    def _fit(self, X, weights, positions=None):
+        """The fit; returns the stars' :class:`StampFit` of its last iteration (see
+        :meth:`fit_project`). ``positions`` are not used."""
         self._check_params()
         d, w, s = self._stamps_and_weights(X, weights, reset=True)
         n, p = d.shape
-        self.background_ = bool(_has_background(d, w, s) if self.background == "auto"
+        self.background_ = bool(has_background(d, w, s) if self.background == "auto"
                                 else self.background)
-        level = _border_level(d, w, s)[0] if self.background_ else np.zeros(n)
+        level = border_level(d, w, s)[0] if self.background_ else np.zeros(n)
         offsets, ok = self._centroids(d - level[:, None], w, s)
         flux = ((d - level[:, None]) * (w > 0)).sum(axis=1)
         usable = ok & (flux > 0)
@@ -518,8 +353,8 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         comps = np.zeros((0, p))
         a = None
         model = np.zeros((n, p))  # the stars' current model: fills their masked pixels
-        pixel_var = _variances(w).mean(axis=1)
-        w_given, poisson = w, _poisson_slope(d, w)
+        pixel_var = variances(w).mean(axis=1)
+        w_given, poisson = w, poisson_slope(d, w)
         for it in range(int(self.n_iter)):
             safe = np.where(usable, flux, 1.0)
             if a is None and (w == 0).any():
@@ -527,7 +362,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
                 # stars that have those pixels (sub-pixel offsets neglected)
                 x = self._centred(np.where(w > 0, d - level[:, None], model), offsets,
                                   s) / safe[:, None]
-                u = _star_weights(pixel_var / safe**2, usable, self.max_star_weight)
+                u = star_weights(pixel_var / safe**2, usable, self.max_star_weight)
                 have = (w > 0) & usable[:, None]
                 mean = (u[:, None] * have * x).sum(0) / np.maximum((u[:, None] * have).sum(0),
                                                                    1e-300)
@@ -536,7 +371,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
                     offsets[:, 1]).reshape(n, p)
             centred = self._centred(np.where(w > 0, d - level[:, None], model), offsets, s)
             if mean is None:  # first round: the weighted mean of the sum-normalised stamps
-                u = _star_weights(pixel_var / safe**2, usable, self.max_star_weight)
+                u = star_weights(pixel_var / safe**2, usable, self.max_star_weight)
                 mean = u[usable] @ (centred[usable] / safe[usable, None]) / u[usable].sum()
             # normalise each stamp by its projection on the mean stamp (a matched filter):
             # the flux's noise then takes the noise along the star's shape out of the
@@ -545,7 +380,7 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
             scale = np.where(usable & (proj > 0), proj, safe)
             x = centred / scale[:, None]
             v = pixel_var / scale**2  # noise variance per pixel of each normalised stamp
-            u = _star_weights(v, usable, self.max_star_weight)
+            u = star_weights(v, usable, self.max_star_weight)
             n_top = int(self.max_components) + 1
             if isinstance(self.n_components, numbers.Integral):
                 n_top = max(n_top, int(self.n_components))
@@ -554,8 +389,8 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
                 x[usable], u[usable] @ x[usable] / u[usable].sum(), scale[usable], w[usable]))
             core = np.ones(p, dtype=bool)
             if self.wings == "radial":  # the components live on the PSF's core
-                core = _core(u[usable] @ x[usable] / u[usable].sum(), s)
-            mean, axes_core, lam, total = _weighted_pca(x[usable][:, core], u[usable], n_top)
+                core = core_pixels(u[usable] @ x[usable] / u[usable].sum(), s)
+            mean, axes_core, lam, total = weighted_pca(x[usable][:, core], u[usable], n_top)
             mean = u[usable] @ x[usable] / u[usable].sum()
             axes = np.zeros((len(axes_core), p))
             axes[:, core] = axes_core
@@ -565,11 +400,11 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
                                    int(core.sum()), raise_by)
             axes, radius = axes[:k], np.inf
             if self.wings == "radial":  # the mean's faint wings: their signal, not its noise
-                mean, radius = radial_wings(mean, _mean_variance(w, scale, u), s,
+                mean, radius = radial_wings(mean, mean_variance(w, scale, u), s,
                                             1.0 if kernel is None else kernel.sum())
-                axes = np.where(_rings(s) < radius, axes, 0.0)
+                axes = np.where(ring_radii(s) < radius, axes, 0.0)
             mean = mean / mean.sum()
-            comps = _sum_zero(axes, mean)
+            comps = sum_zero(axes, mean)
             a, cov, model, offsets, fitted = self._fit_stamps(d, w, offsets, mean, comps, s)
             flux_new, coef, var, ccov, good = self._coefficients(a, cov)
             level = np.where(good, fitted, level)
@@ -579,9 +414,9 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
                                  "are not star stamps.")
             flux = np.where(good, flux_new, flux)
             if poisson and it + 1 < self.n_iter:  # the next round's Poisson part: the models'
-                w = _model_weights(d, w_given, np.where(good[:, None], model + fitted[:, None],
+                w = model_weights(d, w_given, np.where(good[:, None], model + fitted[:, None],
                                                         np.nan), poisson)
-                pixel_var = _variances(w).mean(axis=1)
+                pixel_var = variances(w).mean(axis=1)
         norm = mean.sum()  # 1 (the mean was normalised before the last fit of the stars)
         self.mean_ = mean / norm
         self.components_ = comps
@@ -595,39 +430,6 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
         flag = np.where(ok, FIT_OK, FIT_NO_CENTROID)
         flag[~good] = FIT_NO_FLUX
         return StampFit(coef, var, flux_new, offsets, model + fitted[:, None], w, flag, ccov)
-
-    def project(self, X, weights=None) -> StampFit:
-        """Fit stamps on the basis: coefficients, their noise, flux, offsets and model.
-
-        Parameters
-        ----------
-        X : array-like of shape (n, s*s)
-            Raw stamps, NaN for masked pixels. Not modified.
-        weights : array-like of shape (n, s*s), optional
-            Inverse variance per pixel (0 = masked); default estimated from the stamps.
-
-        Returns
-        -------
-        StampFit
-        """
-        check_is_fitted(self)
-        d, w, s = self._stamps_and_weights(X, weights, reset=False)
-        fit = self._project(d, w, s)
-        poisson = _poisson_slope(d, w)
-        if poisson:  # fitted again, the weights' Poisson part from the stars' models
-            predicted = np.where((fit.flag == FIT_OK)[:, None], fit.model, np.nan)
-            fit = self._project(d, _model_weights(d, w, predicted, poisson), s)
-        return fit
-
-    def _project(self, d, w, s):
-        """:meth:`project`'s fit of the checked stamps ``d`` with the weights ``w``."""
-        level = _border_level(d, w, s)[0] if self.background_ else np.zeros(len(d))
-        offsets, ok = self._centroids(d - level[:, None], w, s)
-        a, cov, model, offsets, level, moved_ok = self._project_stars(d, w, offsets, s)
-        flux, coef, var, ccov, good = self._coefficients(a, cov)
-        flag = np.where(ok & moved_ok, FIT_OK, FIT_NO_CENTROID)
-        flag[~good] = FIT_NO_FLUX
-        return StampFit(coef, var, flux, offsets, model + level[:, None], w, flag, ccov)
 
     def _project_stars(self, d, w, offsets, s):
         """Each star's fit on the basis for :meth:`project`: (amplitudes, their covariance,
@@ -659,73 +461,6 @@ class StampPCA(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator)
             stamps = fourier_shift(stamps.reshape(n, s, s), off[:, 0], off[:, 1]).reshape(n, -1)
         return stamps * np.broadcast_to(np.asarray(flux, dtype=np.float64), (n,))[:, None]
 
-    def _check_coefficients(self, C):
-        coef = np.asarray(C, dtype=np.float64)
-        if coef.ndim != 2 or coef.shape[1] != self.n_components_:
-            raise ValueError(
-                f"Coefficients must have shape (n, {self.n_components_}), got {coef.shape}."
-            )
-        return coef
-
-    @_fit_context(prefer_skip_nested_validation=True)
-    def fit_transform(self, X, y=None, weights=None):
-        """Fit, then return the coefficients of X (see :meth:`transform`).
-
-        Parameters
-        ----------
-        X : array-like of shape (n, s*s)
-        y : ignored
-        weights : array-like of shape (n, s*s), optional
-
-        Returns
-        -------
-        coefficients : ndarray of shape (n, n_components_)
-        """
-        return self.fit(X, weights=weights).transform(X, weights=weights)
-
-    def transform(self, X, weights=None):
-        """Weighted-least-squares coefficients of stamps (normalised, centred convention).
-
-        Stamps that cannot be fitted (no positive flux) get NaN coefficients, with a
-        :class:`StampFitWarning` naming their rows.
-
-        Parameters
-        ----------
-        X : array-like of shape (n, s*s)
-        weights : array-like of shape (n, s*s), optional
-
-        Returns
-        -------
-        coefficients : ndarray of shape (n, n_components_)
-        """
-        fit = self.project(X, weights)
-        bad = fit.flag == FIT_NO_FLUX
-        if bad.any():
-            warnings.warn(f"Stamps at rows {rows_text(np.flatnonzero(bad))} have no positive "
-                          "flux on the basis: their coefficients are NaN.", StampFitWarning,
-                          stacklevel=2)
-        return fit.coefficients
-
-    def inverse_transform(self, X):
-        """Normalised (unit-sum), centred stamps from coefficients.
-
-        Parameters
-        ----------
-        X : array-like of shape (n, n_components_)
-
-        Returns
-        -------
-        stamps : ndarray of shape (n, s*s)
-        """
-        check_is_fitted(self)
-        stamps = self.mean_ + self._check_coefficients(X) @ self.components_
-        return stamps / stamps.sum(axis=1, keepdims=True)
-
-    def __sklearn_tags__(self):
-        tags = super().__sklearn_tags__()
-        tags.input_tags.allow_nan = True
-        return tags
-
 
 def _stamp_pca_on_basis(mean, components, guess_sigma: float = 3.0,
                         background: bool = False) -> StampPCA:
@@ -737,11 +472,9 @@ def _stamp_pca_on_basis(mean, components, guess_sigma: float = 3.0,
     """
     mean = np.asarray(mean, dtype=np.float64).reshape(-1)
     comps = np.asarray(components, dtype=np.float64).reshape(-1, mean.size)
-    basis = StampPCA(n_components=comps.shape[0], guess_sigma=guess_sigma,
-                     background=background)
-    basis.mean_, basis.components_ = mean / mean.sum(), comps
-    basis.n_components_ = basis._n_features_out = comps.shape[0]
-    basis.background_ = bool(background)
-    basis.stamp_size_ = int(round(np.sqrt(mean.size)))
-    basis.n_features_in_ = mean.size
-    return basis
+    return StampPCA(n_components=comps.shape[0], guess_sigma=guess_sigma,
+                    background=background)._set_state({
+                        "mean_": mean / mean.sum(), "components_": comps,
+                        "n_components_": comps.shape[0], "background_": bool(background),
+                        "stamp_size_": int(round(np.sqrt(mean.size))),
+                        "n_features_in_": mean.size})

@@ -13,7 +13,7 @@ from scipy.optimize import minimize_scalar
 _TRACY_WIDOM_99 = 2.0234  # 99th percentile of the Tracy-Widom law (real case, TW1)
 
 
-def _weighted_pca(x, u, n_top):
+def weighted_pca(x, u, n_top):
     """Weighted mean, the n_top principal axes (rows), their variances, the total variance.
 
     The eigenproblem is solved on the smaller Gram matrix of the weighted, centred rows.
@@ -34,14 +34,14 @@ def _weighted_pca(x, u, n_top):
     return mean, axes, lam, float(np.trace(small))
 
 
-def _star_weights(v, usable, cap):
+def star_weights(v, usable, cap):
     """PCA weight of each star, ``1 / v`` (its S/N), capped at ``cap`` times the median of
     the usable stars; 0 for unusable ones."""
     u = np.where(usable, 1.0 / np.maximum(v, 1e-300), 0.0)
     return np.minimum(u, cap * np.median(u[usable]))
 
 
-def _sum_zero(axes, mean):
+def sum_zero(axes, mean):
     """Orthonormal components summing to zero that span, with the unit-sum ``mean``, what the
     ``axes`` span with it (in their order)."""
     if not len(axes):
@@ -50,13 +50,13 @@ def _sum_zero(axes, mean):
     return (q * np.where(np.diag(r) < 0, -1.0, 1.0)).T
 
 
-def _rings(s):
+def ring_radii(s):
     """Each pixel's ring about the centre of an s x s stamp: ``floor(r)``, r in pixels."""
     yy, xx = np.mgrid[0:s, 0:s] - (s - 1) / 2.0
     return np.floor(np.hypot(xx, yy)).astype(np.int64).ravel()
 
 
-def _core(mean, s, level=1e-2):
+def core_pixels(mean, s, level=1e-2):
     """Where the mean stamp exceeds ``level`` of its peak, grown by one pixel: the PSF's
     core, where its variations show (as :class:`SuperResolvedPCA`'s components' support)."""
     from scipy.ndimage import binary_dilation
@@ -95,7 +95,7 @@ def radial_wings(mean, var, s, correlation=1.0):
     denoised : ndarray of shape (s*s,)
     radius : float
     """
-    ring = _rings(s)
+    ring = ring_radii(s)
     count = np.bincount(ring).astype(np.float64)
     profile = np.bincount(ring, mean) / count
     dev = mean - profile[ring]

@@ -14,21 +14,21 @@ import numpy as np
 from ._noise import _nanmedian
 
 
-def _variances(w):
+def variances(w):
     """Pixel variances ``1 / w`` of the weights ``w``, 0 where a pixel is masked (``w = 0``)."""
     m = w > 0
     return np.where(m, 1.0 / np.where(m, w, 1.0), 0.0)
 
 
-def _mean_variance(w, scale, u):
+def mean_variance(w, scale, u):
     """Per-pixel noise variance of the weighted mean ``sum_i u_i x_i / sum(u)`` of the
     normalised stamps ``x_i = d_i / scale_i`` (pixel variances ``1 / w``; masked pixels,
     filled from a model, add none)."""
     c = u / u.sum()
-    return (c**2 / np.where(c > 0, scale, 1.0) ** 2) @ _variances(w)
+    return (c**2 / np.where(c > 0, scale, 1.0) ** 2) @ variances(w)
 
 
-def _poisson_slope(d, w):
+def poisson_slope(d, w):
     """Slope ``c`` when each stamp's pixel variances ``1 / w`` are exactly ``sky + c *
     max(pixel, 0)`` (one ``sky`` per stamp): weights whose Poisson part was computed from
     the noisy pixels themselves (:func:`~sklearn_psf.exposure.extract_vignettes` with a gain, as
@@ -36,7 +36,7 @@ def _poisson_slope(d, w):
     weights."""
     m = w > 0
     cnt = np.maximum(m.sum(axis=1), 1)[:, None]
-    v = _variances(w)
+    v = variances(w)
     x = np.where(m, np.maximum(d, 0.0), 0.0)
     xc = np.where(m, x - x.sum(axis=1, keepdims=True) / cnt, 0.0)
     vc = np.where(m, v - v.sum(axis=1, keepdims=True) / cnt, 0.0)
@@ -48,9 +48,9 @@ def _poisson_slope(d, w):
     return c if c > 0 and exact else 0.0
 
 
-def _model_weights(d, w, predicted, c):
+def model_weights(d, w, predicted, c):
     """The weights ``w`` with their Poisson part ``c * max(pixel, 0)`` (see
-    :func:`_poisson_slope`) taken from the stars' predicted pixels (NaN: kept) instead of
+    :func:`poisson_slope`) taken from the stars' predicted pixels (NaN: kept) instead of
     the noisy ones, which give the pixels where the noise is up less weight and so bias
     the fit low (by ``c`` per pixel)."""
     if not c:
@@ -60,7 +60,7 @@ def _model_weights(d, w, predicted, c):
     return np.where(m & np.isfinite(predicted), 1.0 / np.where(m, var, 1.0), w)
 
 
-def _border_level(d, w, s, border=2):
+def border_level(d, w, s, border=2):
     """Median of each stamp's unmasked pixels in its outer ring of ``border`` pixels (0 when
     the ring is all masked), a first estimate of its local background, and the noise of that
     median (1.2533 sigma / sqrt(pixels))."""
@@ -77,7 +77,7 @@ def _border_level(d, w, s, border=2):
     return np.where(ok, level, 0.0), np.where(ok, noise, np.inf)
 
 
-def _has_background(d, w, s):
+def has_background(d, w, s):
     """Whether the stamps' borders show a local background that a PSF's wings cannot make.
 
     A PSF's wings put on each stamp's border a level proportional to the star's flux,
@@ -86,7 +86,7 @@ def _has_background(d, w, s):
     border median more than 4 times its noise (plus 10% of the wings' level) away from that
     proportion, or when the common proportion is negative.
     """
-    level, noise = _border_level(d, w, s)
+    level, noise = border_level(d, w, s)
     flux = ((d - level[:, None]) * (w > 0)).sum(axis=1)
     good = (flux > 0) & np.isfinite(noise)
     if good.sum() < 2:

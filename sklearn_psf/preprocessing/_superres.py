@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numbers
+from dataclasses import dataclass
 from numbers import Integral, Real
 
 import numpy as np
@@ -12,21 +13,19 @@ from sklearn.utils._param_validation import Interval, StrOptions
 from sklearn.utils.validation import check_is_fitted
 
 from ..measure import adaptive_moments, fixed_moments
-from ._pca import FALLBACK_SIGMA, StampPCA
 from ._noise import correlated_noise_factor, noise_correlation, standardised_residuals
 from ._normalize import phase_ramp
-from ._pca_noise import _star_weights, _sum_zero, _weighted_pca
-from ._stamp_weights import (_border_level, _has_background, _model_weights, _poisson_slope,
-                             _variances)
+from ._pca_noise import star_weights, sum_zero, weighted_pca
+from ._stamp_weights import (border_level, has_background, model_weights, poisson_slope,
+                             variances)
+from ._stamp_basis import FALLBACK_SIGMA, _BaseStampBasis, stamp_fwhm
 from ._superres_grid import _CHUNK, _FineGrid
 
-__all__ = ["SuperResolvedPCA", "stamp_fwhm", "UNDERSAMPLED_FWHM"]
+__all__ = ["SuperResolvedPCA", "UNDERSAMPLED_FWHM"]
 
 #: Median star FWHM (pixels) below which stars count as undersampled (``PSFModel`` then
 #: chooses :class:`SuperResolvedPCA`).
 UNDERSAMPLED_FWHM = 2.0
-_FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
-_FWHM_WEIGHT = 1.0  # pixels: sigma of the fixed weight of stamp_fwhm
 _STEPS = 4  # Gauss-Newton steps on each star's offset
 _GN_TOL = 1e-4
 _MEAN_ROUNDS = 10  # at most, rounds of (mean, stars' offsets) before the components
@@ -39,56 +38,46 @@ _STARS_PER_TERM = 30  # spatial_degree="auto": stars per term of the polynomial,
 _MAX_DEGREE = 3  # spatial_degree="auto": at most
 
 
-def stamp_fwhm(stamps, weights=None):
-    """FWHM (pixels) of each star, well sampled or not (NaN where not measurable).
+@dataclass
+class _Stamps:
+    """The stamps of a fit and what the fit updates about them."""
 
-    Adaptive moments where they converge (FWHM = 2.355 sigma of the best-fitting Gaussian);
-    elsewhere (stars under ~2 pixels per FWHM) the moments with a fixed Gaussian weight of
-    sigma ``w`` = 1 pixel (:func:`~sklearn_psf.measure.fixed_moments`), corrected for the
-    weight as for a Gaussian star (``C = (M^-1 - I / w^2)^-1``).
-
-    Parameters
-    ----------
-    stamps : array-like of shape (n, s, s) or (n, s*s)
-        Background-subtracted stamps (NaN = masked).
-    weights : array-like of the stamps' shape, optional
-        Pixel weights (0 = masked).
-
-    Returns
-    -------
-    fwhm : ndarray of shape (n,)
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from sklearn_psf.preprocessing import stamp_fwhm
-    >>> y, x = np.mgrid[0:15, 0:15] - 7.0
-    >>> star = np.exp(-0.5 * ((x - 0.2) ** 2 + y**2) / 0.6**2)    # FWHM 1.41 px
-    >>> print(np.round(stamp_fwhm(star[None]), 1))
-    [1.4]
-    """
-    mom = adaptive_moments(stamps, weights=weights, guess_sigma=_FWHM_WEIGHT)
-    fwhm = _FWHM_PER_SIGMA * np.asarray(mom["sigma"], dtype=np.float64)
-    bad = np.flatnonzero(np.asarray(mom["flag"]) != 0)
-    if bad.size:
-        cube = np.asarray(stamps, dtype=np.float64)
-        cube = cube.reshape(cube.shape[0], -1)[bad]
-        wb = None if weights is None else np.asarray(weights, np.float64).reshape(
-            len(fwhm), -1)[bad]
-        t = fixed_moments(cube, _FWHM_WEIGHT, weights=wb)
-        mxx, mxy, myy = (np.asarray(t[c], dtype=np.float64) for c in ("Mxx", "Mxy", "Myy"))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            det = mxx * myy - mxy**2
-            ixx = myy / det - 1.0 / _FWHM_WEIGHT**2
-            iyy = mxx / det - 1.0 / _FWHM_WEIGHT**2
-            ixy = -mxy / det
-            idet = ixx * iyy - ixy**2
-            ok = (idet > 0) & (ixx > 0)
-            fwhm[bad] = np.where(ok, _FWHM_PER_SIGMA * np.abs(idet) ** -0.25, np.nan)
-    return fwhm
+    d: np.ndarray  # (n, p) pixels, 0 where masked
+    w: np.ndarray  # (n, p) pixel weights (their Poisson part from the models once fitted)
+    w_given: np.ndarray  # (n, p) the weights given or estimated
+    poisson: object  # the weights' Poisson slope (falsy: not computed from the pixels)
+    ok: np.ndarray  # (n,) the stars with a first centroid
+    usable: np.ndarray  # (n,) the stars that make the fine images
+    pixel_var: np.ndarray  # (n,) mean noise variance of each star's pixels
+    level: np.ndarray  # (n,) each star's background level
 
 
-class SuperResolvedPCA(_FineGrid, StampPCA):
+@dataclass
+class _StarFits:
+    """The stars fitted on fine images (:meth:`SuperResolvedPCA._settled_fits`)."""
+
+    fine: np.ndarray  # (m, S*S) the images, re-centred and normalised
+    start: np.ndarray  # (n, 2) the offsets the stars' fits started from
+    a: np.ndarray  # (n, m) flux times [1, coefficients]
+    model: np.ndarray  # (n, p) model pixels, without the background
+    offsets: np.ndarray  # (n, 2) fitted offsets
+    level: np.ndarray  # (n,) fitted background levels
+    moved_ok: np.ndarray  # (n,) whether the offset fit stayed on the stamp
+
+
+@dataclass
+class _FineFit:
+    """The fine images and the stars on them (:meth:`SuperResolvedPCA._fit_images`)."""
+
+    fine: np.ndarray  # (1 + k, S*S) mean and components
+    a: np.ndarray  # (n, 1 + k) flux times [1, coefficients]
+    offsets: np.ndarray  # (n, 2)
+    explained_variance: np.ndarray  # the residuals' PCA variances
+    noise_edge: float
+    noise_variance: float
+
+
+class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
     """PCA basis on a grid finer than the pixels, for undersampled stars.
 
     Stars sampled at under ~2 pixels per FWHM (Euclid VIS, Roman, HST, JWST short
@@ -271,7 +260,7 @@ class SuperResolvedPCA(_FineGrid, StampPCA):
     """
 
     _parameter_constraints: dict = {
-        **{k: v for k, v in StampPCA._parameter_constraints.items() if k != "wings"},
+        **_BaseStampBasis._parameter_constraints,
         "oversampling": [StrOptions({"auto"}), Interval(Integral, 1, None, closed="left")],
         "spatial_degree": [StrOptions({"auto"}), Interval(Integral, 0, None, closed="left"),
                            None],
@@ -283,11 +272,31 @@ class SuperResolvedPCA(_FineGrid, StampPCA):
                  n_iter: int = 6, max_star_weight: float = 10.0, guess_sigma: float = 3.0,
                  background="auto", spatial_degree="auto", band_limit="auto"):
         self.oversampling = oversampling
+        self.n_components = n_components
+        self.max_components = max_components
+        self.n_iter = n_iter
+        self.max_star_weight = max_star_weight
+        self.guess_sigma = guess_sigma
+        self.background = background
         self.spatial_degree = spatial_degree
         self.band_limit = band_limit
-        super().__init__(n_components=n_components, max_components=max_components,
-                         n_iter=n_iter, max_star_weight=max_star_weight,
-                         guess_sigma=guess_sigma, background=background)
+
+    _state_attributes = _BaseStampBasis._state_attributes + (
+        "fine_mean_", "fine_components_", "oversampling_", "fine_size_", "fwhm_",
+        "spatial_degree_", "band_limit_")
+
+    def _set_state(self, state):
+        state = {"spatial_degree_": 0,  # (states written before the joint refinement: none)
+                 # (before band_limit_ was recorded: the grid's Nyquist disc)
+                 "band_limit_": int(state["oversampling_"]) / 2.0, **state}
+        super()._set_state(state)
+        self.oversampling_, self.fine_size_ = int(self.oversampling_), int(self.fine_size_)
+        self.spatial_degree_ = int(self.spatial_degree_)
+        self.fwhm_, self.band_limit_ = float(self.fwhm_), float(self.band_limit_)
+        self.fine_mean_ = np.asarray(self.fine_mean_, dtype=np.float64).reshape(-1)
+        self.fine_components_ = np.asarray(self.fine_components_, dtype=np.float64).reshape(
+            self.n_components_, -1)
+        return self
 
     # -- the stars' fits on the basis -----------------------------------------------------
     def _fit_stars(self, d, w, offsets, fine, steps=_STEPS, held=None):
@@ -397,7 +406,7 @@ class SuperResolvedPCA(_FineGrid, StampPCA):
             frame = self._frame(fine)
             comps = self._band_limited((comps - (comps @ frame.T) @ frame)
                                        * self._support(fine))
-            comps = _sum_zero(comps, mean)
+            comps = sum_zero(comps, mean)
         return np.vstack([mean[None], comps]), move
 
     def _recentre(self, fine):
@@ -436,9 +445,6 @@ class SuperResolvedPCA(_FineGrid, StampPCA):
             raise ValueError(f"band_limit must be 'auto', None or a positive number (cycles "
                              f"per pixel), got {b!r}.")
 
-    def _fit_project(self, X, weights=None, positions=None):
-        return self.fit(X, weights=weights, positions=positions).project(X, weights)
-
     @_fit_context(prefer_skip_nested_validation=True)
     def fit(self, X, y=None, weights=None, positions=None):
         """Fit the fine-grid basis on raw star stamps.
@@ -461,6 +467,11 @@ class SuperResolvedPCA(_FineGrid, StampPCA):
         -------
         self : SuperResolvedPCA
         """
+        self._fit(X, weights, positions)
+        return self
+
+    def _fit(self, X, weights, positions=None):
+        """:meth:`fit`; returns None (:meth:`fit_project` then projects the stars)."""
         self._check_params()
         d, w, s = self._stamps_and_weights(X, weights, reset=True)
         if positions is not None:
@@ -473,11 +484,10 @@ class SuperResolvedPCA(_FineGrid, StampPCA):
         if s % 2 == 0:
             raise ValueError(f"SuperResolvedPCA needs stamps of odd side (the star at the "
                              f"centre pixel), got {s}x{s}.")
-        n, p = d.shape
         self.stamp_size_ = s
-        self.background_ = bool(_has_background(d, w, s) if self.background == "auto"
+        self.background_ = bool(has_background(d, w, s) if self.background == "auto"
                                 else self.background)
-        level = _border_level(d, w, s)[0] if self.background_ else np.zeros(n)
+        level = border_level(d, w, s)[0] if self.background_ else np.zeros(len(d))
         offsets, ok = self._centroids(d - level[:, None], w, s)
         flux = ((d - level[:, None]) * (w > 0)).sum(axis=1)
         usable = ok & (flux > 0)
@@ -493,71 +503,104 @@ class SuperResolvedPCA(_FineGrid, StampPCA):
         b = self.band_limit
         self.band_limit_ = (self.oversampling_ / 2.0 if b == "auto" else
                             np.sqrt(2.0) * self.oversampling_ / 2.0 if b is None else float(b))
-        size = self._grid(s)[1]
-        w_given, poisson = w, _poisson_slope(d, w)
-        pixel_var = _variances(w).mean(axis=1)
+        stamps = _Stamps(d=d, w=w, w_given=w, poisson=poisson_slope(d, w), ok=ok,
+                         usable=usable, pixel_var=variances(w).mean(axis=1), level=level)
+        degree = 0 if positions is None else self._spatial_degree(int(usable.sum()))
+        fit = self._fit_images(stamps, flux, offsets, degree)
+        fine, k = fit.fine, fit.fine.shape[0] - 1
+        if degree and k:
+            fine = self._refine(stamps, positions[:, :2], degree, fine, fit.a, fit.offsets)
+        self.spatial_degree_ = int(degree) if k else 0
+        self.fine_mean_ = fine[0]
+        self.fine_components_ = fine[1:]
+        self.explained_variance_ = fit.explained_variance
+        self.noise_variance_ = fit.noise_variance
+        self.noise_edge_ = fit.noise_edge
+        self.n_components_ = int(fine.shape[0] - 1)
+        self.fine_size_ = self._grid(s)[1]
+        self._n_features_out = self.n_components_
+        drawn = self._draw(fine, np.zeros((1, 2)))[0]
+        self.mean_, self.components_ = drawn[0], drawn[1:]
 
-        def star_weights(flux):
-            safe = np.where(usable, np.abs(flux), 1.0)
-            u = _star_weights(pixel_var / safe**2, usable, self.max_star_weight)
-            return w * (u * pixel_var / safe**2)[:, None]  # pixel weights, capped per star
+    def _pixel_weights(self, stamps, flux):
+        """The fine images' fit's weight of each pixel: its weight times its star's weight
+        (``1 / v``, ``v`` the star's noise per pixel at ``flux``, capped as in
+        :class:`StampPCA`), of the stars ``stamps.usable``."""
+        safe = np.where(stamps.usable, np.abs(flux), 1.0)
+        u = star_weights(stamps.pixel_var / safe**2, stamps.usable, self.max_star_weight)
+        return stamps.w * (u * stamps.pixel_var / safe**2)[:, None]
 
-        a = np.where(usable, flux, 0.0)[:, None]
+    def _settled_fits(self, stamps, fine, offsets):
+        """Re-centred, normalised fine images (:meth:`_settle`) and the stars' fits on them."""
+        fine, move = self._settle(fine)
+        a, cov, model, moved, level, moved_ok = self._fit_stars(stamps.d, stamps.w,
+                                                                offsets + move, fine)
+        return _StarFits(fine=fine, start=offsets + move, a=a, model=model, offsets=moved,
+                         level=level, moved_ok=moved_ok)
+
+    @staticmethod
+    def _misfit(stamps, u, model, level):
+        """Weighted squared residual of the usable stars from their models."""
+        return float((u * (stamps.d - model - level[:, None]) ** 2)[stamps.usable].sum())
+
+    def _fit_images(self, stamps, flux, offsets, degree):
+        """The fine images and the stars' amplitudes and offsets: the mean's rounds (a
+        Gauss-Newton step of the images, each star's flux, offset and background profiled
+        out, shortened until the fit improves) until the offsets converge, then the
+        components' count and their rounds (alternating least squares), at most ``n_iter``
+        (``_REFINED_ITER`` before a joint refinement of ``degree``). ``stamps`` is updated
+        (usable stars, weights, background levels)."""
+        size = self._grid(self.stamp_size_)[1]
+        a = np.where(stamps.usable, flux, 0.0)[:, None]
         fine = np.zeros((1, size * size))
         lam, edge, noise = np.zeros(0), np.nan, np.nan
-        def settle(fine, offsets):
-            """Re-centred, normalised fine images and the stars' fits on them."""
-            fine, move = self._settle(fine)
-            return (fine, offsets + move) + self._fit_stars(d, w, offsets + move, fine)
-
-        def objective(u, model, fitted):
-            return float((u * (d - model - fitted[:, None]) ** 2)[usable].sum())
-
         k, counted, joint, typical = 0, False, 0, np.inf
-        degree = 0 if positions is None else self._spatial_degree(int(usable.sum()))
         n_iter = min(int(self.n_iter), _REFINED_ITER) if degree else int(self.n_iter)
-        u = star_weights(a[:, 0])
-        fine = self._fit_fine(d - level[:, None], u, a, offsets, fine)
+        u = self._pixel_weights(stamps, a[:, 0])
+        fine = self._fit_fine(stamps.d - stamps.level[:, None], u, a, offsets, fine)
         for round_ in range(_MEAN_ROUNDS + n_iter):
             trial = None
             if round_:  # a Gauss-Newton step of the fine images and the stars' parameters,
                 # shortened until the fit improves
-                u = star_weights(a[:, 0])
-                previous = objective(u, model, fitted)
+                u = self._pixel_weights(stamps, a[:, 0])
+                previous = self._misfit(stamps, u, model, fitted)
+                target = stamps.d - stamps.level[:, None]
                 if k:  # with components: the images given the stars' parameters (least
                     # squares; alternating with the stars' fits, as for a PCA)
-                    step = self._fit_fine(d - level[:, None], u, a, offsets, fine,
+                    step = self._fit_fine(target, u, a, offsets, fine,
                                           frame=self._support(fine)) - fine
                 else:
                     model, J = self._jacobian(fine, a, offsets)
-                    step = self._fit_fine(d - level[:, None] - model, u, a, offsets,
+                    step = self._fit_fine(target - model, u, a, offsets,
                                           np.zeros_like(fine), J, _GN_TOL)
                 for damping in (1.0, 0.5, 0.25, 0.125):
-                    candidate = settle(fine + damping * step, offsets)
-                    if objective(u, candidate[4], candidate[6]) <= previous:
+                    candidate = self._settled_fits(stamps, fine + damping * step, offsets)
+                    if self._misfit(stamps, u, candidate.model, candidate.level) <= previous:
                         trial = candidate
                         break
             else:
-                trial = settle(fine, offsets)
+                trial = self._settled_fits(stamps, fine, offsets)
             change, stalled = 0.0, False  # no step improves the fit: converged
             if trial is not None:
-                fine, before, a, cov, model, offsets, fitted, moved_ok = trial
-                moved = np.abs(offsets - before)[usable]
+                fine, a, model, offsets = trial.fine, trial.a, trial.model, trial.offsets
+                fitted, moved_ok = trial.level, trial.moved_ok
+                moved = np.abs(offsets - trial.start)[stamps.usable]
                 change = float(moved.max())
                 stalled, typical = (round_ >= 2 and np.median(moved) > _STALL * typical,
                                     float(np.median(moved)))
             good = (a[:, 0] > 0) & moved_ok
-            usable = ok & good
-            if usable.sum() < 2:
+            stamps.usable = stamps.ok & good
+            if stamps.usable.sum() < 2:
                 raise ValueError("Fewer than 2 stamps keep a positive flux on the basis: these "
                                  "are not star stamps.")
             if self.background_:
-                level = np.where(good, fitted, level)
-            a = np.where(usable[:, None], a, 0.0)
-            if poisson and trial is not None:  # the Poisson part from the stars' models
-                w = _model_weights(d, w_given, np.where(usable[:, None], model + level[:, None],
-                                                        np.nan), poisson)
-                pixel_var = _variances(w).mean(axis=1)
+                stamps.level = np.where(good, fitted, stamps.level)
+            a = np.where(stamps.usable[:, None], a, 0.0)
+            if stamps.poisson and trial is not None:  # the Poisson part from the stars' models
+                stamps.w = model_weights(stamps.d, stamps.w_given, np.where(
+                    stamps.usable[:, None], model + stamps.level[:, None], np.nan),
+                    stamps.poisson)
+                stamps.pixel_var = variances(stamps.w).mean(axis=1)
             if counted:
                 joint += 1
                 if joint >= n_iter or trial is None:
@@ -565,29 +608,17 @@ class SuperResolvedPCA(_FineGrid, StampPCA):
             elif change < _OFFSET_TOL or stalled or round_ + 1 >= _MEAN_ROUNDS:
                 # the mean and the offsets have converged: how many components the stars hold
                 counted = True
+                target = stamps.d - stamps.level[:, None]
                 if self.band_limit == "auto":  # the band the stars' information reaches
-                    self.band_limit_ = self._ring_band(d - level[:, None], star_weights(a[:, 0]),
-                                                       a, offsets, usable)
+                    self.band_limit_ = self._ring_band(
+                        target, self._pixel_weights(stamps, a[:, 0]), a, offsets, stamps.usable)
                     fine = self._band_limited(fine)
-                k, lam, edge, noise, coef = self._components(d - level[:, None], w, a, offsets,
-                                                             fine, usable, pixel_var)
+                k, lam, edge, noise, coef = self._components(
+                    target, stamps.w, a, offsets, fine, stamps.usable, stamps.pixel_var)
                 a = np.column_stack([a[:, 0], a[:, :1] * coef])
                 fine = np.vstack([fine, np.zeros((k, size * size))])
-        if degree and k:
-            fine = self._refine(d, w, positions[:, :2], degree, fine, a, offsets, level,
-                                usable, star_weights)
-        self.spatial_degree_ = int(degree) if k else 0
-        self.fine_mean_ = fine[0]
-        self.fine_components_ = fine[1:]
-        self.explained_variance_ = lam
-        self.noise_variance_ = noise
-        self.noise_edge_ = edge
-        self.n_components_ = int(fine.shape[0] - 1)
-        self.fine_size_ = size
-        self._n_features_out = self.n_components_
-        drawn = self._draw(fine, np.zeros((1, 2)))[0]
-        self.mean_, self.components_ = drawn[0], drawn[1:]
-        return self
+        return _FineFit(fine=fine, a=a, offsets=offsets, explained_variance=lam,
+                        noise_edge=edge, noise_variance=noise)
 
     def _spatial_degree(self, n_stars):
         """Degree of the joint refinement's polynomial for ``n_stars`` usable stars; 0 for
@@ -598,13 +629,13 @@ class SuperResolvedPCA(_FineGrid, StampPCA):
         degree = int(self.spatial_degree or 0)
         return degree if n_stars >= 3 * (degree + 1) * (degree + 2) // 2 else 0
 
-    def _refine(self, d, w, positions, degree, fine, a, offsets, level, usable,
-                star_weights):
+    def _refine(self, stamps, positions, degree, fine, a, offsets):
         """The fine images refitted with each star's coefficients on the components set by
         a polynomial of its position (of degree ``degree``), fitted jointly to all stars'
         pixels, as PSFEx's: alternately the polynomial (linear least squares over all
         stars, given the images, fluxes and offsets), each star's flux, offset and
         background with its shape held, and the fine images given the coefficients."""
+        d, w, level, usable = stamps.d, stamps.w, stamps.level, stamps.usable
         z = positions - positions.min(axis=0)
         z = 2.0 * z / np.where(z.max(axis=0) > 0, z.max(axis=0), 1.0) - 1.0  # in [-1, 1]
         terms = np.column_stack([z[:, 0] ** i * z[:, 1] ** (t - i)
@@ -613,7 +644,7 @@ class SuperResolvedPCA(_FineGrid, StampPCA):
         for _ in range(_JOINT_ROUNDS):
             if usable.sum() < 3 * terms.shape[1]:  # too many stars lost on the way
                 break
-            u = star_weights(flux) * usable[:, None]
+            u = self._pixel_weights(stamps, flux) * usable[:, None]
             mean = self._draw(fine[:1], offsets)[:, 0]
             coef = terms @ self._spatial_fit(d - level[:, None] - flux[:, None] * mean, u,
                                              flux, offsets, fine, terms)
@@ -626,7 +657,8 @@ class SuperResolvedPCA(_FineGrid, StampPCA):
                 level = np.where(good, fitted, level)
             amp = np.where(usable[:, None], flux[:, None] * np.column_stack(
                 [np.ones(len(d)), coef]), 0.0)
-            fine = self._fit_fine(d - level[:, None], star_weights(flux) * usable[:, None], amp,
+            fine = self._fit_fine(d - level[:, None],
+                                  self._pixel_weights(stamps, flux) * usable[:, None], amp,
                                   offsets, fine, frame=self._support(fine))
             fine, move = self._settle(fine)
             offsets = offsets + move
@@ -659,11 +691,11 @@ class SuperResolvedPCA(_FineGrid, StampPCA):
         drawn = self._draw(fine[:1], offsets)[:, 0]
         resid = np.where(w > 0, d / flux[:, None] - drawn, 0.0)
         v = pixel_var / flux**2
-        u = _star_weights(v, usable, self.max_star_weight)
+        u = star_weights(v, usable, self.max_star_weight)
         n_top = int(self.max_components) + 1
         if isinstance(self.n_components, numbers.Integral):
             n_top = max(n_top, int(self.n_components))
-        centre, axes, lam, total = _weighted_pca(resid[usable], u[usable], n_top)
+        centre, axes, lam, total = weighted_pca(resid[usable], u[usable], n_top)
         noise = float((u * v).sum() / u.sum())
         kernel = noise_correlation(standardised_residuals(
             (d / flux[:, None])[usable], drawn[usable], flux[usable], w[usable]))
