@@ -376,10 +376,19 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
             frame, Z = (A, A_inv), Y @ A
             noise = np.einsum("itt->it", noise_z).copy()
             noise_var = np.einsum("itt->it", noise_cov).copy()
-        fit = self._fit_hyperparameters(U, exposure, exposures, Z, noise)
-        log_likelihood = fit["log_likelihood"]
-        if frame is not None:  # the likelihood of y = z A^-1: the frame's Jacobian
-            log_likelihood += fit["n_stars"] * np.linalg.slogdet(frame[0])[1]
+        restored = self.__dict__.pop("_held_state", None)  # from _set_state
+        if restored is None:
+            fit = self._fit_hyperparameters(U, exposure, exposures, Z, noise)
+            log_likelihood = fit["log_likelihood"]
+            if frame is not None:  # the likelihood of y = z A^-1: the frame's Jacobian
+                log_likelihood += fit["n_stars"] * np.linalg.slogdet(frame[0])[1]
+        else:
+            fit = {"range": restored["range_"],
+                   "atmosphere_range": restored["atmosphere_range_"],
+                   "static_sill": np.asarray(restored["static_sill"], dtype=np.float64),
+                   "atmosphere_sill": np.asarray(restored["atmosphere_sill"],
+                                                 dtype=np.float64)}
+            log_likelihood = restored["log_likelihood_"]
         exact = n <= self.max_exact_samples
         if exact:
             solve = self._fit_exact(U, exposure, Z, noise, noise_z, fit)
@@ -592,18 +601,9 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
                 "per_axis_scaling": bool(self._per_axis_scaling)}
 
     def _set_state(self, state):
-        import functools
-
         if state.get("per_axis_scaling"):
             self._per_axis_scaling = True
-        # the next fit takes these hyperparameters instead of fitting them (an instance
-        # attribute standing for the method until it is used)
-        self._fit_hyperparameters = functools.partial(self._held_hyperparameters, dict(state))
+        # the next fit (PSFModel's restore, on the stored stars) solves the system with
+        # these hyperparameters held instead of fitting them
+        self._held_state = dict(state)
         return self
-
-    def _held_hyperparameters(self, held, U, exposure, Y, noise):
-        del self._fit_hyperparameters
-        self.range_, self.atmosphere_range_ = held["range_"], held["atmosphere_range_"]
-        self._p = np.asarray(held["static_sill"], dtype=np.float64)
-        self._q = np.asarray(held["atmosphere_sill"], dtype=np.float64)
-        self.log_likelihood_ = held["log_likelihood_"]

@@ -33,6 +33,7 @@ from ._kriging_exact import (
 from ._kriging_hyper import (
     _MIN_ML_STARS,
     _NAME,
+    Hyperparameters,
     _KrigingHyperparameters,
     drift_design,
     drift_powers,
@@ -401,7 +402,11 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
             A, A_inv, noise_z = coregionalization_frame(Y, noise_cov)
             frame, Z = (A, A_inv), Y @ A
             noise = np.einsum("itt->it", noise_z).copy()
-        drift, held, start = self._resolve_drift(X, Z, noise, previous, center, half_width)
+        restored = self.__dict__.pop("_held_state", None)  # from _set_state
+        if restored is None:
+            drift, held, start = self._resolve_drift(X, Z, noise, previous, center, half_width)
+        else:
+            drift, held, start = restored["drift_"], None, None
         powers = drift_powers(d, drift, self.extra_drift)
         n_drift = powers.shape[0]
         _check_n_samples(_NAME, n, max(2, n_drift + 1), "(distinct positions)")
@@ -418,11 +423,16 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
         if k is not None and k >= n:
             k = None  # neighbourhoods of all the stars: exact Kriging (the same system)
         F = drift_design(X, center, half_width, powers)
-        hyper = self._fit_hyperparameters(X, Z, F, noise, start, drift=drift, held_extra=held)
-        log_likelihood = hyper.log_likelihood
-        if frame is not None and log_likelihood is not None:
-            # the likelihood of y = z A^-1: the Jacobian of the frame, n log |det A|
-            log_likelihood += n * np.linalg.slogdet(frame[0])[1]
+        if restored is None:
+            hyper = self._fit_hyperparameters(X, Z, F, noise, start, drift=drift,
+                                              held_extra=held)
+            log_likelihood = hyper.log_likelihood
+            if frame is not None and log_likelihood is not None:
+                # the likelihood of y = z A^-1: the Jacobian of the frame, n log |det A|
+                log_likelihood += n * np.linalg.slogdet(frame[0])[1]
+        else:
+            hyper = self._held_hyperparameters(restored)
+            log_likelihood = restored["log_likelihood_"]
         aniso, extra = geometry(hyper.scaling, hyper.angle, hyper.extra)
         U = transform(X, aniso, extra)
         noise_fit = None if noise is None else noise * hyper.noise_scale
@@ -591,26 +601,20 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
                 "range_at_floor_": bool(self.range_at_floor_)}
 
     def _set_state(self, state):
+        # the next fit (PSFModel's restore, on the stored stars) solves the Kriging system
+        # with these held instead of choosing the drift and fitting the hyperparameters
         self._held_state = dict(state)
         return self
 
-    def _choose_drift(self, X, Y, noise):
-        held = getattr(self, "_held_state", None)
-        if held is None:
-            return super()._choose_drift(X, Y, noise)
-        return held["drift_"], None, None
-
-    def _fit_hyperparameters(self, X, Y, F, noise, start=None):
-        held = self.__dict__.pop("_held_state", None)
-        if held is None:
-            return super()._fit_hyperparameters(X, Y, F, noise, start)
-        self._set_anisotropy(held["anisotropy_scaling_"], held["anisotropy_angle_"],
-                             held["extra_scaling_"])
-        self.range_, self.nugget_ = held["range_"], held["nugget_"]
-        self.sill_ = np.asarray(held["sill"], dtype=np.float64)
-        self.noise_scale_, self.likelihood_ = held["noise_scale_"], held["likelihood_"]
-        self.range_floor_, self.range_at_floor_ = held["range_floor_"], held["range_at_floor_"]
-        self.log_likelihood_ = held["log_likelihood_"]
-        if self._frame is not None and self.log_likelihood_ is not None:
-            # (_fit adds the frame's Jacobian to the stored likelihood: taken out here)
-            self.log_likelihood_ -= X.shape[0] * np.linalg.slogdet(self._frame[0])[1]
+    @staticmethod
+    def _held_hyperparameters(held):
+        """The :class:`Hyperparameters` of a restored state (its likelihood set by ``_fit``)."""
+        floor = held["range_floor_"]
+        return Hyperparameters(
+            range=float(held["range_"]), nugget=float(held["nugget_"]),
+            sill=np.asarray(held["sill"], dtype=np.float64),
+            noise_scale=float(held["noise_scale_"]),
+            scaling=float(held["anisotropy_scaling_"]), angle=float(held["anisotropy_angle_"]),
+            extra=np.asarray(held["extra_scaling_"], dtype=np.float64),
+            likelihood=held["likelihood_"], range_floor=None if floor is None else float(floor),
+            range_at_floor=bool(held["range_at_floor_"]))

@@ -74,7 +74,7 @@ class StampPCA(_BaseStampBasis):
        unmasked pixels: the basis is moved to the star, never the masked data to the basis.
        Weights whose Poisson part was computed from the noisy pixels themselves (variances
        exactly ``sky + max(pixel, 0) / gain`` per stamp, as
-       :func:`~sklearn_psf.io.extract_vignettes` gives them with a gain; an image's weight
+       :func:`~sklearn_psf.exposure.extract_vignettes` gives them with a gain; an image's weight
        map is used as given) weigh the pixels whose noise is down more and bias the fit low
        (fluxes -0.8%, sizes -0.07% on GalSim DECam-like stars at gain 4): after the first
        round the Poisson part is taken from the stars' fitted models instead, and

@@ -136,7 +136,7 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
       it sums to 1;
     - weights whose Poisson part was computed from the noisy pixels themselves (variances
       exactly ``sky + max(pixel, 0) / gain`` per stamp, as
-      :func:`~sklearn_psf.io.extract_vignettes` gives them) would weight each pixel by its
+      :func:`~sklearn_psf.exposure.extract_vignettes` gives them) would weight each pixel by its
       own noise: upward fluctuations less, a bias of about ``-1 / gain`` per pixel that
       narrows the PSF (size bias -0.0005 on the Euclid-like CCDs of
       ``benchmarks/bench_undersampled.py``); that part is taken from the stars' models
