@@ -87,7 +87,10 @@ class IsotropicScaler(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
         Parameters
         ----------
         X : array-like of shape (n_samples, n_features)
+            Positions (the first ``n_positions`` columns share one factor), then any
+            further features, each scaled by its own span.
         y : ignored
+            Accepted for scikit-learn's API.
 
         Returns
         -------
@@ -114,6 +117,8 @@ class IsotropicScaler(OneToOneFeatureMixin, TransformerMixin, BaseEstimator):
         Parameters
         ----------
         X : array-like of shape (n_samples, n_features)
+            Positions and features in the columns of ``fit``; values outside the
+            fitted range scale beyond [0, 1], without a warning.
 
         Returns
         -------

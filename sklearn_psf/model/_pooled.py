@@ -199,15 +199,16 @@ class PerExposurePSFModel(_ExposureModel):
         Parameters
         ----------
         X : array-like of shape (n_stars, n_features)
-            Positions and the exposure column.
+            Positions and the exposure column (``exposure_column``): each exposure's
+            stars are fitted by their own clone of ``model``, in parallel (``n_jobs``).
         y : array-like of shape (n_stars, s*s) or (n_stars, s, s)
             Raw star stamps.
         weights : array-like of the shape of y, optional
-            Pixel weights (inverse variance, 0 = masked).
+            Pixel weights (inverse variance, 0 = masked), split with the stars.
 
         Returns
         -------
-        self
+        self : PerExposurePSFModel
         """
         pos, exposure, y = self._split_X(X, y)
         w = None if weights is None else np.asarray(weights, dtype=np.float64).reshape(y.shape)
@@ -323,15 +324,16 @@ class PooledPSFModel(_ExposureModel):
         Parameters
         ----------
         X : array-like of shape (n_stars, n_features)
-            Positions and the exposure column.
+            Positions and the exposure column (``exposure_column``), which becomes a
+            feature of the joint interpolation when there are two exposures or more.
         y : array-like of shape (n_stars, s*s) or (n_stars, s, s)
-            Raw star stamps.
+            Raw star stamps of every exposure, for one basis.
         weights : array-like of the shape of y, optional
             Pixel weights (inverse variance, 0 = masked).
 
         Returns
         -------
-        self
+        self : PooledPSFModel
         """
         pos, exposure, y = self._split_X(X, y)
         self.exposures_ = np.unique(exposure)

@@ -123,6 +123,8 @@ class FixedBasis(StateMixin, ClassNamePrefixFeaturesOutMixin, TransformerMixin, 
         Parameters
         ----------
         X : array-like of shape (n, p)
+            Stamps, flattened, with the ``p`` pixels of the fixed components (the
+            mean is subtracted first).
 
         Returns
         -------

@@ -249,8 +249,11 @@ class StampNormalizer(StateMixin, OneToOneFeatureMixin, TransformerMixin, BaseEs
         Parameters
         ----------
         X : array-like of shape (n, s*s)
+            Star stamps, flattened; not modified.
         y : ignored
+            Accepted for scikit-learn's API.
         weights : array-like of shape (n, s*s), optional
+            Inverse variance of each pixel (0 = masked), as :meth:`fit` takes them.
 
         Returns
         -------

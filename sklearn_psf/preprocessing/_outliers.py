@@ -110,7 +110,10 @@ class IQROutlierDetector(StateMixin, _OffsetOutlierMixin, BaseEstimator):
         Parameters
         ----------
         X : array-like of shape (n_samples, n_features)
+            The values judged, one column at a time (e.g. the stars' coefficients on
+            the basis); NaN is refused.
         y : ignored
+            Accepted for scikit-learn's API.
 
         Returns
         -------

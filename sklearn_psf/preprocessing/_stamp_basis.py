@@ -371,8 +371,11 @@ class _BaseStampBasis(StateMixin, ClassNamePrefixFeaturesOutMixin, TransformerMi
         Parameters
         ----------
         X : array-like of shape (n, s*s)
+            Raw star stamps (odd side s), NaN for masked pixels; not modified.
         y : ignored
+            Accepted for scikit-learn's API.
         weights : array-like of shape (n, s*s), optional
+            Inverse variance of each pixel (0 = masked); default from each stamp's border.
 
         Returns
         -------
