@@ -291,3 +291,32 @@ def test_selection_cuts_and_predict_catalog_of_a_fit():
         predict_catalog(fit.model, galaxies, keys=["id"])
     with pytest.raises(InputError, match="no rows"):
         predict_catalog(fit.model, galaxies[:0])
+
+
+def test_fit_exposure_takes_the_user_s_basis_without_changing_it():
+    """basis= is the model's stamp basis (a clone: the user's object stays unfitted), the
+    same model as PSFModel(basis=...) fitted on the stamps; with band_limit it is refused."""
+    from sklearn.utils.validation import check_is_fitted
+    from sklearn.exceptions import NotFittedError
+
+    from sklearn_psf.model import PSFModel, make_interpolator
+    from sklearn_psf.preprocessing import StampPCA
+
+    X, stamps, weights = _field(seed=4, n_stars=60)
+    side = int(np.sqrt(stamps.shape[1]))
+    cat = Table({"x": X[:, 0], "y": X[:, 1], "VIGNET": stamps.reshape(-1, side, side)})
+    basis = StampPCA(n_components=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = fit_exposure(catalog=cat, select=False, interpolator="polynomial",
+                           reserve=0.0, basis=basis)
+        direct = PSFModel(basis=StampPCA(n_components=2),
+                          interpolator=make_interpolator("polynomial")).fit(
+            fit.stars.positions, fit.stars.stamps, weights=fit.stars.weights)
+    with pytest.raises(NotFittedError):
+        check_is_fitted(basis)
+    assert fit.model.basis_.n_components_ == 2
+    np.testing.assert_allclose(fit.model.predict(X[:5]), direct.predict(X[:5]), rtol=1e-10,
+                               atol=1e-12)
+    with pytest.raises(ValueError, match="band_limit or basis, not both"):
+        fit_exposure(catalog=cat, select=False, band_limit=0.8, basis=basis)

@@ -332,15 +332,13 @@ def _cut_stage(inputs, table, stamp_size, keys, selected, isolation, lines):
     return stars, extra
 
 
-def _fit_stage(X, stars, wcs, interpolator, band_limit, reserve, random_state):
+def _fit_stage(X, stars, wcs, interpolator, basis, reserve, random_state):
     """The model fitted and judged (:func:`~sklearn_psf.validation.fit_and_validate`)."""
     from ..model import INTERPOLATORS, PSFModel, make_interpolator
-    from ..preprocessing import SuperResolvedPCA
     from ..validation import fit_and_validate
 
     options = {"reserve": reserve, "random_state": random_state, "weights": stars.weights,
                "wcs": wcs}
-    basis = None if band_limit is None else SuperResolvedPCA(band_limit=float(band_limit))
     if interpolator == "auto":
         candidates = {n: PSFModel(basis=basis, interpolator=make_interpolator(n))
                       for n in INTERPOLATORS}
@@ -371,7 +369,7 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
                  cuts: SelectionCuts | None = None, saturation: float | None = None,
                  stamp_size: int | None = None, interpolator: str = "kriging",
                  reserve: float = 0.2, random_state=0, keys=None, band_limit=None,
-                 progress=None) -> ExposureFit:
+                 basis=None, progress=None) -> ExposureFit:
     """Fit and validate the PSF model of an exposure, from its files to the verdict.
 
     What ``sklearn-psf fit`` does, as one call: read the exposure (:func:`read_exposure`),
@@ -408,10 +406,11 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
         Catalogue columns (a colour, a magnitude) added as the model's dimensions after the
         positions, as PSFEx's ``PSFVAR_KEYS`` (:func:`key_columns`); stars with a NaN in a
         key are left out with a :class:`~sklearn_psf.io.CatalogColumnWarning`.
-    band_limit : float, optional
-        The PSF's band limit in cycles per pixel for undersampled stars (the optics' cutoff
-        ``D / lambda`` times the pixel scale in radians): the basis is then
-        ``SuperResolvedPCA(band_limit=band_limit)``. Default: ``PSFModel``'s basis.
+    band_limit, basis : float or estimator, optional
+        The stamp basis, unfitted (cloned, not modified), e.g. ``StampPCA()`` on
+        undersampled stars; or, with ``band_limit`` (cycles per pixel, the optics'
+        ``D / lambda`` in pixels), ``SuperResolvedPCA(band_limit=band_limit)``. Not both.
+        Default: ``PSFModel``'s basis.
     progress : callable, optional
         Called with the name of each step (``"selecting stars"``, ``"cutting stamps"``,
         ``"fitting and validating"``) as it starts: a progress bar's hook.
@@ -453,6 +452,9 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     """
     from ..io import celestial_wcs
 
+    if band_limit is not None and basis is not None:
+        raise ValueError("give band_limit or basis, not both: band_limit sets the basis "
+                         "SuperResolvedPCA(band_limit=band_limit)")
     cuts = SelectionCuts() if cuts is None else cuts
     step = progress or (lambda name: None)
     keys = [str(k) for k in (keys or ())]
@@ -474,7 +476,15 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     X = stars.positions if extra is None else np.column_stack([stars.positions, extra])
     step("fitting and validating")
     wcs = celestial_wcs(inputs.header)
-    model, residuals, summary = _fit_stage(X, stars, wcs, interpolator, band_limit, reserve,
+    if band_limit is not None:
+        from ..preprocessing import SuperResolvedPCA
+
+        basis = SuperResolvedPCA(band_limit=float(band_limit))
+    elif basis is not None:
+        from sklearn.base import clone
+
+        basis = clone(basis)
+    model, residuals, summary = _fit_stage(X, stars, wcs, interpolator, basis, reserve,
                                            random_state)
     _add_to_summary(summary, inputs, stars, interpolator, n_nan, keys, wcs)
     shape = inputs.image_shape
