@@ -230,6 +230,17 @@ class _BaseInterpolator(RegressorMixin, BaseEstimator):
         vars(self).update(state)
         self._fitted_names = tuple(state)
 
+    def _set_state(self, state):
+        """Hold what a saved fit chose (:mod:`sklearn_psf._persist`; the classes that save
+        one define ``_get_state``): the next ``fit``, on the model file's stored stars,
+        takes it from :meth:`_held_state_once` instead of choosing again."""
+        self._held_state = dict(state)
+        return self
+
+    def _held_state_once(self):
+        """The state :meth:`_set_state` holds, taken once (None: the fit chooses)."""
+        return self.__dict__.pop("_held_state", None)
+
     def _validate_predict_data(self, X):
         check_is_fitted(self)
         X = validate_data(self, X, reset=False, dtype=np.float64, ensure_all_finite=False)

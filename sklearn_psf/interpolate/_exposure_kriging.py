@@ -40,6 +40,7 @@ from scipy.spatial.distance import cdist
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.utils import check_random_state
 from sklearn.utils._param_validation import Interval, StrOptions
+from sklearn.utils.validation import check_is_fitted
 
 from ._base import _check_n_samples, _NoiseAwareInterpolator, _query_chunks
 from ._exposure_kriging_ml import JITTER, fit_joint_hyperparameters
@@ -376,7 +377,7 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
             frame, Z = (A, A_inv), Y @ A
             noise = np.einsum("itt->it", noise_z).copy()
             noise_var = np.einsum("itt->it", noise_cov).copy()
-        restored = self.__dict__.pop("_held_state", None)  # from _set_state
+        restored = self._held_state_once()
         if restored is None:
             fit = self._fit_hyperparameters(U, exposure, exposures, Z, noise)
             log_likelihood = fit["log_likelihood"]
@@ -591,8 +592,6 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
     # (the protocol of sklearn_psf._persist: the state is the hyperparameters the fit chose;
     # restored, the next fit solves the system with them held, without the likelihood)
     def _get_state(self):
-        from sklearn.utils.validation import check_is_fitted
-
         check_is_fitted(self)
         return {"range_": float(self.range_), "atmosphere_range_": float(self.atmosphere_range_),
                 "static_sill": np.asarray(self._p, float),
@@ -603,7 +602,4 @@ class ExposureKrigingRegressor(_NoiseAwareInterpolator):
     def _set_state(self, state):
         if state.get("per_axis_scaling"):
             self._per_axis_scaling = True
-        # the next fit (PSFModel's restore, on the stored stars) solves the system with
-        # these hyperparameters held instead of fitting them
-        self._held_state = dict(state)
-        return self
+        return super()._set_state(state)

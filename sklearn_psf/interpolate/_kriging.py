@@ -402,7 +402,7 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
             A, A_inv, noise_z = coregionalization_frame(Y, noise_cov)
             frame, Z = (A, A_inv), Y @ A
             noise = np.einsum("itt->it", noise_z).copy()
-        restored = self.__dict__.pop("_held_state", None)  # from _set_state
+        restored = self._held_state_once()
         if restored is None:
             drift, held, start = self._resolve_drift(X, Z, noise, previous, center, half_width)
         else:
@@ -599,12 +599,6 @@ class KrigingRegressor(_KrigingHyperparameters, _NoiseAwareInterpolator):
                 "likelihood_": self.likelihood_,
                 "range_floor_": None if floor is None else float(floor),
                 "range_at_floor_": bool(self.range_at_floor_)}
-
-    def _set_state(self, state):
-        # the next fit (PSFModel's restore, on the stored stars) solves the Kriging system
-        # with these held instead of choosing the drift and fitting the hyperparameters
-        self._held_state = dict(state)
-        return self
 
     @staticmethod
     def _held_hyperparameters(held):

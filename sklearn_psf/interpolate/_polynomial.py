@@ -259,7 +259,7 @@ class PolynomialRegressor(_PolynomialBase):
         U = self._scale(X)
         n, d = X.shape
         sqrt_w = None if noise is None else 1.0 / np.sqrt(noise)
-        held = self.__dict__.pop("_held_state", None)
+        held = self._held_state_once()
         if held is not None:  # restored (see _set_state): the degree that fit chose
             degree = held["degree_"]
             if held.get("criterion_") is not None:
@@ -299,10 +299,6 @@ class PolynomialRegressor(_PolynomialBase):
         return {"degree_": int(degree) if np.ndim(degree) == 0 else [int(g) for g in degree],
                 "criterion_": None if criterion is None else [[int(g), float(c)] for g, c
                                                               in criterion.items()]}
-
-    def _set_state(self, state):
-        self._held_state = dict(state)
-        return self
 
 
 class ChebyshevRegressor(_PolynomialBase):
