@@ -476,14 +476,10 @@ def fit_exposure(image=None, catalog=None, *, hdu=None, weight_hdu=None,
     X = stars.positions if extra is None else np.column_stack([stars.positions, extra])
     step("fitting and validating")
     wcs = celestial_wcs(inputs.header)
-    if band_limit is not None:
+    if band_limit is not None:  # (a given basis: PSFModel fits a clone of it)
         from ..preprocessing import SuperResolvedPCA
 
         basis = SuperResolvedPCA(band_limit=float(band_limit))
-    elif basis is not None:
-        from sklearn.base import clone
-
-        basis = clone(basis)
     model, residuals, summary = _fit_stage(X, stars, wcs, interpolator, basis, reserve,
                                            random_state)
     _add_to_summary(summary, inputs, stars, interpolator, n_nan, keys, wcs)
