@@ -37,7 +37,7 @@ STAGES = [
     ("      SuperResolvedPCA: stars' fits", "sklearn_psf.preprocessing._superres:"
      "SuperResolvedPCA._fit_stars"),
     ("      SuperResolvedPCA: band (two half fits)", "sklearn_psf.preprocessing._superres:"
-     "SuperResolvedPCA._ring_band"),
+     "SuperResolvedPCA._held_out_band"),
     ("      SuperResolvedPCA: spatial refinement", "sklearn_psf.preprocessing._superres:"
      "SuperResolvedPCA._refine"),
     ("    projection of the other stars", "sklearn_psf.model._psf_model:PSFModel._project"),

@@ -8,11 +8,11 @@ pixels per FWHM: each star shows the PSF at its own sub-pixel phase, and re-cent
 by interpolation aliases it. For such stars ``PSFModel()`` chooses
 :class:`~sklearn_psf.preprocessing.SuperResolvedPCA`: the pixel-convolved PSF on a grid
 finer than the pixels, each star modelled as that profile sampled at its own phase, all
-stars fitted together. The fine grid holds the frequencies the stars measure: where two
-halves of the stars stop agreeing (their Fourier ring correlation). Here GalSim draws
-Euclid-VIS-like stars (an ``OpticalPSF`` through 1.2 m at 700 nm, 0.1" pixels, FWHM ~1.5
-pixels) and the model is compared with GalSim's truth and with the basis made for
-well-sampled stars.
+stars fitted together. The fine grid holds the frequencies the stars measure: the disc of
+frequencies whose mean, fitted on half of the stars, best predicts the other half. Here
+GalSim draws Euclid-VIS-like stars (an ``OpticalPSF`` through 1.2 m at 700 nm, 0.1"
+pixels, FWHM ~1.5 pixels) and the model is compared with GalSim's truth and with the basis
+made for well-sampled stars.
 """
 
 # %%

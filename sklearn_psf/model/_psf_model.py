@@ -363,8 +363,12 @@ class PSFModel(StateMixin, _OutlierRounds, RegressorMixin, BaseEstimator):
         keep = np.ones(n, dtype=bool)
         fitted, fit_warnings = None, []  # the chi^2 test's interpolator and its warnings
         contaminated = np.zeros(y.shape, dtype=bool)
+        held = {}  # what the first round's basis chose from the stars, held in the second
         for round_ in range(2):
-            basis, fitted_stars = self._fit_basis(clone(basis), y, weights, keep, X)
+            fresh = clone(basis)
+            if held:
+                fresh.set_params(**held)
+            basis, fitted_stars = self._fit_basis(fresh, y, weights, keep, X)
             coef, var, cov, flag, stamp_fit = self._project(basis, y, weights, keep,
                                                             fitted_stars)
             usable = flag == FIT_OK
@@ -389,6 +393,7 @@ class PSFModel(StateMixin, _OutlierRounds, RegressorMixin, BaseEstimator):
                 y = np.where(contaminated, np.nan, y)
             weights = _calibrated(weights, stamp_fit, noise, usable)
             keep = inliers  # fit the basis again without the rejected stars
+            held = getattr(basis, "_refit_params", dict)()
             # (this round's per-star arrays go before the next round's)
             coef = var = cov = stamp_fit = None
         if (~usable).any():

@@ -98,21 +98,17 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
       wings beyond the stamp). The fine images are held to a disc in frequency,
       ``band_limit_`` cycles per pixel in radius: beyond the PSF's own band they would hold
       only noise, which a star's sampling aliases into its low frequencies. By default
-      (``band_limit="auto"``) the disc ends where the stars' information on the mean ends:
-      where two means, each fitted on half of the stars over the whole square grid, stop
-      agreeing (their Fourier ring correlation, in rings 0.1 cycle per pixel wide, falls
-      below 1/7, cryo-electron microscopy's resolution criterion; with fewer than 20 stars,
-      45 at ``oversampling=3``, the grid's Nyquist disc). On the Euclid-like CCDs
-      of ``benchmarks/bench_undersampled.py`` it finds 0.83-0.84 cycle per pixel, their
-      diffraction cutoff (0.83), and the e rms at the truth is 0.0030 / 0.0031 (0.0042 /
-      0.0039 on the whole square grid, 0.0034 / 0.0036 on the grid's Nyquist disc of
-      ``oversampling / 2`` cycles per pixel), the size rms 0.0012 / 0.0008 (0.0017 / 0.0017
-      and 0.0011 / 0.0012). Where the PSF's power near its cutoff is under the noise, the
-      criterion stops short of the cutoff and the power is lost: Roman-like stars at 1.06 um
-      (``D / lambda`` 1.21 cycles per pixel, FWHM 1.4 pixels, so ``oversampling=2``), where
-      it finds 1.04-1.13, have a size bias of +0.0014 / +0.0050 (-0.0003 / +0.0034 with the
-      optics' cutoff given, ``band_limit=1.21``; +0.0033 / +0.0082 on the Nyquist disc;
-      noiseless, +0.0047 on the Nyquist disc and -0.0007 on the whole grid);
+      (``band_limit="auto"``) the disc is the one that best predicts stars the fit did not
+      see: two means, each fitted on half of the stars over the whole square grid, are held
+      to discs of radius 0.3, 0.4, ... cycles per pixel and drawn at the other half's stars
+      (flux fitted); the disc of the least misfit is kept (with fewer than 20 stars, 45 at
+      ``oversampling=3``, the grid's Nyquist disc). Within
+      :class:`~sklearn_psf.model.PSFModel` the band is chosen in the first round, on the
+      weights given, and held when the basis is fitted again without the outliers (the
+      second round's calibrated weights, which hold the first model's error, take the
+      weight off the stars' cores, where the band shows). On the Euclid-like CCD of
+      ``benchmarks/bench_undersampled.py`` it finds 0.8 cycle per pixel, near the
+      diffraction cutoff (0.83); figures in ``benchmarks/README.md``;
     - each star is ``flux * image(mean + c @ components, offset) (+ background)``; flux,
       coefficients, background and the sub-pixel offset are fitted on the star's unmasked
       pixels by weighted least squares (Gauss-Newton on the offset, started from the centre
@@ -205,7 +201,7 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
         Roman-like one (~200 stars), degree 2 gives 0.0207 against degree 3's 0.0233.
     band_limit : "auto", float or None, default="auto"
         Radius (cycles per pixel) of the disc of frequencies the fine images hold (see
-        above). "auto": where the stars' information on the mean ends. A float: the PSF's
+        above). "auto": the disc that best predicts stars left out. A float: the PSF's
         band limit, the optics' diffraction cutoff ``D / lambda`` times the pixel scale in
         radians (1.2 m at 700 nm with 0.1" pixels: 0.83; 2.4 m at 1.06 um with 0.11"
         pixels: 1.21), clipped by the square grid (``oversampling / 2`` along each axis).
@@ -284,6 +280,12 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
     _state_attributes = _BaseStampBasis._state_attributes + (
         "fine_mean_", "fine_components_", "oversampling_", "fine_size_", "fwhm_",
         "spatial_degree_", "band_limit_")
+
+    def _refit_params(self):
+        """The parameters that fix what this fit chose from the stars, for fitting the basis
+        again on fewer of them (:class:`~sklearn_psf.model.PSFModel`'s outlier round): the
+        band of ``band_limit="auto"``."""
+        return {"band_limit": self.band_limit_} if self.band_limit == "auto" else {}
 
     def _set_state(self, state):
         state = {"spatial_degree_": 0,  # (states written before the joint refinement: none)
@@ -610,7 +612,7 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
                 counted = True
                 target = stamps.d - stamps.level[:, None]
                 if self.band_limit == "auto":  # the band the stars' information reaches
-                    self.band_limit_ = self._ring_band(
+                    self.band_limit_ = self._held_out_band(
                         target, self._pixel_weights(stamps, a[:, 0]), a, offsets, stamps.usable)
                     fine = self._band_limited(fine)
                 k, lam, edge, noise, coef = self._components(

@@ -3,7 +3,8 @@ Fourier operators (drawing fine images at a star's pixels for its sub-pixel offs
 1-D periodic sinc matrices, and the adjoint), the joint least-squares fit of the fine images
 through all stars (conjugate gradients on normal equations computed once per solve as a
 convolution in frequency) and the band limit of the images (the disc of frequencies they
-hold, and its ``"auto"`` choice by the Fourier ring correlation of two half fits). They
+hold, and its ``"auto"`` choice: the disc whose mean, fitted on half of the stars, best
+predicts the other half). They
 live on :class:`_FineGrid`, a mixin that ``SuperResolvedPCA`` inherits: the star fits, the
 components and the estimator API stay in ``_superres``."""
 
@@ -16,9 +17,8 @@ from scipy.fft import next_fast_len
 _CHUNK = 64  # stars at once (the arrays of a chunk stay in the caches)
 _CG_ITER = 100
 _CG_TOL = 1e-7  # relative residual of the conjugate gradients (a Gauss-Newton step: _GN_TOL)
-_RING = 0.1  # cycles per pixel: width of the Fourier rings of band_limit="auto"
-_RING_THRESHOLD = 1.0 / 7.0  # band_limit="auto": ring correlation where the signal ends
-_RING_STARS = 2.5  # band_limit="auto": usable stars per half and per fine sample of a pixel,
+_BAND_STEP = 0.1  # cycles per pixel: the step of the radii band_limit="auto" tries
+_BAND_STARS = 2.5  # band_limit="auto": usable stars per half and per fine sample of a pixel,
 # at least (10 per half at oversampling 2: with fewer the halves' fits stop short of the
 # band that all the stars resolve, e.g. 0.57-0.67 cycle per pixel for 2-12 Euclid-like stars)
 
@@ -264,41 +264,36 @@ class _FineGrid:
         pixel (a disc, clipped by the square grid's own Nyquist frequencies)."""
         return (self._radius() <= self.band_limit_).astype(float)
 
-    def _ring_band(self, d, u, a, offsets, usable):
-        """``band_limit="auto"``: the radius (cycles per pixel) where the stars' information
-        on the mean ends, by the Fourier ring correlation of two means, each fitted on half
-        of the usable stars with the whole square grid (cryo-electron microscopy's
-        resolution criterion): where the correlation, in rings ``_RING`` wide, falls below
-        1/7 (linear between the rings' centres); the whole grid if it does not, the grid's
-        Nyquist disc if it is below from the first ring (no information to go by) or with
-        fewer than ``2 * _RING_STARS * oversampling**2`` usable stars (20 at oversampling 2)."""
+    def _held_out_band(self, d, u, a, offsets, usable):
+        """``band_limit="auto"``: the radius (cycles per pixel) of the disc of frequencies
+        whose mean best predicts stars it was not fitted on. Two means are fitted, each on
+        half of the usable stars over the whole square grid; each is held to discs of radius
+        0.3, 0.4, ... cycles per pixel up to the grid's corner and drawn at the other half's
+        stars (their offsets held, their fluxes fitted); the radius of the least misfit
+        summed over both halves, in the weights ``u``, is the band. The grid's Nyquist disc
+        with fewer than ``2 * _BAND_STARS * oversampling**2`` usable stars (20 at
+        oversampling 2)."""
         f, size, _ = self._grid(self.stamp_size_)
         nyquist = f / 2.0
-        if usable.sum() < 2 * _RING_STARS * f * f:  # too few stars to split
+        if usable.sum() < 2 * _BAND_STARS * f * f:  # too few stars to split
             return float(nyquist)
         k = self._radius()
-        whole = np.ones_like(k)  # the halves' fits: the whole square grid
-        spectra, rows = [], np.flatnonzero(usable)
-        for half in (rows[0::2], rows[1::2]):
-            mean = self._fit_fine(d[half], u[half], a[half, :1], offsets[half],
-                                  np.zeros((1, size * size)), band=whole)
-            spectra.append(np.fft.rfft2(mean.reshape(size, size)))
-        one, two = spectra
-        corner = np.sqrt(2.0) * nyquist
-        centres = np.arange(_RING / 2.0, corner, _RING)
-        frc = np.ones(len(centres))
-        for i, c in enumerate(centres):
-            ring = np.abs(k - c) < _RING / 2.0
-            norm = np.sqrt((np.abs(one[ring]) ** 2).sum() * (np.abs(two[ring]) ** 2).sum())
-            frc[i] = np.real(one[ring] * np.conj(two[ring])).sum() / norm if norm > 0 else 0.0
-        below = np.flatnonzero(frc < _RING_THRESHOLD)
-        if not len(below):
-            return float(corner)
-        if below[0] == 0:
-            return float(nyquist)
-        i = below[0]
-        t = (frc[i - 1] - _RING_THRESHOLD) / (frc[i - 1] - frc[i])
-        return float(min(centres[i - 1] + t * _RING, corner))
+        rows = np.flatnonzero(usable)
+        halves = (rows[0::2], rows[1::2])
+        radii = np.arange(0.3, np.sqrt(2.0) * nyquist + 0.05, _BAND_STEP)
+        misfit = np.zeros(len(radii))
+        for fitted, other in (halves, halves[::-1]):
+            mean = self._fit_fine(d[fitted], u[fitted], a[fitted, :1], offsets[fitted],
+                                  np.zeros((1, size * size)), band=np.ones_like(k))
+            spectrum = np.fft.rfft2(mean.reshape(size, size))
+            for i, radius in enumerate(radii):
+                image = np.fft.irfft2(spectrum * (k <= radius), s=(size, size))
+                drawn = self._draw(image.reshape(1, -1), offsets[other])[:, 0]
+                w, y = u[other], d[other]
+                flux = (w * y * drawn).sum(axis=1) / np.maximum((w * drawn**2).sum(axis=1),
+                                                                np.finfo(float).tiny)
+                misfit[i] += (w * (y - flux[:, None] * drawn) ** 2).sum()
+        return float(radii[np.argmin(misfit)])
 
     def _band_limited(self, fine, band=None):
         """Fine images (m, S*S) with their frequencies outside ``band`` (0/1 per frequency
