@@ -49,7 +49,7 @@ STAGES = [
      "sklearn_psf.model._noise:fit_interpolator"),
     ("  verdict: reserved stars' residuals", "sklearn_psf.validation._fit:measure_residuals"),
     ("  verdict: noise and rho statistics", "sklearn_psf.validation._fit:model_verdict"),
-    ("save the model file", "sklearn_psf.io:save_model"),
+    ("save the model file", "sklearn_psf.model:save_model"),
     ("adaptive moments (all calls)", "sklearn_psf.measure._moments:adaptive_moments"),
 ]
 
