@@ -128,3 +128,26 @@ def test_no_function_over_max_lines_and_no_public_call_over_max_parameters():
     over |= {f"{k} ({n} parameters)" for k, n in wide.items()}
     assert not over, (f"functions over {MAX_FUNCTION_LINES} lines or public callables over "
                       f"{MAX_PUBLIC_PARAMETERS} parameters: {sorted(over)}; split them")
+
+
+def test_every_stage_the_speed_profile_times_exists():
+    # benchmarks/_stages.py wraps functions by "module:attribute path"; a function moved
+    # without updating it stops every profiled run (save_model after its move to model)
+    import importlib
+    import importlib.util
+
+    path = ROOT.parent / "benchmarks" / "_stages.py"
+    if not path.exists():  # an installed package without the repository's benchmarks
+        return
+    spec = importlib.util.spec_from_file_location("_stages", path)
+    stages = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(stages)
+    missing = []
+    for name, target in stages.STAGES:
+        module, attrs = target.split(":")
+        owner = importlib.import_module(module)
+        for part in attrs.split("."):
+            owner = getattr(owner, part, None)
+        if owner is None:
+            missing.append(f"{name.strip()}: {target}")
+    assert not missing, f"stages of benchmarks/_stages.py that no longer exist: {missing}"
