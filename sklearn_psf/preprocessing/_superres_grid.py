@@ -3,8 +3,8 @@ Fourier operators (drawing fine images at a star's pixels for its sub-pixel offs
 1-D periodic sinc matrices, and the adjoint), the joint least-squares fit of the fine images
 through all stars (conjugate gradients on normal equations computed once per solve as a
 convolution in frequency) and the band limit of the images (the disc of frequencies they
-hold, and its ``"auto"`` choice: the disc whose mean, fitted on half of the stars, best
-predicts the other half). They
+hold, and its ``"auto"`` choice with the mean's support: the disc and the radius whose
+mean, fitted on half of the stars, best predicts the other half). They
 live on :class:`_FineGrid`, a mixin that ``SuperResolvedPCA`` inherits: the star fits, the
 components and the estimator API stay in ``_superres``."""
 
@@ -18,6 +18,7 @@ _CHUNK = 64  # stars at once (the arrays of a chunk stay in the caches)
 _CG_ITER = 100
 _CG_TOL = 1e-7  # relative residual of the conjugate gradients (a Gauss-Newton step: _GN_TOL)
 _BAND_STEP = 0.1  # cycles per pixel: the step of the radii band_limit="auto" tries
+_SUPPORTS = (3.0, 4.0, 5.0, 6.0, 8.0, 10.0, np.inf)  # pixels: support_radius="auto"'s
 _BAND_STARS = 2.5  # band_limit="auto": usable stars per half and per fine sample of a pixel,
 # at least (10 per half at oversampling 2: with fewer the halves' fits stop short of the
 # band that all the stars resolve, e.g. 0.57-0.67 cycle per pixel for 2-12 Euclid-like stars)
@@ -264,36 +265,47 @@ class _FineGrid:
         pixel (a disc, clipped by the square grid's own Nyquist frequencies)."""
         return (self._radius() <= self.band_limit_).astype(float)
 
-    def _held_out_band(self, d, u, a, offsets, usable):
-        """``band_limit="auto"``: the radius (cycles per pixel) of the disc of frequencies
-        whose mean best predicts stars it was not fitted on. Two means are fitted, each on
-        half of the usable stars over the whole square grid; each is held to discs of radius
-        0.3, 0.4, ... cycles per pixel up to the grid's corner and drawn at the other half's
-        stars (their offsets held, their fluxes fitted); the radius of the least misfit
-        summed over both halves, in the weights ``u``, is the band. The grid's Nyquist disc
-        with fewer than ``2 * _BAND_STARS * oversampling**2`` usable stars (20 at
-        oversampling 2)."""
+    def _held_out_choice(self, d, u, a, offsets, usable, bands, supports):
+        """``band_limit="auto"`` and ``support_radius="auto"``: the band (cycles per pixel)
+        and the mean's support radius (pixels) among ``bands`` and ``supports`` that best
+        predict stars a fit did not see. Two means are fitted, each on half of the usable
+        stars over the whole square grid; each is held to every disc of frequencies and set
+        to 0 beyond every radius, and drawn at the other half's stars (their offsets held,
+        their flux and a constant background fitted); the pair of the least misfit summed
+        over both halves, in the weights ``u``, is kept. None with fewer than
+        ``2 * _BAND_STARS * oversampling**2`` usable stars (20 at oversampling 2)."""
         f, size, _ = self._grid(self.stamp_size_)
-        nyquist = f / 2.0
         if usable.sum() < 2 * _BAND_STARS * f * f:  # too few stars to split
-            return float(nyquist)
+            return None
         k = self._radius()
         rows = np.flatnonzero(usable)
         halves = (rows[0::2], rows[1::2])
-        radii = np.arange(0.3, np.sqrt(2.0) * nyquist + 0.05, _BAND_STEP)
-        misfit = np.zeros(len(radii))
+        masks = [self._disc(r) for r in supports]
+        misfit = np.zeros((len(bands), len(supports)))
         for fitted, other in (halves, halves[::-1]):
             mean = self._fit_fine(d[fitted], u[fitted], a[fitted, :1], offsets[fitted],
                                   np.zeros((1, size * size)), band=np.ones_like(k))
             spectrum = np.fft.rfft2(mean.reshape(size, size))
-            for i, radius in enumerate(radii):
-                image = np.fft.irfft2(spectrum * (k <= radius), s=(size, size))
-                drawn = self._draw(image.reshape(1, -1), offsets[other])[:, 0]
-                w, y = u[other], d[other]
-                flux = (w * y * drawn).sum(axis=1) / np.maximum((w * drawn**2).sum(axis=1),
-                                                                np.finfo(float).tiny)
-                misfit[i] += (w * (y - flux[:, None] * drawn) ** 2).sum()
-        return float(radii[np.argmin(misfit)])
+            w, y = u[other], d[other]
+            sw, swy = w.sum(axis=1), (w * y).sum(axis=1)
+            for i, band in enumerate(bands):
+                image = np.fft.irfft2(spectrum * (k <= band), s=(size, size)).ravel()
+                for j, mask in enumerate(masks):
+                    drawn = self._draw((image * mask)[None], offsets[other])[:, 0]
+                    # each star's flux and background: 2 x 2 weighted least squares
+                    sdd, sd = (w * drawn**2).sum(axis=1), (w * drawn).sum(axis=1)
+                    sdy = (w * y * drawn).sum(axis=1)
+                    det = np.maximum(sdd * sw - sd**2, np.finfo(float).tiny)
+                    flux, level = (sdy * sw - swy * sd) / det, (sdd * swy - sd * sdy) / det
+                    misfit[i, j] += (w * (y - flux[:, None] * drawn - level[:, None]) ** 2).sum()
+        i, j = np.unravel_index(np.argmin(misfit), misfit.shape)
+        return float(bands[i]), float(supports[j])
+
+    def _disc(self, radius):
+        """0/1 per fine sample: within ``radius`` pixels of the grid's centre."""
+        f, size, _ = self._grid(self.stamp_size_)
+        r = np.hypot(*np.mgrid[0:size, 0:size] - (size - 1) / 2.0) / f
+        return (r <= radius).ravel().astype(float)
 
     def _band_limited(self, fine, band=None):
         """Fine images (m, S*S) with their frequencies outside ``band`` (0/1 per frequency
