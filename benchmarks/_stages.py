@@ -36,8 +36,8 @@ STAGES = [
      "SuperResolvedPCA._fit_fine"),
     ("      SuperResolvedPCA: stars' fits", "sklearn_psf.preprocessing._superres:"
      "SuperResolvedPCA._fit_stars"),
-    ("      SuperResolvedPCA: band (two half fits)", "sklearn_psf.preprocessing._superres:"
-     "SuperResolvedPCA._held_out_band"),
+    ("      SuperResolvedPCA: band, support (half fits)", "sklearn_psf.preprocessing._superres:"
+     "SuperResolvedPCA._held_out_choice"),
     ("      SuperResolvedPCA: spatial refinement", "sklearn_psf.preprocessing._superres:"
      "SuperResolvedPCA._refine"),
     ("    projection of the other stars", "sklearn_psf.model._psf_model:PSFModel._project"),

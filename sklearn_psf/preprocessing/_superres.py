@@ -19,7 +19,7 @@ from ._pca_noise import star_weights, sum_zero, weighted_pca
 from ._stamp_weights import (border_level, has_background, model_weights, poisson_slope,
                              variances)
 from ._stamp_basis import FALLBACK_SIGMA, _BaseStampBasis, stamp_fwhm
-from ._superres_grid import _BAND_STEP, _CHUNK, _SUPPORTS, _FineGrid
+from ._superres_grid import _CHUNK, _FineGrid
 
 __all__ = ["SuperResolvedPCA", "UNDERSAMPLED_FWHM"]
 
@@ -416,20 +416,6 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
                 parts.insert(1, np.ones((len(flux), 1, s * s)))
             rows.append(np.concatenate(parts, axis=1))
         return model, np.concatenate(rows)
-
-    def _choose_band_and_support(self, d, u, a, offsets, usable):
-        """``band_limit_`` and ``support_radius_`` of the "auto" parameters, by the stars
-        left out of half fits (:meth:`_held_out_choice`); with too few stars, the grid's
-        Nyquist disc and the whole stamp."""
-        nyquist = self.oversampling_ / 2.0
-        bands = (np.arange(0.3, np.sqrt(2.0) * nyquist + 0.05, _BAND_STEP)
-                 if self.band_limit == "auto" else [self.band_limit_])
-        supports = _SUPPORTS if self.support_radius == "auto" else [self.support_radius_]
-        chosen = self._held_out_choice(d, u, a, offsets, usable, bands, supports)
-        if chosen is None:
-            chosen = (nyquist if self.band_limit == "auto" else self.band_limit_,
-                      np.inf if self.support_radius == "auto" else self.support_radius_)
-        self.band_limit_, self.support_radius_ = chosen
 
     def _settle(self, fine):
         """Fine images band-limited (:meth:`_band`) and re-centred (:meth:`_recentre`), the

@@ -265,6 +265,20 @@ class _FineGrid:
         pixel (a disc, clipped by the square grid's own Nyquist frequencies)."""
         return (self._radius() <= self.band_limit_).astype(float)
 
+    def _choose_band_and_support(self, d, u, a, offsets, usable):
+        """``band_limit_`` and ``support_radius_`` of the "auto" parameters, by the stars
+        left out of half fits (:meth:`_held_out_choice`); with too few stars, the grid's
+        Nyquist disc and the whole stamp."""
+        nyquist = self.oversampling_ / 2.0
+        bands = (np.arange(0.3, np.sqrt(2.0) * nyquist + 0.05, _BAND_STEP)
+                 if self.band_limit == "auto" else [self.band_limit_])
+        supports = _SUPPORTS if self.support_radius == "auto" else [self.support_radius_]
+        chosen = self._held_out_choice(d, u, a, offsets, usable, bands, supports)
+        if chosen is None:
+            chosen = (nyquist if self.band_limit == "auto" else self.band_limit_,
+                      np.inf if self.support_radius == "auto" else self.support_radius_)
+        self.band_limit_, self.support_radius_ = chosen
+
     def _held_out_choice(self, d, u, a, offsets, usable, bands, supports):
         """``band_limit="auto"`` and ``support_radius="auto"``: the band (cycles per pixel)
         and the mean's support radius (pixels) among ``bands`` and ``supports`` that best
