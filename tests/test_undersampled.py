@@ -121,12 +121,13 @@ def test_super_resolved_psf_at_a_new_phase_equals_galsim(optical):
     # noiseless stars at 20 random phases (equal weights); the basis drawn at phases no
     # star has equals GalSim's rendering, to 1e-4 of the peak (the model's stamps sum to 1
     # on the stamp, GalSim's profile has 2.5% of its flux beyond it: compared at the
-    # best-fitting flux)
+    # best-fitting flux); the whole stamp modelled (fit_size="auto" leaves out the Airy
+    # rings beyond 10 pixels: 3-5e-4 of the peak)
     rng = np.random.default_rng(0)
     side = 25
     off = rng.uniform(-0.5, 0.5, (20, 2))
     stars = np.array([_draw(optical, o, side) for o in off]).reshape(20, -1)
-    basis = SuperResolvedPCA().fit(stars, weights=np.ones_like(stars))
+    basis = SuperResolvedPCA(fit_size=None).fit(stars, weights=np.ones_like(stars))
     assert basis.oversampling_ == 2 and basis.fine_size_ == 51
     centre = _centre(optical)
     new = np.array([[0.23, -0.41], [-0.37, 0.11], [0.49, 0.49], [0.0, 0.0]])
@@ -507,3 +508,33 @@ def test_support_radius_sets_the_mean_to_zero_beyond_it(optical):
     assert far < 0.3 * far_whole, (far, far_whole)  # measured 0.011 against 0.084
     with pytest.raises(ValueError, match="support_radius"):
         SuperResolvedPCA(support_radius=-1.0).fit(stars)
+
+
+def test_fit_size_models_the_square_about_the_star_only(optical):
+    # fit_size="auto": on stamps wider than 2 x 12 + 1 pixels the fine images model the
+    # central 25 x 25 pixels (FWHM 1.5 here):
+    # a neighbour beyond them leaves the fit as it was, where the whole stamp's fit takes
+    # it into the mean; the model beyond them is the band limit's spread of its edge only
+    rng = np.random.default_rng(7)
+    side, n = 35, 40
+    stars = np.array([_draw(optical, o, side) for o in rng.uniform(-0.5, 0.5, (n, 2))])
+    stars = stars * 1e4 + rng.normal(0.0, 1.0, stars.shape)
+    crowded = stars.copy()
+    crowded[:, 0:3, 0:3] += 300.0  # 15-17 pixels from the star, beyond the square
+    stars, crowded = stars.reshape(n, -1), crowded.reshape(n, -1)
+
+    def fit(X, size):
+        return SuperResolvedPCA(background=False, n_components=1, fit_size=size).fit(X)
+
+    clean, near = fit(stars, "auto"), fit(crowded, "auto")
+    assert clean.fit_size_ == near.fit_size_ == 25 and clean.stamp_size_ == side
+    peak = clean.fine_mean_.max()
+    change = np.abs(near.fine_mean_ - clean.fine_mean_).max() / peak
+    whole = np.abs(fit(crowded, None).fine_mean_ - fit(stars, None).fine_mean_).max() / peak
+    assert change < 1e-6 and whole > 0.05, (change, whole)  # measured 4e-9 and 0.26
+    S, f = clean.fine_size_, clean.oversampling_
+    yy, xx = np.abs(np.mgrid[0:S, 0:S] - (S - 1) / 2.0) / f
+    beyond = np.maximum(xx, yy).ravel() > 13.0  # a pixel beyond the square's edge
+    assert np.abs(clean.fine_mean_[beyond]).max() < 1e-3 * peak  # measured 8e-5
+    with pytest.raises(ValueError, match="fit_size"):
+        SuperResolvedPCA(fit_size=20).fit(stars)

@@ -13,6 +13,7 @@ locus, and a cut that would reject most of the locus (``CLASS_STAR`` depends on 
 
 from __future__ import annotations
 
+import itertools
 import warnings
 
 import numpy as np
@@ -107,7 +108,7 @@ def _neighbour_discs(catalog, rows, stamp_size):
     xy = np.column_stack([np.nan_to_num(x, nan=-1e12), np.nan_to_num(y, nan=-1e12)])
     found = cKDTree(xy).query_ball_point(xy[rows], reach, p=np.inf)
     k = np.repeat(np.arange(len(rows)), [len(near) for near in found])
-    j = np.fromiter((j for near in found for j in near), dtype=np.intp, count=len(k))
+    j = np.fromiter(itertools.chain.from_iterable(found), dtype=np.intp, count=len(k))
     other = j != rows[k]
     k, j = k[other], j[other]
     i = rows[k]
@@ -178,16 +179,30 @@ def neighbour_masks(catalog, rows, stamp_size: int):
                    np.clip(y[j], py[:, 0], py[:, -1]) - y[j])
     near = gap < r + 0.5
     k, j, r, px, py = k[near], j[near], r[near], px[near], py[near]
-    for start in range(0, len(k), _PAIRS):  # (bounded memory: s*s floats per pair)
+    # every pixel a disc reaches (its centre within r + half a pixel), row by row: the
+    # columns c of dx(c)**2 < (r + 1/2)**2 - dy**2, an interval, marked by +1 at its start and
+    # -1 past its end in each stamp row, then summed along the row
+    marks = np.zeros(len(rows) * s * (s + 1), dtype=np.int32)
+    for start in range(0, len(k), _PAIRS):  # (bounded memory: s ints per pair)
         sl = slice(start, start + _PAIRS)
-        dx = px[sl, None, :] - x[j[sl]][:, None, None]
-        dy = py[sl, :, None] - y[j[sl]][:, None, None]
-        # every pixel a disc reaches (its centre within r + half a pixel), each star's discs
-        # together
-        disc = dx**2 + dy**2 < (r[sl, None, None] + 0.5)**2
-        first = np.flatnonzero(np.r_[True, k[sl][1:] != k[sl][:-1]])
-        masks[k[sl][first]] |= np.logical_or.reduceat(disc, first, axis=0)
-    return masks
+        xj, dy2 = x[j[sl]], (py[sl] - y[j[sl]][:, None]) ** 2
+        r2 = (r[sl] + 0.5)[:, None] ** 2
+        room = r2 - dy2
+        reach = np.sqrt(np.maximum(room, 0.0))
+        lo = np.floor(xj[:, None] - px[sl, :1] - reach).astype(np.int64) + 1
+        hi = np.ceil(xj[:, None] - px[sl, :1] + reach).astype(np.int64) - 1
+
+        def inside(c):  # the disc's own test at column c (the bounds exact to rounding)
+            return (px[sl, :1] + c - xj[:, None]) ** 2 + dy2 < r2
+
+        lo += np.where(inside(lo - 1), -1, np.where(inside(lo), 0, 1))
+        hi += np.where(inside(hi + 1), 1, np.where(inside(hi), 0, -1))
+        lo, hi = np.clip(lo, 0, s), np.clip(hi + 1, 0, s)
+        row = (k[sl, None] * s + np.arange(s)) * (s + 1)
+        on = (room > 0) & (lo < hi)
+        np.add.at(marks, (row + lo)[on], 1)
+        np.add.at(marks, (row + hi)[on], -1)
+    return np.cumsum(marks.reshape(len(rows), s, s + 1), axis=2)[:, :, :s] > 0
 
 
 def _column(table, name):

@@ -215,6 +215,13 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
         share with their surroundings (a crowded field's neighbours, unresolved stars) as
         much as the PSF: on the crowded 2MASS Galactic Centre mosaic it was chosen at 3
         pixels (FWHM 1.3), on Euclid-like stars (FWHM 1.5) at 8. None: the whole stamp.
+    fit_size : "auto", odd int or None, default="auto"
+        Side (pixels) of the square about each star that the fine images model, as PSFEx's
+        ``PSF_SIZE``: the fit sees only these pixels of each stamp (the background level
+        is taken from the whole stamp's border) and the images are 0 beyond them. "auto":
+        ``2 * max(12, 5 * fwhm_) + 1`` pixels, within the stamp (25 for undersampled stars,
+        PSFEx's default ``PSF_SIZE`` at its native sampling); the fit's cost grows with
+        the side's square. None: the whole stamp.
 
     Attributes
     ----------
@@ -237,6 +244,8 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
         grid's corner, ``oversampling_ / sqrt(2)``, for ``band_limit=None``.
     support_radius_ : float
         Radius (pixels) beyond which the mean is 0; infinite for none.
+    fit_size_ : int
+        Side (pixels) of the square the fine images model; ``stamp_size_`` for the whole.
     explained_variance_, noise_variance_, noise_edge_ : float or ndarray
         Of the PCA of the residuals at the pixels' sampling (see above).
     background_ : bool
@@ -275,12 +284,13 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
                        None],
         "support_radius": [StrOptions({"auto"}), Interval(Real, 0, None, closed="neither"),
                            None],
+        "fit_size": [StrOptions({"auto"}), Interval(Integral, 3, None, closed="left"), None],
     }
 
     def __init__(self, oversampling="auto", n_components="noise", max_components: int = 10,
                  n_iter: int = 6, max_star_weight: float = 10.0, guess_sigma: float = 3.0,
                  background="auto", spatial_degree="auto", band_limit="auto",
-                 support_radius="auto"):
+                 support_radius="auto", fit_size="auto"):
         self.oversampling = oversampling
         self.n_components = n_components
         self.max_components = max_components
@@ -291,10 +301,11 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
         self.spatial_degree = spatial_degree
         self.band_limit = band_limit
         self.support_radius = support_radius
+        self.fit_size = fit_size
 
     _state_attributes = _BaseStampBasis._state_attributes + (
         "fine_mean_", "fine_components_", "oversampling_", "fine_size_", "fwhm_",
-        "spatial_degree_", "band_limit_", "support_radius_")
+        "spatial_degree_", "band_limit_", "support_radius_", "fit_size_")
 
     def _refit_params(self):
         """The parameters that fix what this fit chose from the stars, for fitting the basis
@@ -310,12 +321,14 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
         state = {"spatial_degree_": 0,  # (states written before the joint refinement: none)
                  # (before band_limit_ was recorded: the grid's Nyquist disc)
                  "band_limit_": int(state["oversampling_"]) / 2.0,
-                 "support_radius_": np.inf, **state}  # (before the support: none)
+                 "support_radius_": np.inf,  # (before the support: none)
+                 "fit_size_": state["stamp_size_"], **state}  # (before the crop: none)
         super()._set_state(state)
         self.oversampling_, self.fine_size_ = int(self.oversampling_), int(self.fine_size_)
         self.spatial_degree_ = int(self.spatial_degree_)
         self.fwhm_, self.band_limit_ = float(self.fwhm_), float(self.band_limit_)
         self.support_radius_ = float(self.support_radius_)
+        self.fit_size_ = int(self.fit_size_)
         self.fine_mean_ = np.asarray(self.fine_mean_, dtype=np.float64).reshape(-1)
         self.fine_components_ = np.asarray(self.fine_components_, dtype=np.float64).reshape(
             self.n_components_, -1)
@@ -371,31 +384,6 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
         return a, cov, model, offsets, level, ok
 
     # -- the fine images' joint fit -----------------------------------------------------------
-    def _support(self, fine):
-        """0/1 per fine sample: where the mean exceeds 1e-2 of its peak, grown by one pixel
-        (the components' support: beyond it they would fit noise)."""
-        from scipy.ndimage import binary_dilation
-
-        size = self._grid(self.stamp_size_)[1]
-        mean = fine[0].reshape(size, size)
-        core = mean > 1e-2 * mean.max()
-        return binary_dilation(core, iterations=self.oversampling_).ravel().astype(float)
-
-    def _frame(self, fine):
-        """Orthonormal rows spanning the fine mean and its x and y derivatives (the
-        directions the stars' fluxes and offsets already take)."""
-        size = self._grid(self.stamp_size_)[1]
-        fx = np.fft.rfft2(fine[0].reshape(size, size))
-        ky = np.fft.fftfreq(size)[:, None]
-        kx = np.fft.rfftfreq(size)[None, :]
-        grads = np.fft.irfft2(np.stack([fx * 2j * np.pi * kx, fx * 2j * np.pi * ky]),
-                              s=(size, size)).reshape(2, -1)
-        rows = np.vstack([fine[:1], grads])
-        if not np.abs(rows).sum():
-            return np.zeros((0, size * size))
-        q, _ = np.linalg.qr(rows.T)
-        return q.T
-
     def _jacobian(self, fine, a, offsets):
         """Each star's model pixels (n, p) and the rows (n, q, p) of the parameters profiled
         out of the fine images' Gauss-Newton step: its flux (the model over the flux), a
@@ -475,6 +463,12 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
                               and r > 0)):
             raise ValueError(f"support_radius must be 'auto', None or a positive number "
                              f"(pixels), got {r!r}.")
+        t = self.fit_size
+        if not (t is None or (t == "auto" if isinstance(t, str) else
+                              isinstance(t, numbers.Integral) and not isinstance(t, bool)
+                              and t >= 3 and t % 2)):
+            raise ValueError(f"fit_size must be 'auto', None or an odd int >= 3 (pixels), "
+                             f"got {t!r}.")
 
     @_fit_context(prefer_skip_nested_validation=True)
     def fit(self, X, y=None, weights=None, positions=None):
@@ -536,13 +530,21 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
                             np.sqrt(2.0) * self.oversampling_ / 2.0 if b is None else float(b))
         r = self.support_radius
         self.support_radius_ = np.inf if r is None or isinstance(r, str) else float(r)
+        # the fine images model the square of side fit_size_ about each star (0 beyond it)
+        self.fit_size_ = t = self._fit_side(s)
+        d, w = self._crop(d, s, t), self._crop(w, s, t)
         stamps = _Stamps(d=d, w=w, w_given=w, poisson=poisson_slope(d, w), ok=ok,
                          usable=usable, pixel_var=variances(w).mean(axis=1), level=level)
         degree = 0 if positions is None else self._spatial_degree(int(usable.sum()))
+        self.stamp_size_ = t  # (the fit's grid; the stamps' after it)
         fit = self._fit_images(stamps, flux, offsets, degree)
         fine, k = fit.fine, fit.fine.shape[0] - 1
         if degree and k:
             fine = self._refine(stamps, positions[:, :2], degree, fine, fit.a, fit.offsets)
+        self.stamp_size_ = s
+        fine = self._embedded(fine, t)
+        if t < s:
+            fine = np.vstack([fine[:1] / fine[0].sum(), sum_zero(fine[1:], fine[0])])
         self.spatial_degree_ = int(degree) if k else 0
         self.fine_mean_ = fine[0]
         self.fine_components_ = fine[1:]
