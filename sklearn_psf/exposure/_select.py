@@ -90,9 +90,12 @@ def _mask_radius(alpha_n, flux_n, alpha_s, flux_s):
     of the star's peak surface brightness: (1 + (r/alpha_n)^2)^-beta = level q, with
     q = (F_s / F_n) (alpha_n / alpha_s)^2; at least alpha_n (the neighbour's core)."""
     ratio = np.where(np.isfinite(flux_n) & np.isfinite(flux_s), flux_s / flux_n, 1.0)
-    q = ratio * (alpha_n / alpha_s) ** 2
-    reach = np.sqrt(np.maximum((_NEIGHBOUR_LEVEL * q) ** (-1 / _BETA) - 1, 1.0))
-    return alpha_n * reach
+    return _radius_at(alpha_n, ratio * (alpha_n / alpha_s) ** 2)
+
+
+def _radius_at(alpha_n, q):
+    """:func:`_mask_radius` of neighbours of Moffat alpha ``alpha_n`` at level ratio ``q``."""
+    return alpha_n * np.sqrt(np.maximum((_NEIGHBOUR_LEVEL * q) ** (-1 / _BETA) - 1, 1.0))
 
 
 _PAIRS = 4096  # (star, neighbour) pairs drawn at once by neighbour_masks
@@ -104,11 +107,25 @@ def _neighbour_discs(catalog, rows, stamp_size):
     ``r`` against that star (:func:`_mask_radius`); and every source's x, y and alpha."""
     alpha, flux = _sizes_fluxes(catalog)
     x, y = _column(catalog, "x"), _column(catalog, "y")
+    if len(rows) == 0:
+        none = np.zeros(0, dtype=np.intp)
+        return none, none, np.zeros(0), x, y, alpha
     reach = (int(stamp_size) - 1) / 2 + 1.5 + 30 * np.nanmax(alpha, initial=2.0)
+    # each source's own reach, within that: its widest disc against any of the stars (their
+    # least level ratio q), plus a stamp's half side and the largest star's core
+    a_s, f_s = alpha[rows], flux[rows]
+    known = np.isfinite(f_s)
+    by_flux = np.min(np.where(known, f_s, np.inf) / a_s**2, initial=np.inf)
+    by_size = np.min(np.where(known, np.inf, 1.0 / a_s**2), initial=np.inf)
+    q = alpha**2 * np.where(np.isfinite(flux), np.minimum(by_flux / flux, by_size),
+                            1.0 / np.max(a_s, initial=1.0) ** 2)
+    own = _radius_at(alpha, q) + max(int(stamp_size) // 2 + 1.0, np.max(a_s, initial=0.0))
     xy = np.column_stack([np.nan_to_num(x, nan=-1e12), np.nan_to_num(y, nan=-1e12)])
-    found = cKDTree(xy).query_ball_point(xy[rows], reach, p=np.inf)
-    k = np.repeat(np.arange(len(rows)), [len(near) for near in found])
-    j = np.fromiter(itertools.chain.from_iterable(found), dtype=np.intp, count=len(k))
+    found = cKDTree(xy[rows]).query_ball_point(xy, np.minimum(own + 1e-6, reach), p=np.inf)
+    j = np.repeat(np.arange(len(xy)), [len(near) for near in found])
+    k = np.fromiter(itertools.chain.from_iterable(found), dtype=np.intp, count=len(j))
+    order = np.argsort(k, kind="stable")
+    k, j = k[order], j[order]
     other = j != rows[k]
     k, j = k[other], j[other]
     i = rows[k]
