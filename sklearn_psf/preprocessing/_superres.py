@@ -233,7 +233,8 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
         The same drawn at the pixels' sampling, centred (the star at the centre pixel).
     oversampling_ : int
     fine_size_ : int
-        Side S of the fine grid (odd; the PSF centre at its central sample).
+        Side S of the fine grid (odd; the PSF centre at its central sample), over the
+        ``fit_size_`` square.
     fwhm_ : float
         Median FWHM of the stars (pixels).
     spatial_degree_ : int
@@ -245,7 +246,8 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
     support_radius_ : float
         Radius (pixels) beyond which the mean is 0; infinite for none.
     fit_size_ : int
-        Side (pixels) of the square the fine images model; ``stamp_size_`` for the whole.
+        Side (pixels) of the square the fine images model (``fine_size_`` covers it);
+        ``stamp_size_`` for the whole stamp.
     explained_variance_, noise_variance_, noise_edge_ : float or ndarray
         Of the PCA of the residuals at the pixels' sampling (see above).
     background_ : bool
@@ -341,7 +343,12 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
         ``held`` (n, m - 1), each star's coefficients are held at its row: only its flux,
         offset and background are fitted (``a``: the flux, (n, 1))."""
         n, p = d.shape
-        s = self.stamp_size_
+        s = self.fit_size_
+        pad = p - s * s  # (a last column: the pixels beyond the square, summed; model 0)
+
+        def padded(x):
+            return np.concatenate([x, np.zeros(x.shape[:-1] + (pad,))], axis=-1) if pad else x
+
         mix = None if held is None else np.column_stack([np.ones(n), held])
         m = fine.shape[0] if held is None else 1
         extra = int(self.background_)
@@ -356,8 +363,7 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
             for step in range(steps + 1):
                 A, slope = self._draw(fine, offsets[sl], None if mix is None else mix[sl],
                                       gradient=True)
-                if mix is not None:
-                    A = A[:, None]
+                A = padded(A if mix is None else A[:, None])
                 if extra:
                     A = np.concatenate([A, np.ones((A.shape[0], 1, p))], axis=1)
                 Aw = A * w[sl, None, :]
@@ -367,7 +373,7 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
                 if step == steps:
                     break
                 # Gauss-Newton on the offsets, with flux, coefficients and background
-                G = np.concatenate([A, slope(sol[:, :m])], axis=1)
+                G = np.concatenate([A, padded(slope(sol[:, :m]))], axis=1)
                 Gw = G * w[sl, None, :]
                 resid = d[sl] - (sol[:, None, :] @ A)[:, 0]
                 move = (np.linalg.pinv(Gw @ G.transpose(0, 2, 1), hermitian=True)
@@ -392,7 +398,7 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
         as alternating least squares does for a PCA), without the scale and rotation a
         joint step would leave free."""
         n = len(a)
-        s = self.stamp_size_
+        s = self.fit_size_
         model = np.empty((n, s * s))
         rows = []
         for lo in range(0, n, _CHUNK):
@@ -425,7 +431,7 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
     def _recentre(self, fine):
         """Fine images moved so that the mean's centroid is the central sample; the move
         (pixels) to add to the stars' offsets."""
-        size = self._grid(self.stamp_size_)[1]
+        size = self._grid(self.fit_size_)[1]
         f = self.oversampling_
         img = fine[:1].reshape(1, size, size)
         mom = adaptive_moments(img, guess_sigma=f * FALLBACK_SIGMA)
@@ -536,15 +542,10 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
         stamps = _Stamps(d=d, w=w, w_given=w, poisson=poisson_slope(d, w), ok=ok,
                          usable=usable, pixel_var=variances(w).mean(axis=1), level=level)
         degree = 0 if positions is None else self._spatial_degree(int(usable.sum()))
-        self.stamp_size_ = t  # (the fit's grid; the stamps' after it)
         fit = self._fit_images(stamps, flux, offsets, degree)
         fine, k = fit.fine, fit.fine.shape[0] - 1
         if degree and k:
             fine = self._refine(stamps, positions[:, :2], degree, fine, fit.a, fit.offsets)
-        self.stamp_size_ = s
-        fine = self._embedded(fine, t)
-        if t < s:
-            fine = np.vstack([fine[:1] / fine[0].sum(), sum_zero(fine[1:], fine[0])])
         self.spatial_degree_ = int(degree) if k else 0
         self.fine_mean_ = fine[0]
         self.fine_components_ = fine[1:]
@@ -552,9 +553,9 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
         self.noise_variance_ = fit.noise_variance
         self.noise_edge_ = fit.noise_edge
         self.n_components_ = int(fine.shape[0] - 1)
-        self.fine_size_ = self._grid(s)[1]
+        self.fine_size_ = self._grid(t)[1]
         self._n_features_out = self.n_components_
-        drawn = self._draw(fine, np.zeros((1, 2)))[0]
+        drawn = self._embed(self._draw(fine, np.zeros((1, 2)))[0], t, s)
         self.mean_, self.components_ = drawn[0], drawn[1:]
 
     def _pixel_weights(self, stamps, flux):
@@ -585,7 +586,7 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
         components' count and their rounds (alternating least squares), at most ``n_iter``
         (``_REFINED_ITER`` before a joint refinement of ``degree``). ``stamps`` is updated
         (usable stars, weights, background levels)."""
-        size = self._grid(self.stamp_size_)[1]
+        size = self._grid(self.fit_size_)[1]
         a = np.where(stamps.usable, flux, 0.0)[:, None]
         fine = np.zeros((1, size * size))
         lam, edge, noise = np.zeros(0), np.nan, np.nan
@@ -699,24 +700,6 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
             offsets = offsets + move
         return fine
 
-    def _spatial_fit(self, r, u, flux, offsets, fine, terms):
-        """Polynomial coefficients C (terms, components) minimising, in the pixel weights
-        ``u``, ``sum_n ||r_n - flux_n draw_n((terms_n @ C) @ components)||^2``."""
-        n, t = terms.shape
-        k = fine.shape[0] - 1
-        normal = np.zeros((t, k, t, k))
-        rhs = np.zeros((t, k))
-        for lo in range(0, n, _CHUNK):
-            sl = slice(lo, min(lo + _CHUNK, n))
-            drawn = self._draw(fine[1:], offsets[sl]) * flux[sl, None, None]
-            du = drawn * u[sl, None]
-            gram = du @ drawn.transpose(0, 2, 1)  # (b, k, k)
-            normal += np.einsum("bp,bq,bjl->pjql", terms[sl], terms[sl], gram)
-            rhs += np.einsum("bp,bj->pj", terms[sl], (du @ r[sl, :, None])[:, :, 0])
-        normal = normal.reshape(t * k, t * k)
-        sol = np.linalg.lstsq(normal, rhs.ravel(), rcond=1e-12)[0]
-        return sol.reshape(t, k)
-
     def _components(self, d, w, a, offsets, fine, usable, pixel_var):
         """Number of components, PCA variances, noise edge and noise of the residuals from
         the mean (each star at its phase, at the pixels' sampling) and each star's
@@ -734,7 +717,7 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
         noise = float((u * v).sum() / u.sum())
         kernel = noise_correlation(standardised_residuals(
             (d / flux[:, None])[usable], drawn[usable], flux[usable], w[usable]))
-        raise_by = correlated_noise_factor(kernel, v[usable], u[usable], self.stamp_size_)
+        raise_by = correlated_noise_factor(kernel, v[usable], u[usable], self.fit_size_)
         k, edge = self._choose(lam, total, noise, u[usable] * v[usable] / u.sum(), p,
                                raise_by)
         coef = (resid - centre) @ axes[:k].T
@@ -742,9 +725,23 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
 
     def _project_stars(self, d, w, offsets, s):
         """Each star fitted through its own phase on the fine grid (Gauss-Newton on the
-        offset from :class:`StampPCA`'s centroid)."""
+        offset from :class:`StampPCA`'s centroid), on the square of ``fit_size_``; the
+        pixels beyond it, where the model is 0, enter the background level as one pixel of
+        their summed weight and mean value (the same least squares as each of them)."""
         fine = np.vstack([self.fine_mean_[None], self.fine_components_])
-        return self._fit_stars(d, w, offsets, fine)
+        t = self.fit_size_
+        if t < s:
+            box = self._crop(np.arange(s * s)[None], s, t)[0]
+            out = np.ones(s * s, dtype=bool)
+            out[box] = False
+            if self.background_:
+                w_out = w[:, out].sum(axis=1)
+                d_out = (w * d)[:, out].sum(axis=1) / np.where(w_out > 0, w_out, 1.0)
+                d, w = np.column_stack([d[:, box], d_out]), np.column_stack([w[:, box], w_out])
+            else:
+                d, w = d[:, box], w[:, box]
+        a, cov, model, offsets, level, ok = self._fit_stars(d, w, offsets, fine)
+        return a, cov, self._embed(model[:, :t * t], t, s), offsets, level, ok
 
     def render(self, coefficients, flux=1.0, offsets=None):
         """Model stamps at the pixels' sampling, the star at ``offsets`` from the centre.
@@ -770,10 +767,11 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
             offsets, dtype=np.float64).reshape(n, 2)
         fine = np.vstack([self.fine_mean_[None], self.fine_components_])
         mix = np.column_stack([np.ones(n), coef])
-        stamps = np.empty((n, self.stamp_size_**2))
+        stamps = np.empty((n, self.fit_size_**2))
         for lo in range(0, n, _CHUNK):
             sl = slice(lo, min(lo + _CHUNK, n))
             stamps[sl] = self._draw(fine, off[sl], mix[sl])
+        stamps = self._embed(stamps, self.fit_size_, self.stamp_size_)
         return stamps * np.broadcast_to(np.asarray(flux, dtype=np.float64), (n,))[:, None]
 
     def render_fine(self, coefficients, normalize=True):

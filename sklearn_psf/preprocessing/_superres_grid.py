@@ -1,12 +1,12 @@
 """The fine grid of :class:`~sklearn_psf.preprocessing.SuperResolvedPCA`: its geometry and
 Fourier operators (drawing fine images at a star's pixels for its sub-pixel offset, by two
-1-D periodic sinc matrices, and the adjoint), the joint least-squares fit of the fine images
-through all stars (conjugate gradients on normal equations computed once per solve as a
-convolution in frequency) and the band limit of the images (the disc of frequencies they
-hold, and its ``"auto"`` choice with the mean's support: the disc and the radius whose
-mean, fitted on half of the stars, best predicts the other half). They
-live on :class:`_FineGrid`, a mixin that ``SuperResolvedPCA`` inherits: the star fits, the
-components and the estimator API stay in ``_superres``."""
+1-D periodic sinc matrices, and the adjoint), the joint least-squares fits through all stars
+of the fine images (conjugate gradients on normal equations computed once per solve as a
+convolution in frequency) and of the refinement's polynomial, and the band limit of the
+images (the disc of frequencies they hold, and its ``"auto"`` choice with the mean's
+support: the disc and the radius whose mean, fitted on half of the stars, best predicts
+the other half). They live on :class:`_FineGrid`, a mixin that ``SuperResolvedPCA``
+inherits: the star fits, the components and the estimator API stay in ``_superres``."""
 
 from __future__ import annotations
 
@@ -29,8 +29,9 @@ _BAND_STARS = 2.5  # band_limit="auto": usable stars per half and per fine sampl
 
 class _FineGrid:
     """The fine grid's geometry, draws, joint fit and band limit (a mixin of
-    :class:`~sklearn_psf.preprocessing.SuperResolvedPCA`, which sets ``stamp_size_``,
-    ``oversampling_`` and ``band_limit_`` before using them)."""
+    :class:`~sklearn_psf.preprocessing.SuperResolvedPCA`, which sets ``fit_size_`` (the
+    side of the square of pixels the grid models), ``oversampling_`` and ``band_limit_``
+    before using them)."""
 
     # -- geometry -----------------------------------------------------------------------------
     def _grid(self, s):
@@ -56,16 +57,15 @@ class _FineGrid:
         return np.ascontiguousarray(
             x.reshape(-1, s, s)[:, lo:lo + side, lo:lo + side]).reshape(len(x), -1)
 
-    def _embedded(self, fine, side):
-        """Fine images (m, S'*S') of the grid of stamps of side ``side`` at the centre of the
-        grid of ``stamp_size_`` (0 around it), held to the band."""
-        small, size = self._grid(side)[1], self._grid(self.stamp_size_)[1]
-        if small == size:
-            return fine
-        lo = (size - small) // 2  # both odd: the central samples coincide
-        out = np.zeros((len(fine), size, size))
-        out[:, lo:lo + small, lo:lo + small] = fine.reshape(-1, small, small)
-        return self._band_limited(out.reshape(len(fine), -1))
+    @staticmethod
+    def _embed(x, side, s):
+        """Stamps (n, side*side) placed at the centre of stamps (n, s*s), 0 around them."""
+        if side == s:
+            return x
+        out = np.zeros((len(x), s, s))
+        lo = (s - side) // 2
+        out[:, lo:lo + side, lo:lo + side] = x.reshape(-1, side, side)
+        return out.reshape(len(x), -1)
 
     def _interp(self, shifts, derivative=False):
         """1-D matrices (b, s, S) drawing a fine image's rows (or columns) at the pixels of
@@ -75,22 +75,29 @@ class _FineGrid:
         Fourier shift of the fine grid followed by keeping every f-th sample gives, at
         O(s S) per row instead of an FFT of the grid per star and image. With
         ``derivative``, their derivatives along the shifts."""
-        s = self.stamp_size_
+        s = self.fit_size_
         f, size, o = self._grid(s)
-        lags = o + f * np.arange(s)[:, None] - np.arange(size)[None, :]  # sample - fine index
-        first = lags.min()
-        # the kernel at every lag (c - f t, c integer), then each row's lags taken from it
-        tau = np.pi / size * (np.arange(first, lags.max() + 1)[None, :]
+        # sample - fine index: o + f r - c for row r, fine sample c, from first to last
+        first, last = o - (size - 1), o + f * (s - 1)
+        # the kernel at every lag (c - f t, c integer), then each row's lags taken from it:
+        # row r is the window of the reversed lags starting at last - (o + f r)
+        tau = np.pi / size * (np.arange(first, last + 1)[None, :]
                               - f * np.asarray(shifts, dtype=np.float64)[:, None])
         num, den = np.sin(size * tau), np.sin(tau)
         flat = np.abs(den) < 1e-12  # tau a multiple of pi: the kernel's peak, S / S = 1
         den = np.where(flat, 1.0, den)
-        kernel = np.where(flat, 1.0, num / (size * den))[:, lags - first]
+        starts = last - o - f * np.arange(s)
+
+        def rows(values):
+            windows = np.lib.stride_tricks.sliding_window_view(values[:, ::-1], size, axis=1)
+            return windows[:, starts]
+
+        kernel = rows(np.where(flat, 1.0, num / (size * den)))
         if not derivative:
             return kernel
         # d/dt = -f pi / S d/dtau of sin(S tau) / (S sin tau); 0 at the peaks
         slope = (size * np.cos(size * tau) * den - num * np.cos(tau)) / (size * den**2)
-        return kernel, np.where(flat, 0.0, -f * np.pi / size * slope)[:, lags - first]
+        return kernel, rows(np.where(flat, 0.0, -f * np.pi / size * slope))
 
     def _draw(self, fine, offsets, a=None, gradient=False):
         """Stars' pixels (b, m, p) of the m fine images ``fine`` (m, S*S) at the b stars'
@@ -98,7 +105,7 @@ class _FineGrid:
         With ``gradient``, also a function of ``amp`` (b, m), or (b, 1) with ``a``, giving
         the derivatives (b, 2, p) along the offsets (x, y) of the stars' images
         ``amp_b @ fine`` (``amp_b * a_b @ fine`` with ``a``)."""
-        s = self.stamp_size_
+        s = self.fit_size_
         f, size, _ = self._grid(s)
         b = len(offsets)
         if gradient:
@@ -134,7 +141,7 @@ class _FineGrid:
 
     def _draw_adjoint(self, pixels, offsets):
         """Adjoint of the draw for each star: pixels (b, q, p) -> fine images (b, q, S*S)."""
-        s = self.stamp_size_
+        s = self.fit_size_
         f, size, _ = self._grid(s)
         ly, lx = self._interp(offsets[:, 1]), self._interp(offsets[:, 0])
         out = ly.transpose(0, 2, 1)[:, None] @ pixels.reshape(len(pixels), -1, s, s) @ lx[:, None]
@@ -145,7 +152,7 @@ class _FineGrid:
         (the components' support: beyond it they would fit noise)."""
         from scipy.ndimage import binary_dilation
 
-        size = self._grid(self.stamp_size_)[1]
+        size = self._grid(self.fit_size_)[1]
         mean = fine[0].reshape(size, size)
         core = mean > 1e-2 * mean.max()
         return binary_dilation(core, iterations=self.oversampling_).ravel().astype(float)
@@ -153,7 +160,7 @@ class _FineGrid:
     def _frame(self, fine):
         """Orthonormal rows spanning the fine mean and its x and y derivatives (the
         directions the stars' fluxes and offsets already take)."""
-        size = self._grid(self.stamp_size_)[1]
+        size = self._grid(self.fit_size_)[1]
         fx = np.fft.rfft2(fine[0].reshape(size, size))
         ky = np.fft.fftfreq(size)[:, None]
         kx = np.fft.rfftfreq(size)[None, :]
@@ -176,7 +183,7 @@ class _FineGrid:
         together (variable projection). Rows of ``frame`` are kept out of the components'
         updates. Only the images' frequencies in ``band`` (default :meth:`_band`) are fitted."""
         n, m = a.shape
-        size = self._grid(self.stamp_size_)[1]
+        size = self._grid(self.fit_size_)[1]
         # (``fine0`` comes band-limited, from :meth:`_settle`)
         band = self._band() if band is None else band
 
@@ -230,6 +237,24 @@ class _FineGrid:
             rz = rz_new
         return x
 
+    def _spatial_fit(self, r, u, flux, offsets, fine, terms):
+        """Polynomial coefficients C (terms, components) minimising, in the pixel weights
+        ``u``, ``sum_n ||r_n - flux_n draw_n((terms_n @ C) @ components)||^2``."""
+        n, t = terms.shape
+        k = fine.shape[0] - 1
+        normal = np.zeros((t, k, t, k))
+        rhs = np.zeros((t, k))
+        for lo in range(0, n, _CHUNK):
+            sl = slice(lo, min(lo + _CHUNK, n))
+            drawn = self._draw(fine[1:], offsets[sl]) * flux[sl, None, None]
+            du = drawn * u[sl, None]
+            gram = du @ drawn.transpose(0, 2, 1)  # (b, k, k)
+            normal += np.einsum("bp,bq,bjl->pjql", terms[sl], terms[sl], gram)
+            rhs += np.einsum("bp,bj->pj", terms[sl], (du @ r[sl, :, None])[:, :, 0])
+        normal = normal.reshape(t * k, t * k)
+        sol = np.linalg.lstsq(normal, rhs.ravel(), rcond=1e-12)[0]
+        return sol.reshape(t, k)
+
     def _normal(self, u, a, offsets, band, keep, projected=None):
         """The normal operator x -> sum_n a_n a_n^T (x) D_n^T W_n D_n x of the fine images'
         least squares (D_n: star n's draw, held to ``band``; W_n: its pixel weights ``u``,
@@ -248,7 +273,7 @@ class _FineGrid:
         least squares). The projection is rank q per star: the spectra of its images
         D_n^T Ju_n^T are kept, on the band."""
         n, m = a.shape
-        s = self.stamp_size_
+        s = self.fit_size_
         f, size, o = self._grid(s)
         half = (size + 1) // 2
         ky = np.round(np.fft.fftfreq(size) * size).astype(int)  # rfft2's rows' frequencies
@@ -313,7 +338,7 @@ class _FineGrid:
 
     def _radius(self):
         """Radius (cycles per pixel) of each frequency of the fine grid's ``rfft2``."""
-        size = self._grid(self.stamp_size_)[1]
+        size = self._grid(self.fit_size_)[1]
         k = np.hypot(np.fft.fftfreq(size)[:, None], np.fft.rfftfreq(size)[None, :])
         return k * self.oversampling_
 
@@ -345,7 +370,7 @@ class _FineGrid:
         their flux and a constant background fitted); the pair of the least misfit summed
         over both halves, in the weights ``u``, is kept. None with fewer than
         ``2 * _BAND_STARS * oversampling**2`` usable stars (20 at oversampling 2)."""
-        f, size, _ = self._grid(self.stamp_size_)
+        f, size, _ = self._grid(self.fit_size_)
         if usable.sum() < 2 * _BAND_STARS * f * f:  # too few stars to split
             return None
         k = self._radius()
@@ -374,14 +399,14 @@ class _FineGrid:
 
     def _disc(self, radius):
         """0/1 per fine sample: within ``radius`` pixels of the grid's centre."""
-        f, size, _ = self._grid(self.stamp_size_)
+        f, size, _ = self._grid(self.fit_size_)
         r = np.hypot(*np.mgrid[0:size, 0:size] - (size - 1) / 2.0) / f
         return (r <= radius).ravel().astype(float)
 
     def _band_limited(self, fine, band=None):
         """Fine images (m, S*S) with their frequencies outside ``band`` (0/1 per frequency
         of the fine grid's ``rfft2``, default :meth:`_band`) removed."""
-        size = self._grid(self.stamp_size_)[1]
+        size = self._grid(self.fit_size_)[1]
         band = self._band() if band is None else band
         out = np.fft.irfft2(np.fft.rfft2(fine.reshape(-1, size, size)) * band, s=(size, size))
         return out.reshape(fine.shape)
