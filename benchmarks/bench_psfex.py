@@ -87,12 +87,15 @@ def ours(catalogs, folder, name="ours", options=(), psf_file=False):
     One catalogue: the model is ``folder/name.fits``; several: ``folder/name_<catalogue>.fits``.
     """
     env = {**os.environ, **ONE_THREAD}
-    catalogs = [str(c) for c in np.atleast_1d(catalogs)]
+    catalogs = [os.path.abspath(str(c)) for c in np.atleast_1d(catalogs)]
+    folder = os.path.abspath(folder)
     cmd = [sys.executable, "-m", "sklearn_psf", "fit", "--stars", *catalogs, "-o",
            os.path.join(folder, f"{name}.fits"), "--no-plots", "--overwrite", *options]
     if psf_file:
         cmd += ["--psfex", os.path.join(folder, f"{name}.psf")]
-    proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    # run in ``folder``: ``python -m`` puts the working directory first on ``sys.path``,
+    # where a checkout's own package would hide a baseline's (``PYTHONPATH``)
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=folder)
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stderr[-2000:]}")
     line = [s for s in proc.stdout.splitlines() if s.startswith("PSFEx file:")]

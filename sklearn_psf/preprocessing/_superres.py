@@ -217,11 +217,12 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
         pixels (FWHM 1.3), on Euclid-like stars (FWHM 1.5) at 8. None: the whole stamp.
     fit_size : "auto", odd int or None, default="auto"
         Side (pixels) of the square about each star that the fine images model, as PSFEx's
-        ``PSF_SIZE``: the fit sees only these pixels of each stamp (the background level
-        is taken from the whole stamp's border) and the images are 0 beyond them. "auto":
-        ``2 * max(12, 5 * fwhm_) + 1`` pixels, within the stamp (25 for undersampled stars,
-        PSFEx's default ``PSF_SIZE`` at its native sampling); the fit's cost grows with
-        the side's square. None: the whole stamp.
+        ``PSF_SIZE``: the images are fitted on these pixels of each stamp only and are 0
+        beyond them (the other pixels still give each star's background level: the fit
+        starts from the whole stamp's border, :meth:`project` fits them as one pixel of
+        their summed weight). "auto": ``2 * max(12, 5 * fwhm_) + 1`` pixels, within the
+        stamp (25 for undersampled stars, PSFEx's default ``PSF_SIZE`` at its native
+        sampling); the fit's cost grows with the side's square. None: the whole stamp.
 
     Attributes
     ----------
