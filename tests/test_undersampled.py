@@ -536,6 +536,6 @@ def test_fit_size_models_the_square_about_the_star_only(optical):
     for stamps in (clean.mean_, clean.render(np.ones((1, 1)), offsets=[[0.3, -0.2]])[0]):
         stamps = stamps.reshape(side, side)
         assert not stamps[:5].any() and not stamps[:, -5:].any()
-        assert abs(stamps.sum() - 1) < 0.02  # the PSF's light beyond the square: 1%
+        assert abs(stamps.sum() - 1) < 0.005  # the unit-sum mean, drawn: measured 6e-4
     with pytest.raises(ValueError, match="fit_size"):
         SuperResolvedPCA(fit_size=20).fit(stars)

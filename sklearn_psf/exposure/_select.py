@@ -181,9 +181,8 @@ def neighbour_masks(catalog, rows, stamp_size: int):
     """
     rows = np.asarray(rows, dtype=np.intp)
     s = int(stamp_size)
-    masks = np.zeros((len(rows), s, s), dtype=bool)
     if len(rows) == 0 or len(catalog) < 2:
-        return masks
+        return np.zeros((len(rows), s, s), dtype=bool)
     offsets = np.arange(s) - s // 2
     k, j, r, x, y, _ = _neighbour_discs(catalog, rows, s)
     i = rows[k]
