@@ -14,6 +14,7 @@ the timers' (a few microseconds per call).
 
 from __future__ import annotations
 
+import functools
 import importlib
 import inspect
 import json
@@ -58,6 +59,9 @@ def _timed(fn, totals, name):
     """``fn`` with its CPU time added to ``totals[name]`` (not again inside itself)."""
     active = [0]
 
+    # (functools.wraps: code that reads the signature, such as which fit parameters
+    # ``PSFModel.fit`` takes, sees the wrapped function's)
+    @functools.wraps(fn)
     def wrapper(*args, **kwargs):
         if active[0]:
             return fn(*args, **kwargs)
