@@ -24,6 +24,7 @@ from sklearn_psf.preprocessing import (
     fourier_shift,
 )
 from sklearn_psf.preprocessing._pca import noise_edge
+from sklearn_psf.preprocessing._stamp_basis import normal_inverse
 
 S = 21
 
@@ -307,6 +308,29 @@ def test_poisson_weights_from_the_noisy_pixels_do_not_bias_the_flux():
 
 
 # ------------------------------------------------------------- scikit-learn API conformance
+
+def test_normal_inverse_equals_pinv_with_degenerate_matrices_among_them():
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(40, 7, 300)) * rng.uniform(1e-3, 1e3, size=(40, 7, 1))
+    A[5, 4] = A[5, 1] * (1 + 1e-9)  # two columns nearly the same: pinv's rows
+    normal = A @ A.transpose(0, 2, 1)
+    zero = normal.copy()
+    zero[3, 2, :] = zero[3, :, 2] = 0.0  # a column without weight: pinv for all
+    for batch in (normal, zero):
+        given = batch.copy()
+        got, want = normal_inverse(batch), np.linalg.pinv(batch, hermitian=True)
+        np.testing.assert_array_equal(batch, given)
+        well = np.setdiff1d(np.arange(40), [3, 5])
+        np.testing.assert_allclose(got[well], want[well], rtol=1e-8,
+                                   atol=1e-12 * np.abs(want).max())
+        # degenerate: the same minimum-norm pseudo-inverse as pinv's
+        for k in (3, 5):
+            assert np.abs(got[k] - want[k]).max() < 1e-6 * np.abs(want[k]).max()
+        # a well-posed system solved: the inverse applied to its right-hand side
+        x = rng.normal(size=(40, 7))
+        np.testing.assert_allclose((got @ (batch @ x[:, :, None]))[well, :, 0], x[well],
+                                   rtol=1e-6, atol=1e-8)
+
 
 from sklearn.utils.estimator_checks import parametrize_with_checks  # noqa: E402
 

@@ -14,7 +14,8 @@ from ._normalize import fourier_shift, phase_ramp
 from ._noise import correlated_noise_factor, noise_correlation, standardised_residuals
 from ._pca_noise import (core_pixels, noise_edge, radial_wings, ring_radii, star_weights,
                          sum_zero, weighted_pca)
-from ._stamp_basis import (FIT_NO_CENTROID, FIT_NO_FLUX, FIT_OK, StampFit, _BaseStampBasis)
+from ._stamp_basis import (FIT_NO_CENTROID, FIT_NO_FLUX, FIT_OK, StampFit, _BaseStampBasis,
+                           normal_inverse)
 from ._stamp_weights import (border_level, has_background, mean_variance, model_weights,
                              poisson_slope, variances)
 
@@ -264,7 +265,7 @@ class StampPCA(_BaseStampBasis):
             """Weighted least squares of the stamps ``rows`` on their design images A."""
             Aw = A * w[rows, None, :]
             # batched matrix products (BLAS), 1.5-2x faster than the equivalent einsums
-            inv = np.linalg.pinv(Aw @ A.transpose(0, 2, 1), hermitian=True)
+            inv = normal_inverse(Aw @ A.transpose(0, 2, 1))
             sol = (inv @ (Aw @ d[rows, :, None]))[:, :, 0]
             a[rows], cov[rows] = sol[:, :m], inv[:, :m, :m]
             if extra:
@@ -295,7 +296,7 @@ class StampPCA(_BaseStampBasis):
                 G0 = _with_constant(_irfft2(template * phase[:, None], s).reshape(-1, 1, p),
                                     extra)  # (b, 1 + extra, p)
                 Gw = G0 * w[rows, None, :]
-                lin = (np.linalg.pinv(Gw @ G0.transpose(0, 2, 1), hermitian=True)
+                lin = (normal_inverse(Gw @ G0.transpose(0, 2, 1))
                        @ (Gw @ d[rows, :, None]))[:, :, 0]
                 resid = d[rows] - (lin[:, None, :] @ G0)[:, 0]
                 # d(template)/d(offset): minus its spatial derivative
@@ -304,7 +305,7 @@ class StampPCA(_BaseStampBasis):
                                 s).reshape(-1, 2, p)
                 G = np.concatenate([G0, grad], axis=1)
                 Gw = G * w[rows, None, :]
-                sol = (np.linalg.pinv(Gw @ G.transpose(0, 2, 1), hermitian=True)
+                sol = (normal_inverse(Gw @ G.transpose(0, 2, 1))
                        @ (Gw @ resid[:, :, None]))[:, :, 0]
                 offsets[rows] += np.clip(sol[:, 1 + extra:], -0.5, 0.5)
                 phase = phase_ramp(s, offsets[rows, 0], offsets[rows, 1])

@@ -48,6 +48,32 @@ _FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
 _FWHM_WEIGHT = 1.0  # pixels: sigma of the fixed weight of stamp_fwhm
 
 
+def normal_inverse(normal):
+    """The pseudo-inverse of each symmetric positive semi-definite matrix of ``normal``
+    (..., k, k), as ``np.linalg.pinv(normal, hermitian=True)`` gives it: by LU on the
+    matrices scaled to a unit diagonal where that inverse is accurate (its product with
+    the matrix within 1e-8 of the identity, its diagonal under 1e10: a condition number
+    under ~1e8), by ``pinv`` elsewhere (a column without weight, a degenerate offset).
+    The weighted least squares of the stars' fits solve thousands of such small systems:
+    2-3x faster than ``pinv`` alone."""
+    diag = np.einsum("...ii->...i", normal)
+    scale = 1.0 / np.sqrt(np.where(diag > 0, diag, 1.0))
+    outer = scale[..., :, None] * scale[..., None, :]
+    scaled = normal * outer
+    with np.errstate(all="ignore"):
+        try:
+            inv = np.linalg.inv(scaled)
+        except np.linalg.LinAlgError:  # (one exactly singular matrix fails the batch)
+            return np.linalg.pinv(normal, hermitian=True)
+        off = np.abs(scaled @ inv - np.eye(normal.shape[-1])).max(axis=(-2, -1))
+        good = ((diag > 0).all(axis=-1) & (off < 1e-8)
+                & (np.einsum("...ii->...i", inv).max(axis=-1) < 1e10))
+    inv *= outer
+    if not good.all():
+        inv[~good] = np.linalg.pinv(normal[~good], hermitian=True)
+    return inv
+
+
 def stamp_fwhm(stamps, weights=None):
     """FWHM (pixels) of each star, well sampled or not (NaN where not measurable).
 

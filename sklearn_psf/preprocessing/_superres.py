@@ -18,7 +18,7 @@ from ._normalize import phase_ramp
 from ._pca_noise import star_weights, sum_zero, weighted_pca
 from ._stamp_weights import (border_level, has_background, model_weights, poisson_slope,
                              variances)
-from ._stamp_basis import FALLBACK_SIGMA, _BaseStampBasis, stamp_fwhm
+from ._stamp_basis import FALLBACK_SIGMA, _BaseStampBasis, normal_inverse, stamp_fwhm
 from ._superres_grid import _CHUNK, _FineGrid
 
 __all__ = ["SuperResolvedPCA", "UNDERSAMPLED_FWHM"]
@@ -362,14 +362,15 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
         for lo in range(0, n, _CHUNK):
             sl = slice(lo, min(lo + _CHUNK, n))
             for step in range(steps + 1):
-                A, slope = self._draw(fine, offsets[sl], None if mix is None else mix[sl],
-                                      gradient=True)
+                drawn = self._draw(fine, offsets[sl], None if mix is None else mix[sl],
+                                   gradient=step < steps)  # (none after the last step)
+                A, slope = drawn if step < steps else (drawn, None)
                 A = padded(A if mix is None else A[:, None])
                 if extra:
                     A = np.concatenate([A, np.ones((A.shape[0], 1, p))], axis=1)
                 Aw = A * w[sl, None, :]
                 normal = Aw @ A.transpose(0, 2, 1)
-                inv = np.linalg.pinv(normal, hermitian=True)
+                inv = normal_inverse(normal)
                 sol = (inv @ (Aw @ d[sl, :, None]))[:, :, 0]
                 if step == steps:
                     break
@@ -377,7 +378,7 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
                 G = np.concatenate([A, padded(slope(sol[:, :m]))], axis=1)
                 Gw = G * w[sl, None, :]
                 resid = d[sl] - (sol[:, None, :] @ A)[:, 0]
-                move = (np.linalg.pinv(Gw @ G.transpose(0, 2, 1), hermitian=True)
+                move = (normal_inverse(Gw @ G.transpose(0, 2, 1))
                         @ (Gw @ resid[:, :, None]))[:, -2:, 0]
                 move = np.where(np.isfinite(move), np.clip(move, -0.3, 0.3), 0.0)
                 offsets[sl] += move
