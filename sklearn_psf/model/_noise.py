@@ -230,13 +230,13 @@ def _fit_variance(r2, design, theta):
 
     k = design.shape[1]
     subsets = [(0, *c) for m in range(k) for c in combinations(range(1, k), m)]
+    columns = np.ascontiguousarray(design.T)  # (k, N): each pass reads contiguous rows
     for _ in range(30):
-        var = np.maximum(design @ theta, 1e-300)
-        a = design / var[:, None]
-        b = r2 / var
-        norm = np.sqrt((a**2).sum(axis=0)) + 1e-300
-        a = a / norm
-        gram, rhs = a.T @ a, a.T @ b  # the weighted normal equations, columns scaled
+        var = np.maximum(theta @ columns, 1e-300)
+        dw = columns / (var * var)
+        gram, rhs = dw @ columns.T, dw @ r2  # the weighted normal equations,
+        norm = np.sqrt(np.diag(gram)) + 1e-300
+        gram, rhs = gram / np.outer(norm, norm), rhs / norm  # columns scaled
         best, best_cost = theta, np.inf
         for cols in subsets:
             c = list(cols)
