@@ -307,8 +307,6 @@ def test_poisson_weights_from_the_noisy_pixels_do_not_bias_the_flux():
     np.testing.assert_array_equal(weights, given)  # the caller's weights not modified
 
 
-# ------------------------------------------------------------- scikit-learn API conformance
-
 def test_normal_inverse_equals_pinv_with_degenerate_matrices_among_them():
     rng = np.random.default_rng(0)
     A = rng.normal(size=(40, 7, 300)) * rng.uniform(1e-3, 1e3, size=(40, 7, 1))
@@ -331,6 +329,8 @@ def test_normal_inverse_equals_pinv_with_degenerate_matrices_among_them():
         np.testing.assert_allclose((got @ (batch @ x[:, :, None]))[well, :, 0], x[well],
                                    rtol=1e-6, atol=1e-8)
 
+
+# ------------------------------------------------------------- scikit-learn API conformance
 
 from sklearn.utils.estimator_checks import parametrize_with_checks  # noqa: E402
 

@@ -362,9 +362,8 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
         for lo in range(0, n, _CHUNK):
             sl = slice(lo, min(lo + _CHUNK, n))
             for step in range(steps + 1):
-                drawn = self._draw(fine, offsets[sl], None if mix is None else mix[sl],
-                                   gradient=step < steps)  # (none after the last step)
-                A, slope = drawn if step < steps else (drawn, None)
+                A, slope = self._draw(fine, offsets[sl], None if mix is None else mix[sl],
+                                      gradient=True)
                 A = padded(A if mix is None else A[:, None])
                 if extra:
                     A = np.concatenate([A, np.ones((A.shape[0], 1, p))], axis=1)
