@@ -79,24 +79,27 @@ class _FineGrid:
         f, size, o = self._grid(s)
         # sample - fine index: o + f r - c for row r, fine sample c, from first to last
         first, last = o - (size - 1), o + f * (s - 1)
-        # the kernel at every lag (c - f t, c integer), then each row's lags taken from it:
-        # row r is the window of the reversed lags starting at last - (o + f r)
-        tau = np.pi / size * (np.arange(first, last + 1)[None, :]
-                              - f * np.asarray(shifts, dtype=np.float64)[:, None])
-        num, den = np.sin(size * tau), np.sin(tau)
+        # the kernel at every lag k (c - f t, c integer), from the last lag down, then each
+        # row's lags taken from it: row r is the window starting at last - (o + f r). With
+        # tau = pi (k - f t) / S, sin(S tau) = -(-1)^k sin(pi f t) and cos(S tau) =
+        # (-1)^k cos(pi f t): one sine and cosine per star, not per lag
+        lags = np.arange(last, first - 1, -1)
+        ft = f * np.asarray(shifts, dtype=np.float64)[:, None]
+        tau = np.pi / size * (lags - ft)
+        sign = np.where(lags % 2, -1.0, 1.0)
+        num, den = -sign * np.sin(np.pi * ft), np.sin(tau)
         flat = np.abs(den) < 1e-12  # tau a multiple of pi: the kernel's peak, S / S = 1
         den = np.where(flat, 1.0, den)
-        starts = last - o - f * np.arange(s)
 
-        def rows(values):
-            windows = np.lib.stride_tricks.sliding_window_view(values[:, ::-1], size, axis=1)
-            return windows[:, starts]
+        def rows(values):  # the windows from last - o - f r, r = 0 .. s - 1
+            windows = np.lib.stride_tricks.sliding_window_view(values, size, axis=1)
+            return np.ascontiguousarray(windows[:, last - o::-f])
 
         kernel = rows(np.where(flat, 1.0, num / (size * den)))
         if not derivative:
             return kernel
         # d/dt = -f pi / S d/dtau of sin(S tau) / (S sin tau); 0 at the peaks
-        slope = (size * np.cos(size * tau) * den - num * np.cos(tau)) / (size * den**2)
+        slope = (size * sign * np.cos(np.pi * ft) * den - num * np.cos(tau)) / (size * den**2)
         return kernel, rows(np.where(flat, 0.0, -f * np.pi / size * slope))
 
     def _draw(self, fine, offsets, a=None, gradient=False):
@@ -286,15 +289,20 @@ class _FineGrid:
         base_y = np.exp(-2j * np.pi / size * np.outer(q, o + f * np.arange(s)))  # (2Q + 1, s)
         base_x = base_y[top:]  # q >= 0: the half plane (Q + 1, s)
         i, j = np.triu_indices(m)
-        kernel = np.zeros((len(i), len(q), top + 1), dtype=complex)
+        # (real and imaginary parts side by side: the sum over the stars as a real product)
+        kernel = np.zeros((len(i), 2 * len(q) * (top + 1)))
         for lo in range(0, n, _CHUNK):
             sl = slice(lo, min(lo + _CHUNK, n))
-            h = base_y @ u[sl].reshape(-1, s, s) @ base_x.T  # (b, 2Q + 1, Q + 1)
-            h *= np.exp(2j * np.pi * f / size * q[None, :, None] * offsets[sl, 1, None, None])
-            h *= np.exp(2j * np.pi * f / size * q[None, None, top:] * offsets[sl, 0, None, None])
-            kernel += ((a[sl, i] * a[sl, j]).T @ h.reshape(len(h), -1)).reshape(kernel.shape)
+            weights = u[sl].reshape(-1, s, s)
+            left = np.empty((len(weights), len(q), s), dtype=complex)
+            left.real, left.imag = base_y.real @ weights, base_y.imag @ weights
+            left *= np.exp(2j * np.pi * f / size * q[None, :, None] * offsets[sl, 1, None, None])
+            right = base_x.T * np.exp(2j * np.pi * f / size * q[None, None, top:]
+                                      * offsets[sl, 0, None, None])
+            h = left @ right  # (b, 2Q + 1, Q + 1)
+            kernel += (a[sl, i] * a[sl, j]).T @ h.reshape(len(h), -1).view(np.float64)
         padded = np.zeros((len(i), big, big // 2 + 1), dtype=complex)
-        padded[:, q % big, :top + 1] = kernel
+        padded[:, q % big, :top + 1] = kernel.view(complex).reshape(len(i), len(q), top + 1)
         # with components, applied in single precision (to ~3e-7 of its output), which
         # halves an iteration's FFTs and the kernel's memory traffic: those solves stop at
         # their iteration cap, not at a tolerance; the mean's alone converge to _CG_TOL,
@@ -318,10 +326,12 @@ class _FineGrid:
                 w = base_x[None, :reach + 1] * np.exp(2j * np.pi * f / size
                                                       * q[None, top:top + reach + 1, None]
                                                       * offsets[sl, 0, None, None])
-                spec = (f * f) * (h[:, None] @ Ju[sl].reshape(len(h), -1, s, s)
-                                  @ w.transpose(0, 2, 1)[:, None])
+                rows_j = Ju[sl].reshape(len(h), -1, s, s)
+                left = np.empty(rows_j.shape[:2] + h.shape[1:], dtype=complex)
+                left.real, left.imag = h.real[:, None] @ rows_j, h.imag[:, None] @ rows_j
+                spec = (f * f) * (left @ w.transpose(0, 2, 1)[:, None])
                 spec = spec.reshape(len(h), Ju.shape[1], -1)[:, :, at]
-                spectra[sl] = np.concatenate([spec.real, spec.imag], axis=2)
+                spectra[sl, :, :len(on)], spectra[sl, :, len(on):] = spec.real, spec.imag
             spectra = spectra.reshape(-1, 2 * len(on))  # (n q, 2 band)
 
         def normal(x):
