@@ -79,27 +79,24 @@ class _FineGrid:
         f, size, o = self._grid(s)
         # sample - fine index: o + f r - c for row r, fine sample c, from first to last
         first, last = o - (size - 1), o + f * (s - 1)
-        # the kernel at every lag k (c - f t, c integer), from the last lag down, then each
-        # row's lags taken from it: row r is the window starting at last - (o + f r). With
-        # tau = pi (k - f t) / S, sin(S tau) = -(-1)^k sin(pi f t) and cos(S tau) =
-        # (-1)^k cos(pi f t): one sine and cosine per star, not per lag
-        lags = np.arange(last, first - 1, -1)
-        ft = f * np.asarray(shifts, dtype=np.float64)[:, None]
-        tau = np.pi / size * (lags - ft)
-        sign = np.where(lags % 2, -1.0, 1.0)
-        num, den = -sign * np.sin(np.pi * ft), np.sin(tau)
+        # the kernel at every lag (c - f t, c integer), then each row's lags taken from it:
+        # row r is the window of the reversed lags starting at last - (o + f r)
+        tau = np.pi / size * (np.arange(first, last + 1)[None, :]
+                              - f * np.asarray(shifts, dtype=np.float64)[:, None])
+        num, den = np.sin(size * tau), np.sin(tau)
         flat = np.abs(den) < 1e-12  # tau a multiple of pi: the kernel's peak, S / S = 1
         den = np.where(flat, 1.0, den)
+        starts = last - o - f * np.arange(s)
 
-        def rows(values):  # the windows from last - o - f r, r = 0 .. s - 1
-            windows = np.lib.stride_tricks.sliding_window_view(values, size, axis=1)
-            return np.ascontiguousarray(windows[:, last - o::-f])
+        def rows(values):
+            windows = np.lib.stride_tricks.sliding_window_view(values[:, ::-1], size, axis=1)
+            return windows[:, starts]
 
         kernel = rows(np.where(flat, 1.0, num / (size * den)))
         if not derivative:
             return kernel
         # d/dt = -f pi / S d/dtau of sin(S tau) / (S sin tau); 0 at the peaks
-        slope = (size * sign * np.cos(np.pi * ft) * den - num * np.cos(tau)) / (size * den**2)
+        slope = (size * np.cos(size * tau) * den - num * np.cos(tau)) / (size * den**2)
         return kernel, rows(np.where(flat, 0.0, -f * np.pi / size * slope))
 
     def _draw(self, fine, offsets, a=None, gradient=False):
