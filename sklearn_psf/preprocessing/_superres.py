@@ -168,15 +168,10 @@ class SuperResolvedPCA(_FineGrid, _BaseStampBasis):
     Parameters
     ----------
     oversampling : "auto" or int, default="auto"
-        Fine samples per pixel. "auto": 2, which holds a pixel-convolved PSF up to 1 cycle
-        per pixel along each axis (where the pixel's own response falls to 0) and ``sqrt(2)``
-        along the diagonals. A finer grid has more samples for the same stars to
-        constrain: 3, which "auto" chose below a FWHM of 1.3 pixels before, predicts the
-        stars a fit did not see worse on the real undersampled images tried (SDSS, FWHM 1.2
-        pixels; 2MASS, 1.3) and is less accurate at the truth on GalSim CCDs through
-        Source Extractor down to a FWHM of 1.2 pixels (figures in
-        ``benchmarks/README.md``). It fits better a PSF with power well beyond 1 cycle per
-        pixel (diffraction-limited optics on coarse pixels) seen by many bright stars.
+        Fine samples per pixel. "auto": 2 (a pixel-convolved PSF up to 1 cycle per pixel
+        along each axis), more accurate than 3 on real and simulated stars down to a FWHM
+        of 1.2 pixels; 3 for a PSF with power well beyond 1 cycle per pixel (diffraction
+        on coarse pixels) seen by many bright stars (``benchmarks/README.md``).
     n_components : "noise", int or float, default="noise"
         As :class:`StampPCA`'s.
     max_components : int, default=10
