@@ -300,14 +300,11 @@ class _FineGrid:
             kernel += (a[sl, i] * a[sl, j]).T @ h.reshape(len(h), -1).view(np.float64)
         padded = np.zeros((len(i), big, big // 2 + 1), dtype=complex)
         padded[:, q % big, :top + 1] = kernel.view(complex).reshape(len(i), len(q), top + 1)
-        # with components, applied in single precision (to ~3e-7 of its output), which
-        # halves an iteration's FFTs and the kernel's memory traffic: those solves stop at
-        # their iteration cap, not at a tolerance; the mean's alone converge to _CG_TOL,
-        # near single precision's resolution, and stay in double
-        real = np.float32 if m > 1 else np.float64
-        g = np.empty((m, m, big, big), dtype=real)
+        # (in double precision: the ridge below is 1e-8 of the diagonal, and in single
+        # precision, ~3e-7 of the output, the least constrained directions' curvature is
+        # rounding, which made the conjugate gradients diverge on one fold of the SDSS frame)
+        g = np.empty((m, m, big, big))
         g[i, j] = g[j, i] = sfft.irfft2(padded, s=(big, big)) * (big**2 * f**4 / size**2)
-        band_r = band.astype(real)
         rows = ky % big
         on = np.flatnonzero(used)  # the band's frequencies, and their weight in a real sum
         parseval = np.where(np.arange(half) == 0, 1.0, 2.0)[None, :].repeat(size, 0).ravel()[on]
@@ -332,11 +329,11 @@ class _FineGrid:
             spectra = spectra.reshape(-1, 2 * len(on))  # (n q, 2 band)
 
         def normal(x):
-            spec = sfft.rfft2(keep(x).reshape(m, size, size).astype(real, copy=False)) * band_r
-            padded = np.zeros((m, big, big // 2 + 1), dtype=spec.dtype)
+            spec = sfft.rfft2(keep(x).reshape(m, size, size)) * band
+            padded = np.zeros((m, big, big // 2 + 1), dtype=complex)
             padded[:, rows, :half] = spec
             y = sfft.irfft2(padded, s=(big, big))
-            conv = sfft.rfft2(np.einsum("ijyx,jyx->iyx", g, y))[:, rows, :half] * band_r
+            conv = sfft.rfft2(np.einsum("ijyx,jyx->iyx", g, y))[:, rows, :half] * band
             if projected is not None:  # sum_z V x = sum_k Re(conj(V^) x^) / S^2, on the band
                 flat = spec.reshape(m, -1)[:, on] * (parseval / size**2)
                 flat = np.concatenate([flat.real, flat.imag], axis=1)
@@ -345,8 +342,7 @@ class _FineGrid:
                 back = (c[:, :, None] * a[:, None, :]).reshape(-1, m).T @ spectra
                 conv = conv.reshape(m, -1)
                 conv[:, on] -= back[:, :len(on)] + 1j * back[:, len(on):]
-            out = sfft.irfft2(conv.reshape(m, size, half), s=(size, size))
-            return keep(out.reshape(m, -1).astype(np.float64, copy=False))
+            return keep(sfft.irfft2(conv.reshape(m, size, half), s=(size, size)).reshape(m, -1))
 
         return normal
 
